@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# The README's test command: set up the workspace if needed, then run all of pytest.
+# Extra arguments go to pytest (e.g. scripts/test.sh -k codec -x).
+set -euo pipefail
+repo_root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$repo_root"
+bash scripts/setup.sh
+export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
+# shellcheck disable=SC1091
+source scripts/env.sh
+export MPLBACKEND=Agg
+status=0
+python -m pytest tests "$@" || status=$?
+if [ "$status" -eq 5 ]; then
+  echo "[test] pytest collected no tests: that is a failure" >&2
+  exit 1
+fi
+exit "$status"

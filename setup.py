@@ -1,0 +1,34 @@
+"""ament_python build of softgrip_ros (src layout).
+
+Console entry points install into ``lib/softgrip_ros`` (see setup.cfg), where
+``ros2 run`` looks; ``package.xml``, the ament index marker and ``config/`` go
+into ``share/`` so nodes find their defaults through ``ament_index_python``.
+"""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE_NAME = "softgrip_ros"
+
+setup(
+    name=PACKAGE_NAME,
+    version="0.1.0",
+    package_dir={"": "src"},
+    packages=find_packages("src"),
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE_NAME}"]),
+        (f"share/{PACKAGE_NAME}", ["package.xml"]),
+        (f"share/{PACKAGE_NAME}/config", sorted(glob("config/*"))),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="softgrip_ros maintainers",
+    maintainer_email="softgrip@example.com",
+    description="ROS 2 driver suite for a two-finger pneumatic soft gripper.",
+    license="Apache-2.0",
+    extras_require={"test": ["pytest", "hypothesis"]},
+    entry_points={
+        "console_scripts": [
+        ],
+    },
+)

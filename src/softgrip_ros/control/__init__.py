@@ -1,0 +1,1 @@
+"""softgrip_ros.control."""

@@ -1,0 +1,52 @@
+"""pytest configuration shared by every softgrip_ros test.
+
+Network rule: every process that starts rclpy here keeps DDS on loopback
+(``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) and this session gets its own
+``ROS_DOMAIN_ID``, so parallel runs on one machine do not cross-talk. Both are
+set in ``os.environ`` before anything imports rclpy, and subprocesses inherit them.
+"""
+import os
+import random
+import threading
+
+import pytest
+
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+if "SOFTGRIP_TEST_DOMAIN_ID" in os.environ:
+    os.environ["ROS_DOMAIN_ID"] = os.environ["SOFTGRIP_TEST_DOMAIN_ID"]
+else:
+    # 1..100 stays inside the port range every RMW accepts on Linux.
+    os.environ["ROS_DOMAIN_ID"] = str(random.Random(os.getpid()).randint(1, 100))
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+@pytest.fixture
+def rclpy_context():
+    """A fresh rclpy context, shut down afterwards; fails the test if threads leak."""
+    import rclpy
+
+    threads_before = set(threading.enumerate())
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        yield context
+    finally:
+        rclpy.try_shutdown(context=context)
+    leaked = [t for t in threading.enumerate() if t not in threads_before and t.is_alive()]
+    for thread in leaked:
+        thread.join(timeout=2.0)
+    leaked = [t for t in leaked if t.is_alive()]
+    assert not leaked, f"threads leaked by the test: {[t.name for t in leaked]}"
+
+
+@pytest.fixture
+def ros_node(rclpy_context, request):
+    """A node on the fresh context, destroyed afterwards."""
+    import rclpy.node
+
+    node = rclpy.node.Node(f"test_{request.node.name[:40].replace('[', '_').replace(']', '_')}"
+                           .replace("-", "_").replace(".", "_"), context=rclpy_context)
+    try:
+        yield node
+    finally:
+        node.destroy_node()
