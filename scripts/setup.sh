@@ -54,7 +54,11 @@ fi
 
 # ---- 3. colcon build of both packages, when their sources changed
 build_inputs() {
-  find msg_defs package.xml setup.py setup.cfg resource config src -type f \
+  local inputs=() path
+  for path in msg_defs package.xml setup.py setup.cfg resource config src; do
+    [ -e "$path" ] && inputs+=("$path")
+  done
+  find "${inputs[@]}" -type f \
       -not -path '*/__pycache__/*' -not -name '*.pyc' | LC_ALL=C sort
 }
 build_hash="$requirements_hash-$(build_inputs | xargs sha256sum | sha256sum | cut -d' ' -f1)"
