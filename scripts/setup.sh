@@ -67,6 +67,7 @@ if [ -f "$build_stamp" ] && [ "$(cat "$build_stamp")" = "$build_hash" ]; then
   say "install/ up to date"
 else
   say "colcon build (softgrip_interfaces, softgrip_ros)"
+  mkdir -p log
   # shellcheck disable=SC1091
   source "$venv/bin/activate"
   export AMENT_PREFIX_PATH="$VIRTUAL_ENV${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
@@ -75,7 +76,7 @@ else
   colcon --log-base log build --base-paths . msg_defs --symlink-install \
       --event-handlers console_cohesion- summary+ status- \
       --cmake-args -DPython3_EXECUTABLE="$venv/bin/python" -DBUILD_TESTING=OFF \
-      > log/colcon-build.txt 2>&1 || { mkdir -p log; tail -n 60 log/colcon-build.txt >&2; die "colcon build failed (full log: log/colcon-build.txt)"; }
+      > log/colcon-build.txt 2>&1 || { tail -n 60 log/colcon-build.txt >&2; die "colcon build failed (full log: log/colcon-build.txt)"; }
   echo "$build_hash" > "$build_stamp"
 fi
 
