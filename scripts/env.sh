@@ -8,6 +8,9 @@ if [ ! -x "$_softgrip_root/.venv/bin/python" ] || [ ! -f "$_softgrip_root/instal
 fi
 # shellcheck disable=SC1091
 source "$_softgrip_root/.venv/bin/activate"
+# The wheels' start-up hook sets LD_LIBRARY_PATH and re-executes Python once, guarded by this
+# variable. A guard inherited from another interpreter's process would skip this venv's hook.
+unset _ROS_WHEELS_BOOTSTRAP_COMPLETE
 # The wheels install share/ into the venv prefix; rosidl and ament_index look there.
 case ":${AMENT_PREFIX_PATH:-}:" in *":$VIRTUAL_ENV:"*) ;; *) export AMENT_PREFIX_PATH="$VIRTUAL_ENV${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}";; esac
 case ":${CMAKE_PREFIX_PATH:-}:" in *":$VIRTUAL_ENV:"*) ;; *) export CMAKE_PREFIX_PATH="$VIRTUAL_ENV${CMAKE_PREFIX_PATH:+:$CMAKE_PREFIX_PATH}";; esac

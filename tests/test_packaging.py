@@ -51,7 +51,7 @@ def test_setup_on_a_fresh_clone_builds_both_packages(tmp_path):
     subprocess.run(["git", "clone", "--quiet", str(REPO_ROOT), str(clone)], check=True)
     env = {k: v for k, v in os.environ.items()
            if not k.startswith(("VIRTUAL_ENV", "AMENT_", "COLCON_", "CMAKE_PREFIX", "PYTHONPATH",
-                                "LD_LIBRARY_PATH", "SOFTGRIP_ROOT"))}
+                                "LD_LIBRARY_PATH", "SOFTGRIP_ROOT", "_ROS_WHEELS"))}
     env["PATH"] = os.pathsep.join(p for p in env["PATH"].split(os.pathsep) if ".venv" not in p)
     first = subprocess.run(["bash", "scripts/setup.sh"], cwd=clone, env=env, capture_output=True,
                            text=True, timeout=1200)
