@@ -10,7 +10,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST
 source scripts/env.sh
 export MPLBACKEND=Agg
 status=0
-python -m pytest tests "$@" || status=$?
+python -m pytest "$@" || status=$?
 if [ "$status" -eq 5 ]; then
   echo "[test] pytest collected no tests: that is a failure" >&2
   exit 1

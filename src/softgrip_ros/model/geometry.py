@@ -1,0 +1,146 @@
+"""Finger geometry of the two-finger gripper (paper Table 1), loaded from YAML and validated.
+
+The planar frame of both fingers: origin at the centre of the gripper base, x from the
+left finger towards the right finger, z along the approach direction (towards the tips).
+The left finger's backbone (its outer, strain-limiting side) starts at (-root_x, 0),
+runs straight along +z for h1, then turns ``inclination`` towards the centre line and
+runs h2 straight, five bending segments (a chamber of length L3 plus the gap h3
+after it) and a rigid tip. The chamber faces lie on the inner side, at
+``d2 + m_i`` from the backbone. The right finger is the mirror image (x -> -x).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import pathlib
+
+import yaml
+
+CHAMBER_COUNT = 5
+# h1 + L2 cos(theta0) and Table 1's L1 agree to 0.1 mm; allow for rounding in the table.
+TOTAL_LENGTH_TOLERANCE_M = 0.002
+
+
+@dataclasses.dataclass(frozen=True)
+class FingerGeometry:
+    """One finger and the two-finger layout. Lengths in m, angles in rad."""
+
+    vertical_height_m: float
+    inclined_length_m: float
+    total_length_m: float
+    inclination_rad: float
+    chamber_length_m: float
+    first_chamber_offset_m: float
+    chamber_spacing_m: float
+    wall_thickness_m: float
+    chamber_depths_m: tuple
+    chamber_bottom_to_sidewall_m: float
+    root_width_m: float
+    terminal_width_m: float
+    tip_gap_m: float
+    initial_included_angle_rad: float
+    name: str = "type_II"
+
+    def __post_init__(self):
+        positive = ("vertical_height_m", "inclined_length_m", "total_length_m", "chamber_length_m",
+                    "chamber_spacing_m", "wall_thickness_m", "chamber_bottom_to_sidewall_m",
+                    "root_width_m", "terminal_width_m")
+        for field in positive:
+            value = getattr(self, field)
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0.0:
+                raise ValueError(f"geometry {self.name}: {field} must be a positive finite number, got {value!r}")
+        for field in ("first_chamber_offset_m", "tip_gap_m"):
+            value = getattr(self, field)
+            if not math.isfinite(value) or value < 0.0:
+                raise ValueError(f"geometry {self.name}: {field} must be >= 0, got {value!r}")
+        if not 0.0 <= self.inclination_rad < math.pi / 2:
+            raise ValueError(f"geometry {self.name}: inclination must lie in [0, 90) deg, "
+                             f"got {math.degrees(self.inclination_rad)}")
+        if not math.isfinite(self.initial_included_angle_rad):
+            raise ValueError(f"geometry {self.name}: initial_included_angle must be finite")
+        depths = tuple(self.chamber_depths_m)
+        if len(depths) != CHAMBER_COUNT:
+            raise ValueError(f"geometry {self.name}: chamber_depths_m needs {CHAMBER_COUNT} depths "
+                             f"(root to tip), got {len(depths)}")
+        for index, depth in enumerate(depths, start=1):
+            if not math.isfinite(depth) or depth <= 2.0 * self.wall_thickness_m:
+                raise ValueError(f"geometry {self.name}: chamber {index} depth {depth} m must exceed "
+                                 f"two wall thicknesses ({2 * self.wall_thickness_m} m)")
+        object.__setattr__(self, "chamber_depths_m", depths)
+        if self.tip_length_m < 0.0:
+            raise ValueError(f"geometry {self.name}: the chambers ({self.first_chamber_offset_m + CHAMBER_COUNT * self.segment_length_m:.4f} m) "
+                             f"do not fit on the inclined part ({self.inclined_length_m} m)")
+        height = self.vertical_height_m + self.inclined_length_m * math.cos(self.inclination_rad)
+        if abs(height - self.total_length_m) > TOTAL_LENGTH_TOLERANCE_M:
+            raise ValueError(f"geometry {self.name}: h1 + L2 cos(inclination) = {height:.4f} m disagrees "
+                             f"with total_length_m = {self.total_length_m} m")
+        if self.root_x_m <= 0.0:
+            raise ValueError(f"geometry {self.name}: the tip gap and chamber depths put the finger root "
+                             f"on the wrong side of the centre line")
+
+    @property
+    def segment_length_m(self) -> float:
+        """Arc length of one bending segment: a chamber and the gap after it (L3 + h3)."""
+        return self.chamber_length_m + self.chamber_spacing_m
+
+    @property
+    def tip_length_m(self) -> float:
+        """Rigid tip after the last segment."""
+        return self.inclined_length_m - self.first_chamber_offset_m - CHAMBER_COUNT * self.segment_length_m
+
+    def chamber_face_offset_m(self, index: int) -> float:
+        """Distance from the backbone to chamber ``index``'s face (d2 + m_i), at rest."""
+        return self.chamber_bottom_to_sidewall_m + self.chamber_depths_m[index]
+
+    @property
+    def root_x_m(self) -> float:
+        """|x| of each finger's backbone root, fixed by the tip gap v between the tip-chamber faces."""
+        arc_to_tip_chamber = (self.first_chamber_offset_m + (CHAMBER_COUNT - 1) * self.segment_length_m
+                              + 0.5 * self.chamber_length_m)
+        face_x_from_root = (arc_to_tip_chamber * math.sin(self.inclination_rad)
+                            + self.chamber_face_offset_m(CHAMBER_COUNT - 1) * math.cos(self.inclination_rad))
+        return face_x_from_root + 0.5 * self.tip_gap_m
+
+
+def default_geometry_path() -> pathlib.Path:
+    from softgrip_ros.config_paths import config_file
+
+    return config_file("gripper_geometry.yaml")
+
+
+def load_geometry(cavity_type: str | None = None, path=None) -> FingerGeometry:
+    """Load one cavity type (default: the file's ``default_type``) from the geometry YAML."""
+    path = pathlib.Path(path) if path is not None else default_geometry_path()
+    with path.open() as handle:
+        document = yaml.safe_load(handle)
+    if not isinstance(document, dict) or not isinstance(document.get("types"), dict):
+        raise ValueError(f"{path}: expected a mapping with a 'types' section")
+    types = document["types"]
+    cavity_type = cavity_type or document.get("default_type", "type_II")
+    if cavity_type not in types:
+        raise ValueError(f"{path}: unknown cavity type {cavity_type!r}; known: {sorted(types)}")
+    fields = _resolve(types, cavity_type, path, seen=())
+    known = {f.name for f in dataclasses.fields(FingerGeometry)}
+    renamed = {"inclination_deg": "inclination_rad", "initial_included_angle_deg": "initial_included_angle_rad"}
+    values = {}
+    for key, value in fields.items():
+        target = renamed.get(key, key)
+        if target not in known:
+            raise ValueError(f"{path}: {cavity_type}: unknown field {key!r}")
+        values[target] = math.radians(value) if key in renamed else value
+    missing = known - set(values) - {"name"}
+    if missing:
+        raise ValueError(f"{path}: {cavity_type}: missing fields {sorted(missing)}")
+    return FingerGeometry(name=cavity_type, **values)
+
+
+def _resolve(types: dict, name: str, path, seen: tuple) -> dict:
+    if name in seen:
+        raise ValueError(f"{path}: 'based_on' loop through {' -> '.join(seen + (name,))}")
+    entry = dict(types[name] or {})
+    base = entry.pop("based_on", None)
+    if base is None:
+        return entry
+    if base not in types:
+        raise ValueError(f"{path}: {name} is based_on unknown type {base!r}")
+    return {**_resolve(types, base, path, seen + (name,)), **entry}

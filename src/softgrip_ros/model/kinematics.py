@@ -1,0 +1,321 @@
+"""Piecewise-constant-curvature kinematics of both fingers (paper eq. 18-24), forward and inverse.
+
+A segment of arc length s bent by theta moves its end along the chord of a circular arc,
+``s * sinc(theta/2)`` long, in the direction of the tangent turned by theta/2, and turns the
+tangent by theta. This chord form is exact and smooth at theta = 0 (the straight finger);
+the textbook ``s sin(theta)/theta`` is 0/0 there. Segments chain as planar rigid motions
+from the root (frame and layout in :mod:`softgrip_ros.model.geometry`). The paper's eq. 33
+adds chord *lengths*, which is right only for aligned segments, so it is not used.
+
+Chamber surfaces, which the paper's alpha, D1 and D2 are measured on, are modelled
+explicitly: each face sits ``d2 + m_i`` from the backbone and balloons under pressure by
+``delta_i = c_b * p_eff * m_i^2 / L3`` towards the other finger, which also tilts its
+surface tangent (at the face edge nearer the root) by ``psi_i = 4 delta_i / L3``
+(a parabolic dome over the chamber length). Deeper root chambers balloon more.
+
+Derived quantities (paper Sec. 4):
+    alpha: included angle between the root- and tip-chamber surface tangents (rad),
+        starting at the cavity type's initial value;
+    D1, D2: spacing between the two root- (tip-) chamber surfaces (m), signed
+        (negative would mean the faces overlap);
+    tip pose: end of each finger's backbone, and its tangent angle from +z.
+
+Negative pressure closes the fingers until the tip chambers touch (D2 = 0); below that
+pressure the pose stays at contact and ``in_contact`` is set.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+
+import numpy as np
+from scipy.optimize import brentq
+
+from softgrip_ros.model.bending import BendingCalibration, make_bending_law
+from softgrip_ros.model.geometry import CHAMBER_COUNT, FingerGeometry
+from softgrip_ros.model.material import YeohMaterial
+
+SERIES_THRESHOLD = 1e-4  # below |x|, sinc(x) = 1 - x^2/6 + x^4/120 is exact to double precision
+
+
+def _sinc_scalar(x: float) -> float:
+    if abs(x) < SERIES_THRESHOLD:
+        x2 = x * x
+        return 1.0 - x2 / 6.0 + x2 * x2 / 120.0
+    return math.sin(x) / x
+
+
+def _sinc_array(x):
+    return np.sinc(x / np.pi)
+
+
+def _sinc_slope_scalar(x: float) -> float:
+    """d sinc(x) / dx = (x cos x - sin x) / x^2, by its series near 0."""
+    if abs(x) < 1e-3:
+        x2 = x * x
+        return x * (-1.0 / 3.0 + x2 / 30.0 - x2 * x2 / 840.0)
+    return (x * math.cos(x) - math.sin(x)) / (x * x)
+
+
+def _sinc_slope_array(x):
+    x = np.asarray(x, dtype=float)
+    small = np.abs(x) < 1e-3
+    safe = np.where(small, 1.0, x)
+    x2 = x * x
+    series = x * (-1.0 / 3.0 + x2 / 30.0 - x2 * x2 / 840.0)
+    return np.where(small, series, (safe * np.cos(safe) - np.sin(safe)) / (safe * safe))
+
+
+_SCALAR_OPS = types.SimpleNamespace(sin=math.sin, cos=math.cos, sinc=_sinc_scalar, sinc_slope=_sinc_slope_scalar)
+_ARRAY_OPS = types.SimpleNamespace(sin=np.sin, cos=np.cos, sinc=_sinc_array, sinc_slope=_sinc_slope_array)
+
+
+@dataclasses.dataclass(frozen=True)
+class GripperPose:
+    """The modelled state at one pressure (floats) or a batch of N pressures (arrays of shape (N,)).
+
+    Tip poses are given for the left finger; the right finger is its mirror image
+    (x -> -x, angle -> -angle): see :meth:`right_tip`.
+    """
+
+    pressure_pa: object
+    segment_angles_rad: object          # (5,) or (N, 5)
+    left_tip_x_m: object
+    left_tip_z_m: object
+    left_tip_angle_rad: object          # tangent angle from +z, positive towards the centre line
+    included_angle_rad: object          # alpha
+    root_spacing_m: object              # D1
+    tip_spacing_m: object               # D2
+    in_validated_range: object
+    in_contact: object
+    model: str
+
+    def right_tip(self):
+        return -self.left_tip_x_m, self.left_tip_z_m, -self.left_tip_angle_rad
+
+
+class GripperKinematics:
+    """Forward and inverse model of the two-finger gripper for one bending law.
+
+    model: "l0" (linear, eq. 16-17) or "l1" (nonlinear Yeoh moment balance).
+    max_pressure_pa: the highest gauge pressure the inverse may command.
+    """
+
+    MODEL_MAX_PRESSURE_PA = 60.0e3   # the paper's FEA range; the forward model refuses beyond
+    MODEL_MIN_PRESSURE_PA = -100.0e3  # no gauge vacuum goes below -1 atm
+
+    def __init__(self, geometry: FingerGeometry, calibration: BendingCalibration,
+                 material: YeohMaterial | None = None, model: str = "l0",
+                 max_pressure_pa: float = 50.0e3):
+        self.geometry = geometry
+        self.material = material or YeohMaterial()
+        self.calibration = calibration
+        self.bending = make_bending_law(model, geometry, self.material, calibration)
+        self.model = self.bending.name
+        if not (0.0 < max_pressure_pa <= self.MODEL_MAX_PRESSURE_PA):
+            raise ValueError(f"max_pressure_pa must lie in (0, {self.MODEL_MAX_PRESSURE_PA}] Pa, got {max_pressure_pa}")
+        self.max_pressure_pa = float(max_pressure_pa)
+        g = geometry
+        self._face_offsets = tuple(g.chamber_face_offset_m(i) for i in range(CHAMBER_COUNT))
+        self._bulge_per_pa = tuple(calibration.ballooning_compliance_per_pa * m * m / g.chamber_length_m
+                                   for m in g.chamber_depths_m)
+        self._bulge_per_pa_array = np.array(self._bulge_per_pa)
+        self._tilt_per_bulge = 4.0 / g.chamber_length_m
+        self._half_chamber_fraction = 0.5 * g.chamber_length_m / g.segment_length_m
+        self.contact_pressure_pa = self._find_contact_pressure()
+
+    # ---- forward -------------------------------------------------------------------------
+    def pose(self, pressure_pa: float) -> GripperPose:
+        """The full state for one pressure, in pure Python floats (the fast path)."""
+        p = _checked_scalar(pressure_pa)
+        self._check_range(p, p)
+        p_kin = p if p > self.contact_pressure_pa else self.contact_pressure_pa
+        thetas = self.bending.angles(p_kin)
+        bulges = self._bulges(p_kin)
+        return self._assemble(p, thetas, bulges, _SCALAR_OPS,
+                              in_contact=p <= self.contact_pressure_pa)
+
+    def poses(self, pressures_pa) -> GripperPose:
+        """The full state for a 1-D array of pressures, vectorised."""
+        p = _checked_array(pressures_pa)
+        if p.size:
+            self._check_range(float(p.min()), float(p.max()))
+        p_kin = np.maximum(p, self.contact_pressure_pa)
+        thetas = np.asarray(self.bending.angles(p_kin))
+        bulges = np.multiply.outer(self.bending.saturation.effective_pressure(p_kin), self._bulge_per_pa_array)
+        return self._assemble(p, thetas, bulges, _ARRAY_OPS, in_contact=p <= self.contact_pressure_pa)
+
+    def _bulges(self, p_kin: float):
+        p_eff = self.bending.saturation.effective_pressure(p_kin)
+        return tuple(k * p_eff for k in self._bulge_per_pa)
+
+    def _assemble(self, p, thetas, bulges, ops, in_contact) -> GripperPose:
+        columns = (lambda a, i: a[..., i]) if ops is _ARRAY_OPS else (lambda a, i: a[i])
+        theta = [columns(thetas, i) for i in range(CHAMBER_COUNT)]
+        bulge = [columns(bulges, i) for i in range(CHAMBER_COUNT)]
+        faces, tip, _ = self._chain(theta, bulge, ops)
+        (root_x, _, root_angle), (tip_face_x, _, tip_face_angle) = faces[0], faces[-1]
+        validated = (p >= self.contact_pressure_pa) & (p <= self.calibration.validated_max_pressure_pa)
+        return GripperPose(
+            pressure_pa=p, segment_angles_rad=thetas,
+            left_tip_x_m=tip[0], left_tip_z_m=tip[1], left_tip_angle_rad=tip[2],
+            included_angle_rad=self.geometry.initial_included_angle_rad + (root_angle - tip_face_angle),
+            root_spacing_m=-2.0 * root_x, tip_spacing_m=-2.0 * tip_face_x,
+            in_validated_range=validated if ops is _ARRAY_OPS else bool(validated),
+            in_contact=in_contact, model=self.model)
+
+    def _chain(self, theta, bulge, ops):
+        """Walk the left finger's backbone. Returns the chamber faces (x, z, surface angle),
+        the tip (x, z, angle) and the segment end points (for the derivative)."""
+        g = self.geometry
+        x, z, phi = -g.root_x_m, g.vertical_height_m, g.inclination_rad
+        x = x + g.first_chamber_offset_m * math.sin(phi)
+        z = z + g.first_chamber_offset_m * math.cos(phi)
+        seg, half_fraction = g.segment_length_m, self._half_chamber_fraction
+        faces, ends = [], []
+        for i in range(CHAMBER_COUNT):
+            th = theta[i]
+            # chamber centre: a partial arc of L3/2 into the segment
+            th_c = th * half_fraction
+            chord = seg * half_fraction * ops.sinc(0.5 * th_c)
+            heading = phi - 0.5 * th_c
+            phi_c = phi - th_c
+            offset = self._face_offsets[i] + bulge[i]
+            faces.append((x + chord * ops.sin(heading) + offset * ops.cos(phi_c),
+                          z + chord * ops.cos(heading) - offset * ops.sin(phi_c),
+                          phi_c + self._tilt_per_bulge * bulge[i]))
+            chord = seg * ops.sinc(0.5 * th)
+            heading = phi - 0.5 * th
+            x = x + chord * ops.sin(heading)
+            z = z + chord * ops.cos(heading)
+            phi = phi - th
+            ends.append((x, z, th, heading))
+        tip = (x + g.tip_length_m * ops.sin(phi), z + g.tip_length_m * ops.cos(phi), phi)
+        return faces, tip, ends
+
+    def tip_for_angles(self, segment_angles_rad) -> tuple[float, float, float]:
+        """The left tip (x, z, angle) for explicit segment bends (5 floats), without ballooning."""
+        thetas = [float(t) for t in segment_angles_rad]
+        if len(thetas) != CHAMBER_COUNT or not all(math.isfinite(t) for t in thetas):
+            raise ValueError(f"need {CHAMBER_COUNT} finite segment angles, got {segment_angles_rad!r}")
+        return self._chain(thetas, [0.0] * CHAMBER_COUNT, _SCALAR_OPS)[1]
+
+    # ---- derivative -----------------------------------------------------------------------
+    def tip_slope(self, pressures_pa):
+        """d(left tip x, z, angle)/dp for an array of pressures: shape (N, 3), in m/Pa and rad/Pa.
+
+        Analytic: each segment's chord derivative plus the rigid rotation of everything
+        after it about the segment's end. Zero in contact, where the pose is blocked.
+        """
+        p = _checked_array(pressures_pa)
+        p_kin = np.maximum(p, self.contact_pressure_pa)
+        thetas = np.asarray(self.bending.angles(p_kin))
+        slopes = np.asarray(self.bending.angle_slopes(p_kin))
+        theta = [thetas[:, i] for i in range(CHAMBER_COUNT)]
+        _, tip, ends = self._chain(theta, [0.0] * CHAMBER_COUNT, _ARRAY_OPS)
+        seg = self.geometry.segment_length_m
+        dx = np.zeros_like(p)
+        dz = np.zeros_like(p)
+        for i, (end_x, end_z, th, heading) in enumerate(ends):
+            # own chord: seg * sinc(th/2) along heading = phi - th/2
+            chord = seg * _sinc_array(0.5 * th)
+            dchord = 0.5 * seg * _sinc_slope_array(0.5 * th)
+            own_x = dchord * np.sin(heading) - 0.5 * chord * np.cos(heading)
+            own_z = dchord * np.cos(heading) + 0.5 * chord * np.sin(heading)
+            # everything after turns by -dtheta about the end: d(v) = (-v_z, v_x)
+            rot_x, rot_z = -(tip[1] - end_z), tip[0] - end_x
+            dx += (own_x + rot_x) * slopes[:, i]
+            dz += (own_z + rot_z) * slopes[:, i]
+        dangle = -slopes.sum(axis=1)
+        blocked = p < self.contact_pressure_pa
+        return np.where(blocked[:, None], 0.0, np.column_stack([dx, dz, dangle]))
+
+    def backbone(self, pressure_pa: float, points_per_segment: int = 8) -> np.ndarray:
+        """The left finger's backbone as a polyline, shape (K, 2) in (x, z); mirror x for the right."""
+        p = _checked_scalar(pressure_pa)
+        if points_per_segment < 1:
+            raise ValueError("points_per_segment must be >= 1")
+        self._check_range(p, p)
+        thetas = self.bending.angles(max(p, self.contact_pressure_pa))
+        g = self.geometry
+        x, z, phi = -g.root_x_m, 0.0, 0.0
+        points = [(x, z)]
+        pieces = [(g.vertical_height_m, 0.0, 1)]
+        pieces_phi_jump = {1: g.inclination_rad}
+        pieces.append((g.first_chamber_offset_m, 0.0, 1))
+        pieces += [(g.segment_length_m, th, points_per_segment) for th in thetas]
+        pieces.append((g.tip_length_m, 0.0, 1))
+        for index, (length, th, steps) in enumerate(pieces):
+            phi += pieces_phi_jump.get(index, 0.0)
+            for _ in range(steps):
+                part, dth = length / steps, th / steps
+                chord = part * _sinc_scalar(0.5 * dth)
+                x += chord * math.sin(phi - 0.5 * dth)
+                z += chord * math.cos(phi - 0.5 * dth)
+                phi -= dth
+                points.append((x, z))
+        return np.array(points)
+
+    # ---- inverse --------------------------------------------------------------------------
+    def tip_spacing_range_m(self) -> tuple[float, float]:
+        """The D2 the gripper can reach between tip contact and max_pressure_pa."""
+        return 0.0, self.pose(self.max_pressure_pa).tip_spacing_m
+
+    def pressure_for_tip_spacing(self, tip_spacing_m: float) -> float:
+        """The gauge pressure (Pa) at which D2 equals tip_spacing_m, by Brent's method.
+
+        D2(p) is monotone between tip contact and max_pressure_pa. A D2 outside that
+        range raises ValueError saying what the gripper can reach.
+        """
+        target = _checked_scalar(tip_spacing_m, "tip spacing")
+        low_d2, high_d2 = self.tip_spacing_range_m()
+        if not low_d2 <= target <= high_d2:
+            raise ValueError(f"tip spacing {target * 1e3:.2f} mm is out of reach: the gripper spans "
+                             f"{low_d2 * 1e3:.2f} mm (tips touching) to {high_d2 * 1e3:.2f} mm "
+                             f"(at the {self.max_pressure_pa / 1e3:.1f} kPa limit)")
+        if target == low_d2:
+            return self.contact_pressure_pa
+        return brentq(lambda p: self.pose(p).tip_spacing_m - target, self.contact_pressure_pa,
+                      self.max_pressure_pa, xtol=1e-9, rtol=4 * np.finfo(float).eps)
+
+    def _find_contact_pressure(self) -> float:
+        """The (negative) pressure at which the tip chambers touch, D2 = 0."""
+        def gap(p):
+            thetas = self.bending.angles(p)
+            faces, _, _ = self._chain(thetas, self._bulges(p), _SCALAR_OPS)
+            return -2.0 * faces[-1][0]
+
+        low = -1.0
+        while gap(low) > 0.0:
+            low *= 2.0
+            if low < self.MODEL_MIN_PRESSURE_PA:
+                return self.MODEL_MIN_PRESSURE_PA
+        return brentq(gap, low, 0.0, xtol=1e-9, rtol=4 * np.finfo(float).eps)
+
+    def _check_range(self, low: float, high: float):
+        if low < self.MODEL_MIN_PRESSURE_PA or high > self.MODEL_MAX_PRESSURE_PA:
+            raise ValueError(f"pressure out of the model's range [{self.MODEL_MIN_PRESSURE_PA / 1e3:.0f}, "
+                             f"{self.MODEL_MAX_PRESSURE_PA / 1e3:.0f}] kPa: got {low / 1e3:.3f} to {high / 1e3:.3f} kPa")
+
+
+def _checked_scalar(value, what: str = "pressure") -> float:
+    if isinstance(value, (np.ndarray, list, tuple)):
+        raise ValueError(f"{what} must be a single number here, got an array of shape {np.shape(value)}")
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be a number, got {value!r}") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{what} must be finite, got {value}")
+    return value
+
+
+def _checked_array(values) -> np.ndarray:
+    array = np.asarray(values, dtype=float)
+    if array.ndim != 1:
+        raise ValueError(f"pressures must be a 1-D array, got shape {array.shape}")
+    if not np.all(np.isfinite(array)):
+        bad = int(np.flatnonzero(~np.isfinite(array))[0])
+        raise ValueError(f"pressures must be finite: element {bad} is {array[bad]}")
+    return array
