@@ -138,6 +138,11 @@ class LinearBending:
             return tuple(k * p_eff for k in self.gains_rad_per_pa)
         return np.multiply.outer(p_eff, self._gains)
 
+    def angle_columns(self, pressures_pa: np.ndarray) -> list:
+        """theta_i for a 1-D batch as 5 contiguous arrays (the fast batch path)."""
+        p_eff = self.saturation.effective_pressure(pressures_pa)
+        return [k * p_eff for k in self.gains_rad_per_pa]
+
     def angle_slopes(self, pressure_pa):
         """d theta_i / d p (rad/Pa), same shapes as :meth:`angles`."""
         slope = self.saturation.slope(pressure_pa)
@@ -225,6 +230,10 @@ class YeohMomentBalance:
         if isinstance(p_eff, float):
             return tuple(self.strain(s * p_eff) * self.angle_per_strain for s in self.stress_per_pa)
         return self.strains(np.multiply.outer(p_eff, self._stress_per_pa)) * self.angle_per_strain
+
+    def angle_columns(self, pressures_pa: np.ndarray) -> list:
+        """theta_i for a 1-D batch as 5 contiguous arrays."""
+        return list(np.ascontiguousarray(self.angles(pressures_pa).T))
 
     def angle_slopes(self, pressure_pa):
         """d theta_i / d p by the implicit function theorem: de/dsigma = 1 / P'(1 + e)."""

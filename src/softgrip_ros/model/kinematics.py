@@ -36,29 +36,12 @@ from softgrip_ros.model.bending import BendingCalibration, make_bending_law
 from softgrip_ros.model.geometry import CHAMBER_COUNT, FingerGeometry
 from softgrip_ros.model.material import YeohMaterial
 
-SERIES_THRESHOLD = 1e-4  # below |x|, sinc(x) = 1 - x^2/6 + x^4/120 is exact to double precision
-
-
 def _sinc_scalar(x: float) -> float:
-    if abs(x) < SERIES_THRESHOLD:
-        x2 = x * x
-        return 1.0 - x2 / 6.0 + x2 * x2 / 120.0
-    return math.sin(x) / x
-
-
-def _sinc_array(x):
-    return np.sinc(x / np.pi)
-
-
-def _sinc_slope_scalar(x: float) -> float:
-    """d sinc(x) / dx = (x cos x - sin x) / x^2, by its series near 0."""
-    if abs(x) < 1e-3:
-        x2 = x * x
-        return x * (-1.0 / 3.0 + x2 / 30.0 - x2 * x2 / 840.0)
-    return (x * math.cos(x) - math.sin(x)) / (x * x)
+    return math.sin(x) / x if x != 0.0 else 1.0
 
 
 def _sinc_slope_array(x):
+    """d sinc(x) / dx = (x cos x - sin x) / x^2, by its series near 0 (the direct form cancels)."""
     x = np.asarray(x, dtype=float)
     small = np.abs(x) < 1e-3
     safe = np.where(small, 1.0, x)
@@ -67,8 +50,31 @@ def _sinc_slope_array(x):
     return np.where(small, series, (safe * np.cos(safe) - np.sin(safe)) / (safe * safe))
 
 
-_SCALAR_OPS = types.SimpleNamespace(sin=math.sin, cos=math.cos, sinc=_sinc_scalar, sinc_slope=_sinc_slope_scalar)
-_ARRAY_OPS = types.SimpleNamespace(sin=np.sin, cos=np.cos, sinc=_sinc_array, sinc_slope=_sinc_slope_array)
+def _ratio_scalar(sin_x: float, x: float) -> float:
+    """sin(x)/x given sin(x): exact to rounding for any x != 0, however small."""
+    return sin_x / x if x != 0.0 else 1.0
+
+
+def _ratio_array(sin_x, x):
+    return np.divide(sin_x, x, out=np.ones_like(x), where=x != 0.0)
+
+
+def _sincos_scalar(x: float) -> tuple[float, float]:
+    return math.sin(x), math.cos(x)
+
+
+def _sincos_array(x):
+    """sin and cos of half-angles; cos from sqrt(1 - sin^2), exact to rounding while |x| < 1
+    (a segment bent by less than 2 rad), which saves a transcendental call per segment."""
+    sin_x = np.sin(x)
+    if x.size and np.max(np.abs(x)) < 1.0:
+        return sin_x, np.sqrt(1.0 - sin_x * sin_x)
+    return sin_x, np.cos(x)
+
+
+_SCALAR_OPS = types.SimpleNamespace(sincos=_sincos_scalar, ratio=_ratio_scalar)
+_ARRAY_OPS = types.SimpleNamespace(sincos=_sincos_array, ratio=_ratio_array)
+BATCH_CHUNK = 8192  # keeps a batch's temporaries in cache; 100k at once runs ~2x slower
 
 
 @dataclasses.dataclass(frozen=True)
@@ -131,31 +137,37 @@ class GripperKinematics:
         p = _checked_scalar(pressure_pa)
         self._check_range(p, p)
         p_kin = p if p > self.contact_pressure_pa else self.contact_pressure_pa
-        thetas = self.bending.angles(p_kin)
-        bulges = self._bulges(p_kin)
-        return self._assemble(p, thetas, bulges, _SCALAR_OPS,
+        return self._assemble(p, self.bending.angles(p_kin), self._bulges(p_kin), _SCALAR_OPS,
                               in_contact=p <= self.contact_pressure_pa)
 
     def poses(self, pressures_pa) -> GripperPose:
-        """The full state for a 1-D array of pressures, vectorised."""
+        """The full state for a 1-D array of pressures, vectorised (in cache-sized chunks)."""
         p = _checked_array(pressures_pa)
         if p.size:
             self._check_range(float(p.min()), float(p.max()))
+        if p.size <= BATCH_CHUNK:
+            return self._poses_chunk(p)
+        chunks = [self._poses_chunk(p[i:i + BATCH_CHUNK]) for i in range(0, p.size, BATCH_CHUNK)]
+        return GripperPose(model=self.model, **{
+            field.name: np.concatenate([getattr(c, field.name) for c in chunks])
+            for field in dataclasses.fields(GripperPose) if field.name != "model"})
+
+    def _poses_chunk(self, p: np.ndarray) -> GripperPose:
         p_kin = np.maximum(p, self.contact_pressure_pa)
-        thetas = np.asarray(self.bending.angles(p_kin))
-        bulges = np.multiply.outer(self.bending.saturation.effective_pressure(p_kin), self._bulge_per_pa_array)
-        return self._assemble(p, thetas, bulges, _ARRAY_OPS, in_contact=p <= self.contact_pressure_pa)
+        p_eff = self.bending.saturation.effective_pressure(p_kin)
+        theta = self.bending.angle_columns(p_kin)
+        bulge = [k * p_eff if i in self.MEASURED_CHAMBERS else 0.0 for i, k in enumerate(self._bulge_per_pa)]
+        return self._assemble(p, theta, bulge, _ARRAY_OPS, in_contact=p <= self.contact_pressure_pa)
 
     def _bulges(self, p_kin: float):
         p_eff = self.bending.saturation.effective_pressure(p_kin)
         return tuple(k * p_eff for k in self._bulge_per_pa)
 
-    def _assemble(self, p, thetas, bulges, ops, in_contact) -> GripperPose:
-        columns = (lambda a, i: a[..., i]) if ops is _ARRAY_OPS else (lambda a, i: a[i])
-        theta = [columns(thetas, i) for i in range(CHAMBER_COUNT)]
-        bulge = [columns(bulges, i) for i in range(CHAMBER_COUNT)]
+    def _assemble(self, p, theta, bulge, ops, in_contact) -> GripperPose:
+        """theta, bulge: 5 per-segment values (floats, or 1-D arrays over the batch)."""
         faces, tip, _ = self._chain(theta, bulge, ops)
         (root_x, _, root_angle), (tip_face_x, _, tip_face_angle) = faces[0], faces[-1]
+        thetas = tuple(theta) if ops is _SCALAR_OPS else np.column_stack(theta)
         validated = (p >= self.contact_pressure_pa) & (p <= self.calibration.validated_max_pressure_pa)
         return GripperPose(
             pressure_pa=p, segment_angles_rad=thetas,
@@ -165,34 +177,56 @@ class GripperKinematics:
             in_validated_range=validated if ops is _ARRAY_OPS else bool(validated),
             in_contact=in_contact, model=self.model)
 
+    MEASURED_CHAMBERS = (0, CHAMBER_COUNT - 1)  # alpha, D1 and D2 need the root and tip chambers only
+
     def _chain(self, theta, bulge, ops):
-        """Walk the left finger's backbone. Returns the chamber faces (x, z, surface angle),
-        the tip (x, z, angle) and the segment end points (for the derivative)."""
+        """Walk the left finger's backbone. Returns the root and tip chamber faces (x, z,
+        surface angle), the tip (x, z, angle) and the segment ends (x, z, theta, heading
+        sin, heading cos) for the derivative.
+
+        The tangent is carried as (sin phi, cos phi) and turned by half-angle rotations,
+        so each segment costs one sin and one cos of theta/2; its chord factor
+        sinc(theta/2) reuses the same sine.
+        """
         g = self.geometry
-        x, z, phi = -g.root_x_m, g.vertical_height_m, g.inclination_rad
-        x = x + g.first_chamber_offset_m * math.sin(phi)
-        z = z + g.first_chamber_offset_m * math.cos(phi)
-        seg, half_fraction = g.segment_length_m, self._half_chamber_fraction
+        phi = g.inclination_rad
+        sin_phi, cos_phi = math.sin(phi), math.cos(phi)
+        x = -g.root_x_m + g.first_chamber_offset_m * sin_phi
+        z = g.vertical_height_m + g.first_chamber_offset_m * cos_phi
+        seg = g.segment_length_m
         faces, ends = [], []
         for i in range(CHAMBER_COUNT):
             th = theta[i]
-            # chamber centre: a partial arc of L3/2 into the segment
-            th_c = th * half_fraction
-            chord = seg * half_fraction * ops.sinc(0.5 * th_c)
-            heading = phi - 0.5 * th_c
-            phi_c = phi - th_c
-            offset = self._face_offsets[i] + bulge[i]
-            faces.append((x + chord * ops.sin(heading) + offset * ops.cos(phi_c),
-                          z + chord * ops.cos(heading) - offset * ops.sin(phi_c),
-                          phi_c + self._tilt_per_bulge * bulge[i]))
-            chord = seg * ops.sinc(0.5 * th)
-            heading = phi - 0.5 * th
-            x = x + chord * ops.sin(heading)
-            z = z + chord * ops.cos(heading)
+            if i in self.MEASURED_CHAMBERS:
+                faces.append(self._face(x, z, phi, sin_phi, cos_phi, th, bulge[i], i, ops))
+            half = 0.5 * th
+            sin_half, cos_half = ops.sincos(half)
+            chord = seg * ops.ratio(sin_half, half)
+            sin_heading = sin_phi * cos_half - cos_phi * sin_half     # phi - theta/2
+            cos_heading = cos_phi * cos_half + sin_phi * sin_half
+            x = x + chord * sin_heading
+            z = z + chord * cos_heading
+            sin_phi = sin_heading * cos_half - cos_heading * sin_half  # phi - theta
+            cos_phi = cos_heading * cos_half + sin_heading * sin_half
             phi = phi - th
-            ends.append((x, z, th, heading))
-        tip = (x + g.tip_length_m * ops.sin(phi), z + g.tip_length_m * ops.cos(phi), phi)
+            ends.append((x, z, th, sin_heading, cos_heading))
+        tip = (x + g.tip_length_m * sin_phi, z + g.tip_length_m * cos_phi, phi)
         return faces, tip, ends
+
+    def _face(self, x, z, phi, sin_phi, cos_phi, th, bulge, i, ops):
+        """Chamber i's face centre and surface angle, for a segment starting at (x, z, phi)."""
+        half = 0.5 * th * self._half_chamber_fraction   # a partial arc of L3/2 into the segment
+        sin_half, cos_half = ops.sincos(half)
+        chord = self.geometry.segment_length_m * self._half_chamber_fraction * ops.ratio(sin_half, half)
+        sin_heading = sin_phi * cos_half - cos_phi * sin_half
+        cos_heading = cos_phi * cos_half + sin_phi * sin_half
+        sin_c = sin_heading * cos_half - cos_heading * sin_half
+        cos_c = cos_heading * cos_half + sin_heading * sin_half
+        offset = self._face_offsets[i] + bulge
+        # the inward normal at the chamber centre is (cos phi_c, -sin phi_c)
+        return (x + chord * sin_heading + offset * cos_c,
+                z + chord * cos_heading - offset * sin_c,
+                phi - 2.0 * half + self._tilt_per_bulge * bulge)
 
     def tip_for_angles(self, segment_angles_rad) -> tuple[float, float, float]:
         """The left tip (x, z, angle) for explicit segment bends (5 floats), without ballooning."""
@@ -210,19 +244,18 @@ class GripperKinematics:
         """
         p = _checked_array(pressures_pa)
         p_kin = np.maximum(p, self.contact_pressure_pa)
-        thetas = np.asarray(self.bending.angles(p_kin))
         slopes = np.asarray(self.bending.angle_slopes(p_kin))
-        theta = [thetas[:, i] for i in range(CHAMBER_COUNT)]
+        theta = self.bending.angle_columns(p_kin)
         _, tip, ends = self._chain(theta, [0.0] * CHAMBER_COUNT, _ARRAY_OPS)
         seg = self.geometry.segment_length_m
         dx = np.zeros_like(p)
         dz = np.zeros_like(p)
-        for i, (end_x, end_z, th, heading) in enumerate(ends):
-            # own chord: seg * sinc(th/2) along heading = phi - th/2
-            chord = seg * _sinc_array(0.5 * th)
+        for i, (end_x, end_z, th, sin_heading, cos_heading) in enumerate(ends):
+            # own chord: seg * sinc(th/2) along the heading phi - th/2
+            chord = seg * _ratio_array(np.sin(0.5 * th), 0.5 * th)
             dchord = 0.5 * seg * _sinc_slope_array(0.5 * th)
-            own_x = dchord * np.sin(heading) - 0.5 * chord * np.cos(heading)
-            own_z = dchord * np.cos(heading) + 0.5 * chord * np.sin(heading)
+            own_x = dchord * sin_heading - 0.5 * chord * cos_heading
+            own_z = dchord * cos_heading + 0.5 * chord * sin_heading
             # everything after turns by -dtheta about the end: d(v) = (-v_z, v_x)
             rot_x, rot_z = -(tip[1] - end_z), tip[0] - end_x
             dx += (own_x + rot_x) * slopes[:, i]
@@ -270,22 +303,26 @@ class GripperKinematics:
         """
         target = _checked_scalar(tip_spacing_m, "tip spacing")
         low_d2, high_d2 = self.tip_spacing_range_m()
+        rounding = 1e-12 * high_d2  # a forward value at an end may round just past it
+        if high_d2 < target <= high_d2 + rounding:
+            return self.max_pressure_pa
         if not low_d2 <= target <= high_d2:
             raise ValueError(f"tip spacing {target * 1e3:.2f} mm is out of reach: the gripper spans "
                              f"{low_d2 * 1e3:.2f} mm (tips touching) to {high_d2 * 1e3:.2f} mm "
                              f"(at the {self.max_pressure_pa / 1e3:.1f} kPa limit)")
         if target == low_d2:
             return self.contact_pressure_pa
-        return brentq(lambda p: self.pose(p).tip_spacing_m - target, self.contact_pressure_pa,
+        return brentq(lambda p: self._free_tip_spacing(p) - target, self.contact_pressure_pa,
                       self.max_pressure_pa, xtol=1e-9, rtol=4 * np.finfo(float).eps)
+
+    def _free_tip_spacing(self, p: float) -> float:
+        """D2 at p ignoring tip contact (the inverse's and the contact search's cheap forward map)."""
+        faces, _, _ = self._chain(self.bending.angles(p), self._bulges(p), _SCALAR_OPS)
+        return -2.0 * faces[-1][0]
 
     def _find_contact_pressure(self) -> float:
         """The (negative) pressure at which the tip chambers touch, D2 = 0."""
-        def gap(p):
-            thetas = self.bending.angles(p)
-            faces, _, _ = self._chain(thetas, self._bulges(p), _SCALAR_OPS)
-            return -2.0 * faces[-1][0]
-
+        gap = self._free_tip_spacing
         low = -1.0
         while gap(low) > 0.0:
             low *= 2.0
