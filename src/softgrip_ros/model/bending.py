@@ -138,10 +138,12 @@ class LinearBending:
             return tuple(k * p_eff for k in self.gains_rad_per_pa)
         return np.multiply.outer(p_eff, self._gains)
 
-    def angle_columns(self, pressures_pa: np.ndarray) -> list:
-        """theta_i for a 1-D batch as 5 contiguous arrays (the fast batch path)."""
-        p_eff = self.saturation.effective_pressure(pressures_pa)
-        return [k * p_eff for k in self.gains_rad_per_pa]
+    def angle_columns(self, pressures_pa: np.ndarray, effective_pressures_pa=None) -> list:
+        """theta_i for a 1-D batch as 5 contiguous arrays (the fast batch path).
+        Pass the batch's effective pressures if they are already known."""
+        if effective_pressures_pa is None:
+            effective_pressures_pa = self.saturation.effective_pressure(pressures_pa)
+        return [k * effective_pressures_pa for k in self.gains_rad_per_pa]
 
     def angle_slopes(self, pressure_pa):
         """d theta_i / d p (rad/Pa), same shapes as :meth:`angles`."""
@@ -231,9 +233,12 @@ class YeohMomentBalance:
             return tuple(self.strain(s * p_eff) * self.angle_per_strain for s in self.stress_per_pa)
         return self.strains(np.multiply.outer(p_eff, self._stress_per_pa)) * self.angle_per_strain
 
-    def angle_columns(self, pressures_pa: np.ndarray) -> list:
+    def angle_columns(self, pressures_pa: np.ndarray, effective_pressures_pa=None) -> list:
         """theta_i for a 1-D batch as 5 contiguous arrays."""
-        return list(np.ascontiguousarray(self.angles(pressures_pa).T))
+        if effective_pressures_pa is None:
+            effective_pressures_pa = self.saturation.effective_pressure(pressures_pa)
+        sigma = np.multiply.outer(effective_pressures_pa, self._stress_per_pa)
+        return list(np.ascontiguousarray((self.strains(sigma) * self.angle_per_strain).T))
 
     def angle_slopes(self, pressure_pa):
         """d theta_i / d p by the implicit function theorem: de/dsigma = 1 / P'(1 + e)."""

@@ -155,7 +155,7 @@ class GripperKinematics:
     def _poses_chunk(self, p: np.ndarray) -> GripperPose:
         p_kin = np.maximum(p, self.contact_pressure_pa)
         p_eff = self.bending.saturation.effective_pressure(p_kin)
-        theta = self.bending.angle_columns(p_kin)
+        theta = self.bending.angle_columns(p_kin, p_eff)
         bulge = [k * p_eff if i in self.MEASURED_CHAMBERS else 0.0 for i, k in enumerate(self._bulge_per_pa)]
         return self._assemble(p, theta, bulge, _ARRAY_OPS, in_contact=p <= self.contact_pressure_pa)
 

@@ -1,0 +1,53 @@
+"""Shared helpers of scripts/bench_*.py: medians of repeated timings and docs/benchmarks.md sections.
+
+Performance is measured here, never asserted in unit tests: the machines are shared
+and noisy, so each figure is the median over repeats, and comparisons are ratios
+taken in one run.
+"""
+from __future__ import annotations
+
+import datetime
+import os
+import pathlib
+import platform
+import statistics
+import time
+
+BENCHMARKS_MD = pathlib.Path(__file__).resolve().parents[2] / "docs" / "benchmarks.md"
+
+
+def median_seconds(function, number: int, repeat: int) -> float:
+    """Median over ``repeat`` runs of the time per call, each run timing ``number`` calls."""
+    samples = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        for _ in range(number):
+            function()
+        samples.append((time.perf_counter() - start) / number)
+    return statistics.median(samples)
+
+
+def machine_line() -> str:
+    return (f"{platform.python_implementation()} {platform.python_version()}, {platform.machine()}, "
+            f"{os.cpu_count()} cores, {datetime.date.today().isoformat()}")
+
+
+def update_section(name: str, markdown: str, path: pathlib.Path = BENCHMARKS_MD) -> None:
+    """Replace (or append) the section between ``<!-- name:start -->`` and ``<!-- name:end -->``."""
+    begin, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    block = f"{begin}\n{markdown.rstrip()}\n{end}"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = path.read_text() if path.exists() else (
+        "# Benchmarks\n\nMedians over repeated runs on a shared 2-core machine; ratios are taken within one run. "
+        "Each section names the command that reproduces it.\n")
+    if begin in text and end in text:
+        head, rest = text.split(begin, 1)
+        text = head + block + rest.split(end, 1)[1]
+    else:
+        text = text.rstrip() + "\n\n" + block + "\n"
+    path.write_text(text)
+
+
+def verdict(value: float, target: float, smaller_is_better: bool = True) -> str:
+    ok = value <= target if smaller_is_better else value >= target
+    return "meets" if ok else "**misses**"

@@ -1,0 +1,91 @@
+"""The model against the paper: the numbers behind scripts/validate_model.py.
+
+Three variants of type II are compared: L0 uncalibrated (g = 1, no ballooning, no
+saturation: eq. 16-17 exactly as mapped), L0 calibrated, and L1 with the same
+calibration. Each quantity says whether its paper value was used by the fit
+("fitted") or not ("held out"), so a match can be told from a prediction.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from softgrip_ros.model.bending import BendingCalibration
+from softgrip_ros.model.calibration import PaperNumbers, load_calibration, mean_curvature_per_m
+from softgrip_ros.model.geometry import load_geometry
+from softgrip_ros.model.kinematics import GripperKinematics
+
+
+@dataclasses.dataclass(frozen=True)
+class Row:
+    quantity: str
+    unit: str
+    paper: float
+    role: str                  # "fitted", "held out", "geometry"
+    l0_uncalibrated: float
+    l0_calibrated: float
+    l1: float
+    pressure_pa: float         # where the quantity is taken (for the "validated range" column)
+
+    def error_pct(self, value: float) -> float:
+        return 100.0 * (value - self.paper) / self.paper if self.paper else math.nan
+
+
+def models(cavity_type: str = "type_II"):
+    geometry = load_geometry(cavity_type)
+    calibrated = load_calibration(cavity_type)
+    uncalibrated = BendingCalibration(gain=1.0, validated_max_pressure_pa=calibrated.validated_max_pressure_pa)
+    kwargs = dict(max_pressure_pa=GripperKinematics.MODEL_MAX_PRESSURE_PA)
+    return (GripperKinematics(geometry, uncalibrated, model="l0", **kwargs),
+            GripperKinematics(geometry, calibrated, model="l0", **kwargs),
+            GripperKinematics(geometry, calibrated, model="l1", **kwargs))
+
+
+def _growth_pct(kin, low, high):
+    return 100.0 * (mean_curvature_per_m(kin, high) / mean_curvature_per_m(kin, low) - 1.0)
+
+
+def rows(paper: PaperNumbers | None = None) -> list[Row]:
+    paper = paper or PaperNumbers.load()
+    variants = models()
+
+    def each(function):
+        return [function(kin) for kin in variants]
+
+    table = [
+        Row("alpha at 0 kPa", "deg", 15.0, "geometry", *each(lambda k: math.degrees(k.pose(0.0).included_angle_rad)), 0.0),
+        Row("alpha at 25 kPa", "deg", math.degrees(paper.alpha_25kpa_rad["type_II"]), "fitted",
+            *each(lambda k: math.degrees(k.pose(25e3).included_angle_rad)), 25e3),
+        Row("D2 at 0 kPa", "mm", paper.d2_0_m * 1e3, "geometry", *each(lambda k: k.pose(0.0).tip_spacing_m * 1e3), 0.0),
+        Row("D2 at 50 kPa", "mm", paper.d2_50kpa_m * 1e3, "fitted", *each(lambda k: k.pose(50e3).tip_spacing_m * 1e3), 50e3),
+        Row("D1 at 0 kPa", "mm", paper.d1_0_m * 1e3, "held out", *each(lambda k: k.pose(0.0).root_spacing_m * 1e3), 0.0),
+        Row("D1 at 50 kPa", "mm", paper.d1_50kpa_m * 1e3, "held out", *each(lambda k: k.pose(50e3).root_spacing_m * 1e3), 50e3),
+        Row("curvature growth 50->55 kPa", "%", paper.growth_50_55 * 100, "fitted", *each(lambda k: _growth_pct(k, 50e3, 55e3)), 55e3),
+        Row("curvature growth 55->60 kPa", "%", paper.growth_55_60 * 100, "fitted", *each(lambda k: _growth_pct(k, 55e3, 60e3)), 60e3),
+    ]
+    return table
+
+
+def summary(paper: PaperNumbers | None = None) -> dict:
+    """The --json figures (calibrated L0, the production model), plus L1 and the uncalibrated L0."""
+    paper = paper or PaperNumbers.load()
+    table = {row.quantity: row for row in rows(paper)}
+    validated_max = models()[1].calibration.validated_max_pressure_pa
+    in_range = [row for row in table.values() if row.pressure_pa <= min(45e3, validated_max) and row.paper]
+    result = {
+        "alpha_25kPa_deg": table["alpha at 25 kPa"].l0_calibrated,
+        "D1_50kPa_mm": table["D1 at 50 kPa"].l0_calibrated,
+        "D2_50kPa_mm": table["D2 at 50 kPa"].l0_calibrated,
+        "curvature_growth_50_55_pct": table["curvature growth 50->55 kPa"].l0_calibrated,
+        "curvature_growth_55_60_pct": table["curvature growth 55->60 kPa"].l0_calibrated,
+        "max_model_err_pct_to_45kPa": max(abs(r.error_pct(r.l0_calibrated)) for r in in_range),
+        "max_model_err_quantity_to_45kPa": max(in_range, key=lambda r: abs(r.error_pct(r.l0_calibrated))).quantity,
+        "fitted_constants": 4,
+        "fitted_to_numbers": 4,
+        "held_out": [r.quantity for r in table.values() if r.role == "held out"],
+    }
+    for prefix, attribute in (("l1_", "l1"), ("l0_uncalibrated_", "l0_uncalibrated")):
+        result[prefix + "alpha_25kPa_deg"] = getattr(table["alpha at 25 kPa"], attribute)
+        result[prefix + "D1_50kPa_mm"] = getattr(table["D1 at 50 kPa"], attribute)
+        result[prefix + "D2_50kPa_mm"] = getattr(table["D2 at 50 kPa"], attribute)
+    return result

@@ -1,0 +1,54 @@
+"""The physics scripts as a user runs them: fit_yeoh, validate_model --json, bench_model --json."""
+import json
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+def run(*args, timeout=300):
+    return subprocess.run([sys.executable, *args], cwd=REPO_ROOT, capture_output=True, text=True, timeout=timeout)
+
+
+def test_fit_yeoh_prints_constants_and_draws_the_plot(tmp_path):
+    plot = tmp_path / "fit.png"
+    result = run("scripts/fit_yeoh.py", "docs/examples/synthetic_tensile_test.csv", "--plot", str(plot), "--json")
+    assert result.returncode == 0, result.stderr
+    fit = json.loads(result.stdout)
+    # the example was generated from the paper's constants plus 1.5 % noise
+    low, high = fit["confidence_intervals_pa"]["c10_pa"]
+    assert low <= 0.08e6 <= high
+    assert fit["c20_pa"] == pytest.approx(0.015e6, rel=0.05)
+    assert plot.stat().st_size > 10_000
+
+
+def test_fit_yeoh_names_the_bad_row(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("stretch,stress_pa\n1.1,100\n1.2,200\n0.0,300\n1.4,400\n1.5,500\n")
+    result = run("scripts/fit_yeoh.py", str(bad))
+    assert result.returncode == 2
+    assert "row 3: stretch must be > 0" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_validate_model_json_has_the_contract_keys():
+    result = run("scripts/validate_model.py", "--json")
+    assert result.returncode == 0, result.stderr
+    figures = json.loads(result.stdout)
+    for key in ("alpha_25kPa_deg", "D1_50kPa_mm", "D2_50kPa_mm", "curvature_growth_50_55_pct",
+                "curvature_growth_55_60_pct", "max_model_err_pct_to_45kPa"):
+        assert isinstance(figures[key], float), key
+    assert figures["alpha_25kPa_deg"] == pytest.approx(68.4, rel=0.035)
+    assert figures["D2_50kPa_mm"] == pytest.approx(151.0, rel=0.05)
+    assert figures["held_out"] == ["D1 at 0 kPa", "D1 at 50 kPa"]
+
+
+def test_bench_model_json_reports_every_figure():
+    result = run("scripts/bench_model.py", "--json", "--repeat", "3")
+    assert result.returncode == 0, result.stderr
+    figures = json.loads(result.stdout)
+    assert set(figures) >= {"l0_single_us", "l0_batch_us_per_pressure", "l1_single_us", "inverse_us"}
+    assert all(value > 0 for value in figures.values())
