@@ -221,8 +221,12 @@ class YeohMomentBalance:
             candidate = e - residual / self.material.planar_nominal_stress_slope(1.0 + e)
             outside = (candidate < low) | (candidate > high)
             candidate = np.where(outside, 0.5 * (low + high), candidate)
-            done = np.abs(candidate - e) <= 4 * np.finfo(float).eps * np.abs(e)
-            e = candidate
+            # done when the step, the residual or the bracket is down to rounding
+            # (a converged root can otherwise ping-pong between its two neighbours)
+            rounding = 8 * np.finfo(float).eps
+            done = ((np.abs(candidate - e) <= rounding * np.abs(e)) | (np.abs(residual) <= rounding * np.abs(sigma))
+                    | (high - low <= rounding * np.abs(e)))
+            e = np.where(done, e, candidate)
             if done.all():
                 break
         return np.where(sigma <= self._floor_stress, self.STRAIN_FLOOR, e)
