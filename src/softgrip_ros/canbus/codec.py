@@ -1,0 +1,197 @@
+"""CAN frame codec: the DBC (cantools) plus an E2E-style alive counter and CRC-8 on every frame.
+
+``config/softgrip.dbc`` is the single source of frame IDs, signals, scaling and ranges;
+this module never repeats them. On top of the DBC, each frame carries:
+
+- ``AliveCounter``: 4 bits, incremented per frame by the sender;
+- ``Crc``: CRC-8 SAE J1850 (poly 0x1D, init 0xFF, xor-out 0xFF) over the frame's data ID
+  (the two low bytes of its arbitration ID, little-endian) and payload bytes 0-6, in byte 7.
+
+:meth:`FrameCodec.decode` returns the signals of a valid frame, or None for a frame it
+rejects, counting the reason: an unknown ID, a wrong DLC, a bad CRC, a repeated counter,
+a counter jump beyond ``max_counter_delta`` (stale or lost frames), or a value outside
+its DBC range. A rejected frame is never returned, so it can never be acted on.
+
+Frame IDs can be remapped per message name (``frame_ids``) without editing the DBC.
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import pathlib
+import threading
+
+import can
+import cantools
+
+COUNTER_SIGNAL = "AliveCounter"
+CRC_SIGNAL = "Crc"
+COUNTER_MODULO = 16
+CRC_BYTE = 7
+
+REJECT_REASONS = ("unknown_id", "bad_dlc", "bad_crc", "repeated_counter", "counter_jump", "out_of_range", "undecodable")
+
+
+def _crc8_table() -> tuple:
+    table = []
+    for byte in range(256):
+        crc = byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1D) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+        table.append(crc)
+    return tuple(table)
+
+
+_CRC8_TABLE = _crc8_table()
+
+
+def crc8_sae_j1850(data: bytes) -> int:
+    """CRC-8 SAE J1850 (poly 0x1D, init 0xFF, xor-out 0xFF); check value of b"123456789" is 0x4B."""
+    crc = 0xFF
+    for byte in data:
+        crc = _CRC8_TABLE[crc ^ byte]
+    return crc ^ 0xFF
+
+
+def frame_crc(arbitration_id: int, payload: bytes) -> int:
+    return crc8_sae_j1850(bytes((arbitration_id & 0xFF, (arbitration_id >> 8) & 0xFF)) + payload[:CRC_BYTE])
+
+
+@dataclasses.dataclass(frozen=True)
+class DecodedFrame:
+    name: str
+    signals: dict
+    timestamp: float
+
+
+class FrameCodec:
+    """Encode and validate the softgrip CAN frames. Thread-safe: a Notifier thread may decode
+    while the control loop encodes.
+
+    dbc_path: the DBC (default: the packaged config/softgrip.dbc).
+    frame_ids: optional {message name: arbitration ID} overrides.
+    max_counter_delta: the largest accepted counter step (1 = no frame may be lost).
+    resync_after: consecutive counter jumps after which the receiver accepts the new sequence.
+    """
+
+    def __init__(self, dbc_path=None, frame_ids: dict | None = None, max_counter_delta: int = 3,
+                 resync_after: int = 3):
+        if dbc_path is None:
+            from softgrip_ros.config_paths import config_file
+            dbc_path = config_file("softgrip.dbc")
+        self.database = cantools.database.load_file(str(pathlib.Path(dbc_path)))
+        if not 1 <= max_counter_delta < COUNTER_MODULO:
+            raise ValueError(f"max_counter_delta must lie in [1, {COUNTER_MODULO - 1}], got {max_counter_delta}")
+        self.max_counter_delta = max_counter_delta
+        self.resync_after = resync_after
+        self._messages = {m.name: m for m in self.database.messages}
+        for name, message in self._messages.items():
+            missing = {COUNTER_SIGNAL, CRC_SIGNAL} - {s.name for s in message.signals}
+            if missing:
+                raise ValueError(f"DBC message {name} lacks {sorted(missing)}: every frame needs a counter and a CRC")
+            if message.length != 8:
+                raise ValueError(f"DBC message {name} must be 8 bytes long (the CRC is byte 7)")
+        self.frame_ids = {name: m.frame_id for name, m in self._messages.items()}
+        for name, frame_id in (frame_ids or {}).items():
+            if name not in self._messages:
+                raise ValueError(f"frame_ids: unknown message {name!r}; the DBC defines {sorted(self._messages)}")
+            if not 0 <= int(frame_id) <= 0x7FF:
+                raise ValueError(f"frame_ids: {name} = {frame_id:#x} is not an 11-bit standard ID")
+            self.frame_ids[name] = int(frame_id)
+        if len(set(self.frame_ids.values())) != len(self.frame_ids):
+            raise ValueError(f"frame_ids: two messages share an arbitration ID: {self.frame_ids}")
+        self._names_by_id = {frame_id: name for name, frame_id in self.frame_ids.items()}
+        self._ranges = {name: {s.name: (s.minimum, s.maximum) for s in m.signals
+                               if s.name not in (COUNTER_SIGNAL, CRC_SIGNAL)}
+                        for name, m in self._messages.items()}
+        self._lock = threading.Lock()
+        self._tx_counters = collections.defaultdict(int)
+        self._rx_counters: dict = {}
+        self._rx_jumps = collections.defaultdict(int)
+        self.rejected = collections.Counter({reason: 0 for reason in REJECT_REASONS})
+        self.accepted = 0
+
+    @property
+    def message_names(self) -> tuple:
+        return tuple(self._messages)
+
+    def signal_range(self, message: str, signal: str) -> tuple:
+        return self._ranges[message][signal]
+
+    def encode(self, name: str, signals: dict, counter: int | None = None) -> can.Message:
+        """A frame with the next alive counter (or ``counter``) and its CRC.
+
+        Raises ValueError for an unknown message, a missing signal or a value outside the DBC range.
+        """
+        try:
+            message = self._messages[name]
+        except KeyError:
+            raise ValueError(f"unknown message {name!r}") from None
+        with self._lock:
+            if counter is None:
+                counter = self._tx_counters[name]
+                self._tx_counters[name] = (counter + 1) % COUNTER_MODULO
+        values = dict(signals)
+        values[COUNTER_SIGNAL] = counter % COUNTER_MODULO
+        values[CRC_SIGNAL] = 0
+        try:
+            payload = bytearray(message.encode(values, scaling=True, padding=False, strict=True))
+        except (cantools.database.EncodeError, KeyError) as error:
+            raise ValueError(f"cannot encode {name}: {error}") from None
+        frame_id = self.frame_ids[name]
+        payload[CRC_BYTE] = frame_crc(frame_id, bytes(payload))
+        return can.Message(arbitration_id=frame_id, data=bytes(payload), is_extended_id=False)
+
+    def decode(self, frame: can.Message) -> DecodedFrame | None:
+        """The validated signals of ``frame``, or None (the reason is counted in ``rejected``)."""
+        name = self._names_by_id.get(frame.arbitration_id)
+        if name is None or frame.is_extended_id or frame.is_remote_frame or frame.is_error_frame:
+            return self._reject("unknown_id")
+        data = bytes(frame.data)
+        if len(data) != 8 or frame.dlc != 8:
+            return self._reject("bad_dlc")
+        if data[CRC_BYTE] != frame_crc(frame.arbitration_id, data):
+            return self._reject("bad_crc")
+        try:
+            signals = self._messages[name].decode(data, decode_choices=False, scaling=True)
+        except Exception:  # cantools raises several types for malformed payloads
+            return self._reject("undecodable")
+        for signal, (low, high) in self._ranges[name].items():
+            value = signals[signal]
+            if (low is not None and value < low) or (high is not None and value > high):
+                return self._reject("out_of_range")
+        counter = int(signals.pop(COUNTER_SIGNAL))
+        signals.pop(CRC_SIGNAL)
+        with self._lock:
+            last = self._rx_counters.get(name)
+            if last is not None:
+                delta = (counter - last) % COUNTER_MODULO
+                if delta == 0:
+                    self.rejected["repeated_counter"] += 1
+                    return None
+                if delta > self.max_counter_delta:
+                    self._rx_jumps[name] += 1
+                    if self._rx_jumps[name] < self.resync_after:
+                        self.rejected["counter_jump"] += 1
+                        return None
+            self._rx_counters[name] = counter
+            self._rx_jumps[name] = 0
+            self.accepted += 1
+        return DecodedFrame(name, signals, frame.timestamp)
+
+    def reset_receiver(self, name: str | None = None) -> None:
+        """Forget the last counters (after a timeout the next frame starts a new sequence)."""
+        with self._lock:
+            if name is None:
+                self._rx_counters.clear()
+            else:
+                self._rx_counters.pop(name, None)
+
+    @property
+    def rejected_total(self) -> int:
+        return sum(self.rejected.values())
+
+    def _reject(self, reason: str):
+        with self._lock:
+            self.rejected[reason] += 1
+        return None

@@ -1,0 +1,120 @@
+"""The CAN codec: round trips, CRC and counter protection, range checks, and random bytes."""
+import can
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from softgrip_ros.canbus.codec import FrameCodec, crc8_sae_j1850
+
+
+def test_crc_check_value():
+    assert crc8_sae_j1850(b"123456789") == 0x4B  # the published check value of CRC-8/SAE-J1850
+
+
+def sensor(codec, pressure=-12_345.6, status=0, counter=None):
+    return codec.encode("PressureSensor1", {"GaugePressure": pressure, "SensorStatus": status}, counter=counter)
+
+
+@settings(max_examples=200, deadline=None)
+@given(pressure=st.floats(-101_325, 700_000), status=st.integers(0, 15))
+def test_sensor_frame_round_trip(pressure, status):
+    tx, rx = FrameCodec(), FrameCodec()
+    decoded = rx.decode(sensor(tx, pressure, status))
+    assert decoded.name == "PressureSensor1"
+    assert decoded.signals["GaugePressure"] == pytest.approx(pressure, abs=0.05 + 1e-9)  # 0.1 Pa resolution
+    assert decoded.signals["SensorStatus"] == status
+
+
+@settings(max_examples=100, deadline=None)
+@given(setpoint=st.floats(-101_325, 600_000), enable=st.integers(0, 1), source=st.integers(0, 3),
+       valves=st.lists(st.integers(0, 3), min_size=4, max_size=4))
+def test_command_frames_round_trip(setpoint, enable, source, valves):
+    tx, rx = FrameCodec(), FrameCodec()
+    decoded = rx.decode(tx.encode("RegulatorSetpoint", {"SetpointGaugePressure": setpoint, "Enable": enable,
+                                                         "Source": source}))
+    assert decoded.signals["SetpointGaugePressure"] == pytest.approx(setpoint, abs=0.05 + 1e-9)
+    assert (decoded.signals["Enable"], decoded.signals["Source"]) == (enable, source)
+    decoded = rx.decode(tx.encode("ValveCommand", {f"Channel{i}": v for i, v in enumerate(valves)}))
+    assert [decoded.signals[f"Channel{i}"] for i in range(4)] == valves
+
+
+@settings(max_examples=500, deadline=None)
+@given(arbitration_id=st.integers(0, 0x7FF), data=st.binary(min_size=0, max_size=8))
+def test_random_bytes_never_crash_the_decoder(arbitration_id, data):
+    codec = FrameCodec()
+    codec.decode(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
+    assert codec.accepted + codec.rejected_total == 1
+
+
+def test_every_bit_flip_is_caught():
+    tx = FrameCodec()
+    frame = sensor(tx)
+    for bit in range(64):
+        rx = FrameCodec()
+        data = bytearray(frame.data)
+        data[bit // 8] ^= 1 << (bit % 8)
+        assert rx.decode(can.Message(arbitration_id=frame.arbitration_id, data=bytes(data), is_extended_id=False)) is None
+        assert rx.rejected["bad_crc"] == 1
+
+
+def test_counter_rules():
+    tx, rx = FrameCodec(), FrameCodec(max_counter_delta=3, resync_after=3)
+    assert rx.decode(sensor(tx, counter=5))                 # the first frame starts the sequence
+    assert rx.decode(sensor(tx, counter=5)) is None         # repeated
+    assert rx.rejected["repeated_counter"] == 1
+    assert rx.decode(sensor(tx, counter=7))                 # one lost frame is tolerated
+    assert rx.decode(sensor(tx, counter=3)) is None         # stale (a jump of 12)
+    assert rx.rejected["counter_jump"] == 1
+    assert rx.decode(sensor(tx, counter=8))                 # the live sequence goes on
+    assert rx.decode(sensor(tx, counter=15)) is None
+    assert rx.decode(sensor(tx, counter=0)) is None         # 15 -> 0 is a jump of 8 from the last valid 8
+    assert rx.decode(sensor(tx, counter=1))                 # third jump in a row: resynchronised
+    assert rx.decode(sensor(tx, counter=2))
+    assert rx.accepted == 5
+
+
+def test_counter_wraps_and_is_per_message():
+    tx, rx = FrameCodec(), FrameCodec(max_counter_delta=1)
+    for _ in range(40):
+        assert rx.decode(sensor(tx))
+        assert rx.decode(tx.encode("RegulatorStatus", {"ActualGaugePressure": 1.0, "FaultBits": 0}))
+    assert rx.rejected_total == 0
+
+
+def test_wrong_dlc_unknown_id_and_out_of_range_are_counted():
+    tx, rx = FrameCodec(), FrameCodec()
+    frame = sensor(tx)
+    assert rx.decode(can.Message(arbitration_id=frame.arbitration_id, data=frame.data[:6], is_extended_id=False)) is None
+    assert rx.rejected["bad_dlc"] == 1
+    assert rx.decode(can.Message(arbitration_id=0x7AB, data=frame.data, is_extended_id=False)) is None
+    assert rx.decode(can.Message(arbitration_id=frame.arbitration_id, data=frame.data, is_extended_id=True)) is None
+    assert rx.rejected["unknown_id"] == 2
+    # a raw value the signal can carry but the DBC range forbids: -0.2 MPa gauge is below vacuum
+    raw = bytearray(frame.data)
+    value = int(-200_000 / 0.1) & 0xFFFFFF
+    raw[0:3] = value.to_bytes(3, "little")
+    from softgrip_ros.canbus.codec import frame_crc
+    raw[7] = frame_crc(frame.arbitration_id, bytes(raw))
+    assert rx.decode(can.Message(arbitration_id=frame.arbitration_id, data=bytes(raw), is_extended_id=False)) is None
+    assert rx.rejected["out_of_range"] == 1
+    assert rx.accepted == 0
+
+
+def test_encode_refuses_bad_values():
+    codec = FrameCodec()
+    with pytest.raises(ValueError, match="cannot encode PressureSensor1"):
+        sensor(codec, pressure=1e7)
+    with pytest.raises(ValueError, match="unknown message"):
+        codec.encode("Nope", {})
+
+
+def test_frame_ids_are_configurable():
+    tx = FrameCodec(frame_ids={"PressureSensor1": 0x300})
+    rx = FrameCodec(frame_ids={"PressureSensor1": 0x300})
+    frame = sensor(tx)
+    assert frame.arbitration_id == 0x300
+    assert rx.decode(frame).name == "PressureSensor1"
+    assert FrameCodec().decode(frame) is None  # a receiver on the default IDs does not know 0x300
+    with pytest.raises(ValueError, match="share an arbitration ID"):
+        FrameCodec(frame_ids={"PressureSensor1": 0x211})
+    with pytest.raises(ValueError, match="unknown message"):
+        FrameCodec(frame_ids={"Sensor9": 0x400})
