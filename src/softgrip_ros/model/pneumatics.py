@@ -1,0 +1,261 @@
+"""Pneumatic plant: regulator, valve block, vacuum source and compliant chambers.
+
+The simulated device runs this in real time, and the estimator uses it as its process
+model. All pressures inside are **absolute** (Pa) unless a name says gauge.
+
+Orifice flow, ISO 6358, with sonic conductance C and critical pressure ratio b; for
+r = p_down / p_up::
+
+    m_dot = C rho0 p_up sqrt(T0/T)                                  r <= b (choked)
+    m_dot = C rho0 p_up sqrt(T0/T) sqrt(1 - ((r - b)/(1 - b))^2)    r >  b (subsonic)
+
+Chamber (ideal gas, isothermal: the paper's Assumption 2), with a volume that swells
+with pressure, V(p) = V0 + k (p - p_atm)::
+
+    dp/dt = R T m_dot / (V + p dV/dp)
+
+The paper assumes every orifice is choked; near equilibrium (r -> 1) that is false and a
+choked-only model never settles. The subsonic branch has an infinite slope at r = 1,
+which makes the ODE stiff there: a fixed-step explicit Euler cannot settle (it chatters
+with an amplitude that grows with dt^2, and beyond a step size it runs away). :meth:`PneumaticPlant.step`
+therefore integrates each chamber by backward Euler, solved exactly per step with a
+bracketed root finder; the backward-Euler map is monotone, so it never overshoots the
+source and settles exactly at equilibrium for any step.
+
+The regulator follows its setpoint with a first-order lag and a rate limit, integrated
+exactly (stable for any step). Its flow demand is not modelled: it is assumed large
+enough to hold its output.
+"""
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+
+import numpy as np
+from scipy.optimize import brentq
+
+P_ATM_PA = 101_325.0
+R_AIR_J_PER_KG_K = 287.05
+RHO0_KG_PER_M3 = 1.185       # ISO 6358 reference density
+T0_K = 293.15                # ISO 6358 reference temperature
+
+
+class Valve(enum.IntEnum):
+    """Valve-block state of one channel (the CAN ValveCommand values)."""
+
+    CLOSED = 0
+    SUPPLY = 1    # chamber <-> regulator output
+    VACUUM = 2    # chamber <-> vacuum source (fast evacuation)
+    VENT = 3      # chamber <-> atmosphere
+
+
+@dataclasses.dataclass(frozen=True)
+class PneumaticParameters:
+    """Every default of the plant, in one place. These are documented assumptions, not
+    measurements: the paper gives no pneumatic data. Orders of magnitude follow physics.md.
+
+    chamber_volume_m3: V0, the air in one channel at 0 Pa gauge (five chambers of two
+        fingers plus tubing).
+    chamber_compliance_m3_per_pa: k = dV/dp, the chambers' swelling (+5 mL at 50 kPa).
+    min_chamber_volume_m3: the volume cannot shrink below this under vacuum.
+    supply_conductance, vacuum_conductance, vent_conductance: C of each valve path,
+        m^3/(s Pa).
+    critical_ratio: b of every path.
+    temperature_k: the gas temperature (isothermal).
+    supply_gauge_pa: the regulator's inlet; its output cannot exceed it.
+    vacuum_source_gauge_pa: the vacuum pump's level.
+    regulator_time_constant_s, regulator_rate_limit_pa_per_s: the regulator's dynamics.
+    """
+
+    channels: int = 1
+    chamber_volume_m3: float = 20e-6
+    chamber_compliance_m3_per_pa: float = 1e-10
+    min_chamber_volume_m3: float = 2e-6
+    supply_conductance: float = 1.0e-9
+    vacuum_conductance: float = 1.0e-9
+    vent_conductance: float = 1.5e-9
+    critical_ratio: float = 0.3
+    temperature_k: float = 293.15
+    supply_gauge_pa: float = 150e3
+    vacuum_source_gauge_pa: float = -80e3
+    regulator_time_constant_s: float = 0.03
+    regulator_rate_limit_pa_per_s: float = 2.0e6
+
+    def __post_init__(self):
+        positive = ("chamber_volume_m3", "min_chamber_volume_m3", "supply_conductance", "vacuum_conductance",
+                    "vent_conductance", "temperature_k", "regulator_time_constant_s",
+                    "regulator_rate_limit_pa_per_s")
+        for name in positive:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"PneumaticParameters.{name} must be positive and finite, got {value}")
+        if not 1 <= self.channels <= 4:
+            raise ValueError(f"channels must lie in 1..4 (the ValveCommand frame has 4), got {self.channels}")
+        if not 0.0 < self.critical_ratio < 1.0:
+            raise ValueError(f"critical_ratio b must lie in (0, 1), got {self.critical_ratio}")
+        if not (math.isfinite(self.chamber_compliance_m3_per_pa) and self.chamber_compliance_m3_per_pa >= 0.0):
+            raise ValueError("chamber_compliance_m3_per_pa must be >= 0 and finite")
+        if not -P_ATM_PA < self.vacuum_source_gauge_pa < 0.0 < self.supply_gauge_pa:
+            raise ValueError("need -101325 < vacuum_source_gauge_pa < 0 < supply_gauge_pa")
+
+    @property
+    def gas_constant_times_temperature(self) -> float:
+        return R_AIR_J_PER_KG_K * self.temperature_k
+
+
+def orifice_mass_flow(p_from_pa, p_to_pa, conductance: float, critical_ratio: float, temperature_k: float):
+    """Signed ISO 6358 mass flow (kg/s) from the ``p_from`` side to the ``p_to`` side; arrays allowed."""
+    p_from = np.asarray(p_from_pa, dtype=float)
+    p_to = np.asarray(p_to_pa, dtype=float)
+    upstream = np.maximum(p_from, p_to)
+    downstream = np.minimum(p_from, p_to)
+    ratio = downstream / upstream
+    subsonic = np.clip((ratio - critical_ratio) / (1.0 - critical_ratio), 0.0, 1.0)
+    flow = conductance * RHO0_KG_PER_M3 * upstream * math.sqrt(T0_K / temperature_k) * np.sqrt(1.0 - subsonic**2)
+    result = np.where(p_from >= p_to, flow, -flow)
+    return float(result) if result.ndim == 0 else result
+
+
+@dataclasses.dataclass
+class PlantState:
+    """regulator_gauge_pa: the regulator output; chamber_pa: absolute pressure per channel."""
+
+    regulator_gauge_pa: float
+    chamber_pa: np.ndarray
+
+    def copy(self) -> "PlantState":
+        return PlantState(self.regulator_gauge_pa, self.chamber_pa.copy())
+
+
+@dataclasses.dataclass
+class PlantInputs:
+    """regulator_setpoint_gauge_pa (clamped to the sources), regulator_enabled, valves per channel,
+    regulator_overshoot_pa (a fault: the output settles this far above its setpoint)."""
+
+    regulator_setpoint_gauge_pa: float = 0.0
+    regulator_enabled: bool = True
+    valves: tuple = (Valve.CLOSED,)
+    regulator_overshoot_pa: float = 0.0
+
+
+class PneumaticPlant:
+    """The plant of :class:`PneumaticParameters`, integrated by :meth:`step`."""
+
+    def __init__(self, parameters: PneumaticParameters | None = None):
+        self.parameters = parameters or PneumaticParameters()
+
+    def initial_state(self, chamber_gauge_pa: float = 0.0) -> PlantState:
+        return PlantState(0.0, np.full(self.parameters.channels, P_ATM_PA + chamber_gauge_pa))
+
+    # ---- the model ----------------------------------------------------------------------------
+    def volume_m3(self, chamber_pa):
+        par = self.parameters
+        return np.maximum(par.chamber_volume_m3 + par.chamber_compliance_m3_per_pa * (np.asarray(chamber_pa) - P_ATM_PA),
+                          par.min_chamber_volume_m3)
+
+    def capacitance(self, chamber_pa):
+        """V + p dV/dp (m^3): the chamber's isothermal capacitance times R T."""
+        par = self.parameters
+        swelling = np.where(self.volume_m3(chamber_pa) > par.min_chamber_volume_m3, par.chamber_compliance_m3_per_pa, 0.0)
+        return self.volume_m3(chamber_pa) + np.asarray(chamber_pa) * swelling
+
+    def source(self, valve: Valve, regulator_gauge_pa: float) -> tuple[float, float]:
+        """(absolute pressure, conductance) a valve state connects the chamber to; conductance 0 = closed."""
+        par = self.parameters
+        if valve == Valve.SUPPLY:
+            return P_ATM_PA + regulator_gauge_pa, par.supply_conductance
+        if valve == Valve.VACUUM:
+            return P_ATM_PA + par.vacuum_source_gauge_pa, par.vacuum_conductance
+        if valve == Valve.VENT:
+            return P_ATM_PA, par.vent_conductance
+        return P_ATM_PA, 0.0
+
+    def chamber_mass_flow(self, chamber_pa: float, valve: Valve, regulator_gauge_pa: float) -> float:
+        """Mass flow into one chamber (kg/s)."""
+        source_pa, conductance = self.source(valve, regulator_gauge_pa)
+        if conductance == 0.0:
+            return 0.0
+        return orifice_mass_flow(source_pa, chamber_pa, conductance, self.parameters.critical_ratio,
+                                 self.parameters.temperature_k)
+
+    def chamber_rate(self, chamber_pa: float, valve: Valve, regulator_gauge_pa: float) -> float:
+        """dp/dt of one chamber (Pa/s)."""
+        return (self.parameters.gas_constant_times_temperature
+                * self.chamber_mass_flow(chamber_pa, valve, regulator_gauge_pa) / float(self.capacitance(chamber_pa)))
+
+    def regulator_target_gauge_pa(self, inputs: PlantInputs) -> float:
+        par = self.parameters
+        target = inputs.regulator_setpoint_gauge_pa if inputs.regulator_enabled else 0.0
+        target = min(max(target, par.vacuum_source_gauge_pa), par.supply_gauge_pa)
+        return min(target + inputs.regulator_overshoot_pa, par.supply_gauge_pa)
+
+    def chamber_mass_kg(self, chamber_pa):
+        return np.asarray(chamber_pa) * self.volume_m3(chamber_pa) / self.parameters.gas_constant_times_temperature
+
+    # ---- integration --------------------------------------------------------------------------
+    def step(self, state: PlantState, inputs: PlantInputs, dt: float) -> PlantState:
+        """Advance by dt (s): the regulator exactly, each chamber by backward Euler."""
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"dt must be positive and finite, got {dt}")
+        regulator = self._regulator_after(state.regulator_gauge_pa, inputs, dt)
+        chambers = np.array([self._chamber_backward_euler(p, valve, regulator, dt)
+                             for p, valve in zip(state.chamber_pa, self._valves(inputs))])
+        return PlantState(regulator, chambers)
+
+    def _regulator_after(self, regulator_gauge_pa: float, inputs: PlantInputs, dt: float) -> float:
+        par = self.parameters
+        target = self.regulator_target_gauge_pa(inputs)
+        lagged = target + (regulator_gauge_pa - target) * math.exp(-dt / par.regulator_time_constant_s)
+        max_change = par.regulator_rate_limit_pa_per_s * dt
+        return regulator_gauge_pa + min(max(lagged - regulator_gauge_pa, -max_change), max_change)
+
+    def _chamber_backward_euler(self, chamber_pa: float, valve: Valve, regulator_gauge_pa: float, dt: float) -> float:
+        source_pa, conductance = self.source(valve, regulator_gauge_pa)
+        if conductance == 0.0 or source_pa == chamber_pa:
+            return float(chamber_pa)
+        # g(p) = p - p_n - dt f(p) rises strictly from p_n to the source: one root between them
+        def residual(p):
+            return p - chamber_pa - dt * self.chamber_rate(p, valve, regulator_gauge_pa)
+        low, high = sorted((float(chamber_pa), source_pa))
+        return brentq(residual, low, high, xtol=1e-9, rtol=4 * np.finfo(float).eps)
+
+    def _valves(self, inputs: PlantInputs) -> tuple:
+        valves = tuple(Valve(v) for v in inputs.valves)
+        if len(valves) == 1 and self.parameters.channels > 1:
+            valves = valves * self.parameters.channels
+        if len(valves) != self.parameters.channels:
+            raise ValueError(f"need {self.parameters.channels} valve states, got {len(valves)}")
+        return valves
+
+    def explicit_euler_step(self, state: PlantState, inputs: PlantInputs, dt: float) -> PlantState:
+        """The naive scheme, kept to show where it fails (tests and the integrator benchmark)."""
+        regulator = self._regulator_after(state.regulator_gauge_pa, inputs, dt)
+        chambers = np.array([p + dt * self.chamber_rate(p, valve, state.regulator_gauge_pa)
+                             for p, valve in zip(state.chamber_pa, self._valves(inputs))])
+        return PlantState(regulator, chambers)
+
+    def derivative(self, state_vector: np.ndarray, inputs: PlantInputs) -> np.ndarray:
+        """d/dt of [regulator gauge, chamber abs...] for scipy's solve_ivp (rate limit included)."""
+        par = self.parameters
+        regulator, chambers = state_vector[0], state_vector[1:]
+        target = self.regulator_target_gauge_pa(inputs)
+        regulator_rate = min(max((target - regulator) / par.regulator_time_constant_s,
+                                 -par.regulator_rate_limit_pa_per_s), par.regulator_rate_limit_pa_per_s)
+        rates = [self.chamber_rate(p, valve, regulator) for p, valve in zip(chambers, self._valves(inputs))]
+        return np.array([regulator_rate, *rates])
+
+    # ---- closed forms ----------------------------------------------------------------------------
+    def choked_fill_time_s(self, source_pa: float, from_pa: float, to_pa: float, conductance: float) -> float:
+        """Time to fill from ``from_pa`` to ``to_pa`` from a constant source while the flow stays choked.
+
+        The flow is constant, m = C rho0 p_s sqrt(T0/T); integrating dp (V0 + k(2p - p_atm)) = R T m dt
+        (with V(p) above its floor) gives t = [V0 (p1 - p0) + k (p1^2 - p0^2 - p_atm (p1 - p0))] / (R T m).
+        """
+        par = self.parameters
+        if to_pa > par.critical_ratio * source_pa:
+            raise ValueError("the flow is not choked all the way: to_pa must stay below b * source_pa")
+        flow = conductance * RHO0_KG_PER_M3 * source_pa * math.sqrt(T0_K / par.temperature_k)
+        k, v0 = par.chamber_compliance_m3_per_pa, par.chamber_volume_m3
+        return ((v0 * (to_pa - from_pa) + k * (to_pa**2 - from_pa**2 - P_ATM_PA * (to_pa - from_pa)))
+                / (par.gas_constant_times_temperature * flow))
