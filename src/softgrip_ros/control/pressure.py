@@ -1,0 +1,347 @@
+"""Pressure control law and safety logic of the pressure controller (no ROS, no CAN).
+
+Each control period :meth:`PressureController.step` turns the latest command, sensor
+readings and regulator status into a regulator setpoint and a valve state per channel.
+
+Control law (source SUPPLY or VACUUM, target r* in Pa gauge):
+
+- the setpoint r slews towards r* at the command's max rate (the configured default when
+  the command gives none), after clamping r* to [min_gauge_pa, max_gauge_pa];
+- **boost**: on a rise of more than ``boost_min_step_pa``, while the chamber is more than
+  ``boost_band_pa`` below r, the
+  regulator is driven to its maximum with the valve open (the time-optimal rise is the
+  valve fully open to supply); ``boost_lead_s`` before the chamber would reach r at its
+  current rate the valve closes (**settle**) until the regulator's reported output has
+  come down to the regulated value, so its lag cannot overshoot the chamber;
+- **regulation**: regulator setpoint = r (feed-forward) + PI trim on the feedback
+  (the estimate when fresh, else the mean of the fresh sensors), the trim clamped to
+  +-``trim_limit_pa``; the integral runs only within ``integral_band_pa`` of the setpoint
+  and while the trim is not clamped (anti-windup);
+- **valves** (hysteresis ``valve_band_pa``, so they do not chatter): SUPPLY (the regulated
+  line) normally; VACUUM (the raw pump) while the chamber is far above a negative target;
+  VENT for a VENT command; CLOSED for HOLD.
+
+Safety (design.md), independent of the grasp manager:
+
+- setpoints beyond the hard limits are clamped, and flagged until a valid command;
+- measured pressure beyond a limit by ``overpressure_margin_pa`` vents at once and latches
+  FAULT, cleared by a new command once the pressure is back inside the limits;
+- no valid sensor reading for ``sensor_timeout_s``: valves closed (hold), flagged, and
+  regulation resumes by itself when readings return;
+- no command for ``command_timeout_s`` while regulating: the configured safe action
+  (``hold`` or ``vent``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+
+from softgrip_ros.model.pneumatics import Valve
+
+
+class Source(enum.IntEnum):
+    """PressureCommand.source (and the RegulatorSetpoint Source signal)."""
+
+    SUPPLY = 0
+    VACUUM = 1
+    VENT = 2
+    HOLD = 3
+
+
+class Mode(enum.IntEnum):
+    """ControllerStatus.mode."""
+
+    INACTIVE = 0
+    REGULATE = 1
+    HOLD = 2
+    VENT = 3
+    FAULT = 4
+
+
+class Fault(enum.IntFlag):
+    """ControllerStatus.fault_flags."""
+
+    NONE = 0
+    OVERPRESSURE = 1
+    SENSOR_TIMEOUT = 2
+    COMMAND_TIMEOUT = 4
+    BUS_SILENT = 8
+    REGULATOR = 16
+    SETPOINT_CLAMPED = 32
+    BUS_ERROR = 64
+
+
+@dataclasses.dataclass(frozen=True)
+class PressureControlConfig:
+    """Parameters of the control law and the safety rules. Pressures gauge, Pa; times s."""
+
+    max_gauge_pa: float = 50e3
+    min_gauge_pa: float = -60e3
+    overpressure_margin_pa: float = 5e3
+    sensor_timeout_s: float = 0.05
+    command_timeout_s: float = 2.0
+    command_timeout_action: str = "hold"
+    default_rate_pa_per_s: float = 1.0e6
+    regulator_max_gauge_pa: float = 150e3
+    regulator_min_gauge_pa: float = -80e3
+    kp: float = 0.3
+    ki_per_s: float = 30.0
+    trim_limit_pa: float = 5e3
+    integral_band_pa: float = 1.5e3
+    boost_band_pa: float = 1e3
+    boost_min_step_pa: float = 5e3
+    boost_lead_s: float = 0.004
+    rate_filter_s: float = 0.004
+    settle_timeout_s: float = 0.2
+    valve_band_pa: float = 5e3
+    channels: int = 1
+
+    def __post_init__(self):
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ValueError(f"{field.name} must be finite, got {value}")
+        checks = [
+            (0.0 < self.max_gauge_pa <= 100e3, "max_gauge_pa must lie in (0, 100000] Pa"),
+            (-101_325.0 < self.min_gauge_pa < 0.0, "min_gauge_pa must lie in (-101325, 0) Pa"),
+            (0.0 < self.overpressure_margin_pa <= 50e3, "overpressure_margin_pa must lie in (0, 50000] Pa"),
+            (0.0 < self.sensor_timeout_s <= 10.0, "sensor_timeout_s must lie in (0, 10] s"),
+            (0.0 < self.command_timeout_s <= 3600.0, "command_timeout_s must lie in (0, 3600] s"),
+            (self.command_timeout_action in ("hold", "vent"), "command_timeout_action must be 'hold' or 'vent'"),
+            (0.0 < self.default_rate_pa_per_s <= 1e8, "default_rate_pa_per_s must lie in (0, 1e8] Pa/s"),
+            (self.regulator_min_gauge_pa < 0.0 < self.regulator_max_gauge_pa, "the regulator range must span 0"),
+            (0.0 <= self.kp <= 10.0 and 0.0 <= self.ki_per_s <= 1e3, "kp in [0, 10], ki_per_s in [0, 1000]"),
+            (0.0 <= self.trim_limit_pa <= 50e3, "trim_limit_pa must lie in [0, 50000] Pa"),
+            (0.0 < self.integral_band_pa <= 50e3, "integral_band_pa must lie in (0, 50000] Pa"),
+            (0.0 < self.boost_band_pa and 0.0 <= self.boost_lead_s <= 1.0, "boost_band_pa > 0, boost_lead_s in [0, 1]"),
+            (self.boost_min_step_pa >= self.boost_band_pa, "boost_min_step_pa must be >= boost_band_pa"),
+            (0.0 <= self.rate_filter_s <= 1.0, "rate_filter_s must lie in [0, 1] s"),
+            (0.0 < self.valve_band_pa, "valve_band_pa must be > 0"),
+            (1 <= self.channels <= 4, "channels must lie in 1..4"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise ValueError(message)
+
+
+@dataclasses.dataclass(frozen=True)
+class ControlOutput:
+    regulator_setpoint_gauge_pa: float
+    regulator_enabled: bool
+    regulator_source: Source
+    valves: tuple
+    mode: Mode
+    fault_flags: Fault
+    setpoint_gauge_pa: float       # after limits and slew
+    feedback_gauge_pa: float       # what the law used (NaN when none)
+    message: str
+
+
+class PressureController:
+    """The control core; feed it readings and commands, call :meth:`step` every period."""
+
+    def __init__(self, config: PressureControlConfig | None = None):
+        self.config = config or PressureControlConfig()
+        self._sensors: dict = {}                  # name -> (gauge_pa, time)
+        self._estimate = (math.nan, -math.inf)
+        self._target = 0.0
+        self._source = Source.VENT
+        self._rate = self.config.default_rate_pa_per_s
+        self._command_time = None
+        self._setpoint = 0.0
+        self._integral = 0.0
+        self._last_step = None
+        self._phase = "track"                 # track | boost | settle
+        self._settle_started = 0.0
+        self._regulator_actual = 0.0
+        self._previous_feedback = None
+        self._rate_estimate = 0.0
+        self._evacuating = False
+        self._latched = Fault.NONE
+        self._regulator_faults = 0
+        self.active = False
+        self.last_output: ControlOutput | None = None
+
+    # ---- inputs -----------------------------------------------------------------------------
+    def command(self, target_gauge_pa: float, source: Source, max_rate_pa_per_s: float, now: float) -> str:
+        """Accept a PressureCommand. Returns a note for the user ('' when nothing to say)."""
+        source = Source(source)
+        if source in (Source.SUPPLY, Source.VACUUM) and not math.isfinite(target_gauge_pa):
+            raise ValueError(f"target pressure must be finite for {source.name}, got {target_gauge_pa}")
+        note = ""
+        self._latched &= ~(Fault.SETPOINT_CLAMPED | Fault.COMMAND_TIMEOUT)
+        if source in (Source.SUPPLY, Source.VACUUM):
+            clamped = min(max(target_gauge_pa, self.config.min_gauge_pa), self.config.max_gauge_pa)
+            if clamped != target_gauge_pa:
+                self._latched |= Fault.SETPOINT_CLAMPED
+                note = (f"setpoint {target_gauge_pa:.0f} Pa clamped to {clamped:.0f} Pa "
+                        f"(limits {self.config.min_gauge_pa:.0f}..{self.config.max_gauge_pa:.0f} Pa)")
+            self._target = clamped
+        rate = max_rate_pa_per_s
+        self._rate = rate if (math.isfinite(rate) and rate > 0.0) else self.config.default_rate_pa_per_s
+        if source != self._source:
+            self._integral = 0.0
+        self._source = source
+        self._command_time = now
+        if Fault.OVERPRESSURE in self._latched and self._within_limits(self.feedback(now)):
+            self._latched &= ~Fault.OVERPRESSURE
+        return note
+
+    def update_sensor(self, name: str, gauge_pa: float, now: float) -> None:
+        if math.isfinite(gauge_pa):
+            self._sensors[name] = (gauge_pa, now)
+
+    def update_estimate(self, gauge_pa: float, now: float) -> None:
+        if math.isfinite(gauge_pa):
+            self._estimate = (gauge_pa, now)
+
+    def update_regulator_status(self, actual_gauge_pa: float, fault_bits: int) -> None:
+        if math.isfinite(actual_gauge_pa):
+            self._regulator_actual = actual_gauge_pa
+        self._regulator_faults = int(fault_bits)
+
+    def vent(self, now: float) -> None:
+        """Vent now (service call, shutdown, deactivate)."""
+        self._source = Source.VENT
+        self._target = 0.0
+        self._command_time = now
+        self._integral = 0.0
+
+    # ---- feedback ---------------------------------------------------------------------------
+    def fresh_sensors(self, now: float) -> dict:
+        return {name: value for name, (value, stamp) in self._sensors.items()
+                if now - stamp <= self.config.sensor_timeout_s}
+
+    def measured(self, now: float) -> float:
+        """Mean of the fresh sensor readings, NaN when none is fresh."""
+        fresh = self.fresh_sensors(now)
+        return sum(fresh.values()) / len(fresh) if fresh else math.nan
+
+    def feedback(self, now: float) -> float:
+        value, stamp = self._estimate
+        if now - stamp <= self.config.sensor_timeout_s and self.fresh_sensors(now):
+            return value
+        return self.measured(now)
+
+    def last_sensor_age(self, now: float) -> float:
+        return min((now - stamp for _, stamp in self._sensors.values()), default=math.inf)
+
+    def _within_limits(self, pressure: float) -> bool:
+        c = self.config
+        return math.isfinite(pressure) and c.min_gauge_pa - c.overpressure_margin_pa <= pressure <= c.max_gauge_pa + c.overpressure_margin_pa
+
+    # ---- the law ------------------------------------------------------------------------------
+    def step(self, now: float) -> ControlOutput:
+        c = self.config
+        dt = 0.0 if self._last_step is None else max(0.0, now - self._last_step)
+        self._last_step = now
+        faults = self._latched
+        if self._regulator_faults:
+            faults |= Fault.REGULATOR
+        measured = self.measured(now)
+        feedback = self.feedback(now)
+
+        if not self.active:
+            return self._output(0.0, False, Source.VENT, Valve.CLOSED, Mode.INACTIVE, faults, feedback, "inactive")
+        if math.isfinite(measured) and not self._within_limits(measured):
+            self._latched |= Fault.OVERPRESSURE
+            faults |= Fault.OVERPRESSURE
+        if Fault.OVERPRESSURE in self._latched:
+            self.vent(now)
+            return self._output(0.0, False, Source.VENT, Valve.VENT, Mode.FAULT, faults, feedback,
+                                f"pressure {measured:.0f} Pa beyond the limits: venting")
+        if math.isnan(measured):
+            self._integral = 0.0
+            self._phase = "track"
+            return self._output(self._setpoint, True, self._regulator_source(), Valve.CLOSED, Mode.HOLD,
+                                faults | Fault.SENSOR_TIMEOUT, feedback,
+                                "no valid pressure reading: valves closed")
+        regulating = self._source in (Source.SUPPLY, Source.VACUUM)
+        if regulating and self._command_time is not None and now - self._command_time > c.command_timeout_s:
+            self._latched |= Fault.COMMAND_TIMEOUT
+            faults |= Fault.COMMAND_TIMEOUT
+            if c.command_timeout_action == "vent":
+                self.vent(now)
+            else:
+                self._source = Source.HOLD
+            regulating = False
+        if self._source == Source.VENT:
+            self._setpoint = 0.0
+            return self._output(0.0, True, Source.VENT, Valve.VENT, Mode.VENT, faults, feedback, "venting")
+        if self._source == Source.HOLD or not regulating:
+            return self._output(self._setpoint, True, Source.HOLD, Valve.CLOSED, Mode.HOLD, faults, feedback, "holding")
+
+        # slew the setpoint towards the target
+        step_limit = self._rate * dt if dt > 0 else math.inf
+        self._setpoint += min(max(self._target - self._setpoint, -step_limit), step_limit)
+        error = self._setpoint - feedback
+        rate = self._update_rate(feedback, dt)
+        valve = self._arbitrate(error, rate)
+        regulator, valve_override = self._regulation(error, feedback, dt, now)
+        valve = valve if valve_override is None else valve_override  # Valve.CLOSED is 0: no "or"
+        return self._output(regulator, True, self._regulator_source(), valve, Mode.REGULATE,
+                            faults, feedback, self._phase if self._phase != "track" else "")
+
+    def _regulation(self, error: float, feedback: float, dt: float, now: float) -> tuple:
+        """(regulator setpoint, valve override or None) for one REGULATE period."""
+        c = self.config
+        rate = self._rate_estimate
+        if (self._phase == "track" and self._setpoint > 0.0 and error > c.boost_band_pa
+                and self._target - feedback > c.boost_min_step_pa):
+            self._phase = "boost"
+        if self._phase == "boost":
+            time_to_setpoint = error / rate if rate > 0.0 else math.inf
+            if error > 0.0 and time_to_setpoint > c.boost_lead_s:
+                return c.regulator_max_gauge_pa, Valve.SUPPLY     # the time-optimal fill
+            self._phase, self._settle_started = "settle", now
+        command = self._trimmed(error, dt, integrate=self._phase == "track")
+        if self._phase == "settle":
+            # hold the air in while the regulator comes down from its maximum to the setpoint
+            regulator_close = abs(self._regulator_actual - command) <= c.boost_band_pa
+            if regulator_close or now - self._settle_started > c.settle_timeout_s:
+                self._phase = "track"
+            else:
+                return command, Valve.CLOSED
+        return command, None
+
+    def _update_rate(self, feedback: float, dt: float) -> float:
+        """dp/dt of the feedback, low-passed (time constant rate_filter_s): raw differences of
+        noisy readings would make the boost's crossing prediction jitter."""
+        previous, self._previous_feedback = self._previous_feedback, feedback
+        if dt > 0.0 and previous is not None:
+            raw = (feedback - previous) / dt
+            self._rate_estimate += dt / (self.config.rate_filter_s + dt) * (raw - self._rate_estimate)
+        return self._rate_estimate
+
+    def _trimmed(self, error: float, dt: float, integrate: bool) -> float:
+        c = self.config
+        near = abs(error) < c.integral_band_pa    # integrator separation: no wind-up on the approach
+        if integrate and near and abs(c.kp * error + c.ki_per_s * (self._integral + error * dt)) < c.trim_limit_pa:
+            self._integral += error * dt          # conditional integration: no wind-up at the clamp
+        trim = min(max(c.kp * error + c.ki_per_s * self._integral, -c.trim_limit_pa), c.trim_limit_pa)
+        return min(max(self._setpoint + trim, c.regulator_min_gauge_pa), c.regulator_max_gauge_pa)
+
+    def _arbitrate(self, error: float, rate: float) -> Valve:
+        """SUPPLY (the regulated line) normally; the raw vacuum pump while far above a negative
+        target, handing back ``boost_lead_s`` before the predicted crossing (as the boost does)."""
+        c = self.config
+        if self._target < 0.0:
+            if error < -c.valve_band_pa:
+                self._evacuating = True
+            crossing_soon = rate < 0.0 and error / rate <= c.boost_lead_s
+            if error > -0.5 * c.valve_band_pa or crossing_soon:
+                self._evacuating = False
+        else:
+            self._evacuating = False
+        return Valve.VACUUM if self._evacuating else Valve.SUPPLY
+
+    def _regulator_source(self) -> Source:
+        return Source.VACUUM if self._setpoint < 0.0 else Source.SUPPLY
+
+    def _output(self, regulator, enabled, source, valve, mode, faults, feedback, message) -> ControlOutput:
+        self.last_output = ControlOutput(
+            regulator_setpoint_gauge_pa=float(regulator), regulator_enabled=enabled, regulator_source=source,
+            valves=(valve,) * self.config.channels, mode=mode, fault_flags=Fault(faults),
+            setpoint_gauge_pa=self._setpoint, feedback_gauge_pa=feedback, message=message)
+        return self.last_output

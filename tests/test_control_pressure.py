@@ -1,0 +1,153 @@
+"""The pressure control core: step responses on the plant, limits and every safety rule."""
+import math
+
+import numpy as np
+import pytest
+
+from softgrip_ros.control.pressure import Fault, Mode, PressureControlConfig, PressureController, Source
+from softgrip_ros.model.pneumatics import Valve
+from tests.helpers.closed_loop import rise_time_s, step_response
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_step_to_25_kpa_is_near_time_optimal(seed):
+    """Tolerances: rise <= 1.3x the valve-fully-open rise, overshoot <= 3 %, steady state within 0.2 kPa."""
+    times, pressures, _ = step_response(25e3, seed=seed)
+    optimal_times, optimal_pressures, _ = step_response(25e3, time_optimal=True)
+    ratio = rise_time_s(times, pressures, 25e3) / rise_time_s(optimal_times, optimal_pressures, 25e3)
+    assert ratio <= 1.3
+    assert pressures.max() <= 25e3 * 1.03
+    assert abs(pressures[-200:].mean() - 25e3) <= 200.0
+
+
+@pytest.mark.parametrize("target", [-20e3, -50e3])
+def test_vacuum_steps(target):
+    """Tolerances: overshoot <= 3 % of the step, steady state within 0.2 kPa, 90 % within 0.2 s."""
+    times, pressures, outputs = step_response(target)
+    assert pressures.min() >= target * 1.03
+    assert abs(pressures[-200:].mean() - target) <= 200.0
+    assert rise_time_s(times, pressures, target) < 0.2
+    assert all(out.regulator_source == Source.VACUUM for out in outputs[50:])
+
+
+def test_small_steps_overshoot_less_than_a_kilopascal():
+    for target in (3e3, 10e3, 40e3):
+        _, pressures, _ = step_response(target)
+        assert pressures.max() - target <= 1e3, target
+        assert abs(pressures[-200:].mean() - target) <= 200.0, target
+
+
+def test_vent_returns_to_atmosphere():
+    controller = PressureController()
+    controller.active = True
+    controller.update_sensor("s", 30e3, 0.0)
+    controller.command(0.0, Source.VENT, math.nan, 0.0)
+    out = controller.step(0.001)
+    assert out.mode == Mode.VENT and out.valves == (Valve.VENT,)
+
+
+def active(config=None, pressure=0.0, now=0.0):
+    controller = PressureController(config or PressureControlConfig())
+    controller.active = True
+    controller.update_sensor("s", pressure, now)
+    return controller
+
+
+def test_inactive_controller_outputs_nothing():
+    controller = PressureController()
+    out = controller.step(0.0)
+    assert out.mode == Mode.INACTIVE and out.valves == (Valve.CLOSED,) and not out.regulator_enabled
+
+
+def test_setpoint_above_the_limit_is_clamped_and_reported():
+    controller = active()
+    note = controller.command(80e3, Source.SUPPLY, math.nan, 0.0)
+    assert "clamped to 50000 Pa" in note
+    out = controller.step(0.01)
+    assert Fault.SETPOINT_CLAMPED in out.fault_flags
+    for i in range(200):
+        out = controller.step(0.01 + i * 0.002)
+        controller.update_sensor("s", 0.0, 0.01 + i * 0.002)
+    assert out.setpoint_gauge_pa == 50e3
+    controller.command(20e3, Source.SUPPLY, math.nan, 1.0)
+    assert Fault.SETPOINT_CLAMPED not in controller.step(1.001).fault_flags
+    controller.command(-90e3, Source.VACUUM, math.nan, 2.0)
+    assert controller._target == -60e3
+
+
+def test_overpressure_vents_and_latches_until_a_new_command_within_limits():
+    controller = active(pressure=56e3)
+    controller.command(40e3, Source.SUPPLY, math.nan, 0.0)
+    out = controller.step(0.001)
+    assert out.mode == Mode.FAULT and out.valves == (Valve.VENT,) and not out.regulator_enabled
+    assert Fault.OVERPRESSURE in out.fault_flags
+    controller.update_sensor("s", 10e3, 0.01)                    # pressure back, but no new command
+    assert controller.step(0.011).mode == Mode.FAULT
+    controller.command(20e3, Source.SUPPLY, math.nan, 0.02)
+    out = controller.step(0.021)
+    assert out.mode == Mode.REGULATE and Fault.OVERPRESSURE not in out.fault_flags
+
+
+def test_regulator_overshoot_fault_never_exceeds_limit_plus_margin():
+    config = PressureControlConfig()
+    _, pressures, outputs = step_response(45e3, duration_s=1.5, overshoot_fault_pa=30e3)
+    assert any(out.mode == Mode.FAULT for out in outputs)
+    assert pressures.max() <= config.max_gauge_pa + config.overpressure_margin_pa + 1e3  # + one control period
+    assert outputs[-1].valves == (Valve.VENT,)
+
+
+def test_sensor_timeout_holds_then_recovers():
+    times, pressures, outputs = step_response(20e3, duration_s=0.6, sensor_until_s=0.3)
+    after = [o for t, o in zip(np.arange(len(outputs)) * 0.002, outputs) if t > 0.36]
+    assert after and all(o.mode == Mode.HOLD and o.valves == (Valve.CLOSED,) for o in after)
+    assert all(Fault.SENSOR_TIMEOUT in o.fault_flags for o in after)
+    held = pressures[int(0.36 / 1e-3):]
+    assert np.ptp(held) < 1.0                                       # valves closed: the air stays in
+    controller = active()
+    controller.command(10e3, Source.SUPPLY, math.nan, 0.0)
+    assert controller.step(1.0).mode == Mode.HOLD
+    controller.update_sensor("s", 9e3, 1.001)
+    out = controller.step(1.002)
+    assert out.mode == Mode.REGULATE and Fault.SENSOR_TIMEOUT not in out.fault_flags
+
+
+@pytest.mark.parametrize("action, mode, valve", [("hold", Mode.HOLD, Valve.CLOSED), ("vent", Mode.VENT, Valve.VENT)])
+def test_command_timeout_takes_the_safe_action(action, mode, valve):
+    controller = active(PressureControlConfig(command_timeout_s=0.5, command_timeout_action=action))
+    controller.command(10e3, Source.SUPPLY, math.nan, 0.0)
+    for i in range(400):
+        now = i * 0.002
+        controller.update_sensor("s", 9e3, now)
+        out = controller.step(now)
+    assert out.mode == mode and out.valves == (valve,) and Fault.COMMAND_TIMEOUT in out.fault_flags
+    controller.command(10e3, Source.SUPPLY, math.nan, 0.8)
+    controller.update_sensor("s", 9e3, 0.8)
+    assert controller.step(0.801).mode == Mode.REGULATE
+
+
+def test_hold_keeps_valves_closed_without_timing_out():
+    controller = active()
+    controller.command(0.0, Source.HOLD, math.nan, 0.0)
+    for i in range(3000):
+        controller.update_sensor("s", 5e3, i * 0.002)
+        out = controller.step(i * 0.002)
+    assert out.mode == Mode.HOLD and Fault.COMMAND_TIMEOUT not in out.fault_flags
+
+
+def test_bad_commands_and_config_are_rejected():
+    with pytest.raises(ValueError, match="finite"):
+        active().command(math.nan, Source.SUPPLY, math.nan, 0.0)
+    with pytest.raises(ValueError):
+        active().command(1.0, 9, math.nan, 0.0)
+    with pytest.raises(ValueError, match="command_timeout_action"):
+        PressureControlConfig(command_timeout_action="explode")
+    with pytest.raises(ValueError, match="max_gauge_pa"):
+        PressureControlConfig(max_gauge_pa=-1.0)
+    with pytest.raises(ValueError, match="finite"):
+        PressureControlConfig(kp=math.nan)
+
+
+def test_nan_sensor_readings_are_ignored():
+    controller = active(pressure=1e3)
+    controller.update_sensor("s", math.nan, 0.001)
+    assert controller.measured(0.002) == 1e3
