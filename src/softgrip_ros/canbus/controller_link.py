@@ -1,0 +1,135 @@
+"""The pressure controller's side of the bus: frames in, control core, frames out (no ROS).
+
+Reception runs on a python-can Notifier thread: sensor and regulator frames are decoded
+(invalid ones are counted and dropped by the codec) and fed to the control core. The
+owner calls :meth:`ControllerLink.step` once per control period; it runs the core and
+sends RegulatorSetpoint, ValveCommand and, at 10 Hz, ControllerHeartbeat.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import threading
+import time
+
+import can
+
+from softgrip_ros.canbus.codec import FrameCodec
+from softgrip_ros.control.pressure import ControlOutput, Fault, Mode, PressureController, Source
+from softgrip_ros.model.pneumatics import Valve
+
+HEARTBEAT_PERIOD_S = 0.1
+CONTROLLER_STATE = {Mode.INACTIVE: 0, Mode.FAULT: 2}
+
+
+@dataclasses.dataclass(frozen=True)
+class SensorBinding:
+    """A pressure sensor: its name (topic pressure/sensor/<name>) and its DBC message."""
+
+    name: str
+    message: str
+
+
+class ControllerLink:
+    """Owns the controller's bus traffic. ``on_sensor(name, gauge_pa, stamp)`` is called for every
+    valid sensor frame (from the Notifier thread)."""
+
+    def __init__(self, bus: can.BusABC, controller: PressureController, sensors: list,
+                 codec: FrameCodec | None = None, bus_silent_timeout_s: float = 0.25, on_sensor=None,
+                 clock=time.monotonic):
+        self.bus = bus
+        self.controller = controller
+        self.codec = codec or FrameCodec()
+        self.sensors = {binding.message: binding.name for binding in sensors}
+        unknown = set(self.sensors) - set(self.codec.message_names)
+        if unknown:
+            raise ValueError(f"sensor messages {sorted(unknown)} are not in the DBC")
+        self.bus_silent_timeout_s = bus_silent_timeout_s
+        self.on_sensor = on_sensor
+        self.clock = clock
+        self._lock = threading.Lock()
+        self.frames_rx = 0
+        self.frames_tx = 0
+        self.send_errors = 0
+        self.regulator_actual_gauge_pa = math.nan
+        self.last_frame_time = -math.inf
+        self._last_heartbeat = -math.inf
+        self._notifier = can.Notifier(bus, [self._on_frame], timeout=0.05)
+
+    @property
+    def frames_bad(self) -> int:
+        return self.codec.rejected_total
+
+    def close(self) -> None:
+        self._notifier.stop(timeout=1.0)
+
+    # ---- reception --------------------------------------------------------------------------------
+    def _on_frame(self, frame: can.Message) -> None:
+        now = self.clock()
+        decoded = self.codec.decode(frame)
+        if decoded is None:
+            return
+        with self._lock:
+            self.frames_rx += 1
+            self.last_frame_time = now
+            if decoded.name in self.sensors:
+                if decoded.signals["SensorStatus"] == 0:
+                    self.controller.update_sensor(self.sensors[decoded.name], decoded.signals["GaugePressure"], now)
+                sensor_name = self.sensors[decoded.name]
+            elif decoded.name == "RegulatorStatus":
+                self.regulator_actual_gauge_pa = decoded.signals["ActualGaugePressure"]
+                self.controller.update_regulator_status(decoded.signals["ActualGaugePressure"],
+                                                        int(decoded.signals["FaultBits"]))
+                return
+            else:
+                return
+        if self.on_sensor is not None and decoded.signals["SensorStatus"] == 0:
+            self.on_sensor(sensor_name, decoded.signals["GaugePressure"], now)
+
+    # ---- the control period ---------------------------------------------------------------------
+    def command(self, target_gauge_pa: float, source: Source, max_rate_pa_per_s: float) -> str:
+        with self._lock:
+            return self.controller.command(target_gauge_pa, source, max_rate_pa_per_s, self.clock())
+
+    def update_estimate(self, gauge_pa: float) -> None:
+        with self._lock:
+            self.controller.update_estimate(gauge_pa, self.clock())
+
+    def step(self) -> ControlOutput:
+        now = self.clock()
+        with self._lock:
+            output = self.controller.step(now)
+        if now - self.last_frame_time > self.bus_silent_timeout_s:
+            output = dataclasses.replace(output, fault_flags=output.fault_flags | Fault.BUS_SILENT)
+        self._send_output(output)
+        if now - self._last_heartbeat >= HEARTBEAT_PERIOD_S:
+            self._last_heartbeat = now
+            self._send("ControllerHeartbeat", {"ControllerState": CONTROLLER_STATE.get(output.mode, 1)})
+        return output
+
+    def send_vent(self, repeats: int = 3) -> None:
+        """Vent frames now (shutdown, deactivate, the ~/vent service), a few times for robustness."""
+        with self._lock:
+            self.controller.vent(self.clock())
+        for _ in range(repeats):
+            self._send("RegulatorSetpoint", {"SetpointGaugePressure": 0.0, "Enable": 0, "Source": int(Source.VENT)})
+            self._send("ValveCommand", {f"Channel{i}": int(Valve.VENT) for i in range(4)})
+
+    def _send_output(self, output: ControlOutput) -> None:
+        low, high = self.codec.signal_range("RegulatorSetpoint", "SetpointGaugePressure")
+        self._send("RegulatorSetpoint", {
+            "SetpointGaugePressure": min(max(output.regulator_setpoint_gauge_pa, low), high),
+            "Enable": int(output.regulator_enabled), "Source": int(output.regulator_source)})
+        valves = list(output.valves) + [Valve.CLOSED] * (4 - len(output.valves))
+        self._send("ValveCommand", {f"Channel{i}": int(v) for i, v in enumerate(valves)})
+
+    def _send(self, message: str, signals: dict) -> None:
+        try:
+            self.bus.send(self.codec.encode(message, signals))
+            self.frames_tx += 1
+        except can.CanError:
+            self.send_errors += 1
+
+    def last_sensor_age_s(self) -> float:
+        with self._lock:
+            return self.controller.last_sensor_age(self.clock())

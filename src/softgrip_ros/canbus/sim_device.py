@@ -1,0 +1,265 @@
+"""A simulated valve, regulator and sensor device on any python-can bus.
+
+It obeys RegulatorSetpoint and ValveCommand frames, runs the pneumatic plant in real time,
+and sends PressureSensorN, RegulatorStatus and DeviceHeartbeat frames at their rates,
+with sensor noise, quantisation and bias. Faults can be injected at any time
+(:meth:`SimulatedDevice.set_fault`), which the ``sim_device`` node maps to ROS parameters.
+
+Like a real device it has a watchdog: without a valid ValveCommand for
+``command_watchdog_s`` it closes its valves and drives the regulator to 0.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import random
+import threading
+import time
+
+import can
+import numpy as np
+
+from softgrip_ros.canbus.codec import FrameCodec
+from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticParameters, PneumaticPlant, Valve
+
+LOG = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass(frozen=True)
+class SensorSpec:
+    """One simulated chamber pressure sensor."""
+
+    name: str
+    message: str
+    rate_hz: float
+    noise_std_pa: float
+    quantisation_pa: float = 10.0
+    bias_pa: float = 0.0
+    channel: int = 0
+
+
+DEFAULT_SENSORS = (
+    SensorSpec("chamber_a", "PressureSensor1", rate_hz=500.0, noise_std_pa=300.0, quantisation_pa=10.0),
+    SensorSpec("chamber_b", "PressureSensor2", rate_hz=200.0, noise_std_pa=150.0, quantisation_pa=5.0),
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class SimDeviceConfig:
+    plant: PneumaticParameters = PneumaticParameters()
+    sensors: tuple = DEFAULT_SENSORS
+    plant_rate_hz: float = 1000.0
+    regulator_status_hz: float = 100.0
+    heartbeat_hz: float = 10.0
+    command_watchdog_s: float = 0.5
+    seed: int | None = None
+
+    def __post_init__(self):
+        if not 50.0 <= self.plant_rate_hz <= 5000.0:
+            raise ValueError(f"plant_rate_hz must lie in [50, 5000], got {self.plant_rate_hz}")
+        for sensor in self.sensors:
+            if not 0.0 < sensor.rate_hz <= self.plant_rate_hz:
+                raise ValueError(f"sensor {sensor.name}: rate_hz must lie in (0, plant_rate_hz]")
+            if sensor.noise_std_pa < 0.0 or sensor.quantisation_pa < 0.0:
+                raise ValueError(f"sensor {sensor.name}: noise and quantisation must be >= 0")
+            if not 0 <= sensor.channel < self.plant.channels:
+                raise ValueError(f"sensor {sensor.name}: channel {sensor.channel} does not exist")
+
+
+FAULTS = {
+    "sensor_dropout": "",        # a sensor name, or "all": those sensors fall silent
+    "sensor_stuck": "",          # a sensor name, or "all": those sensors repeat their last value
+    "sensor_bias_pa": 0.0,       # added to every sensor reading
+    "regulator_overshoot_pa": 0.0,  # the regulator settles this far above its setpoint
+    "valve_stuck": False,        # the valves ignore commands and keep their state
+    "bus_silent": False,         # the device sends nothing at all
+    "corrupt_rate": 0.0,         # fraction of sent frames with a bad CRC or a repeated counter
+}
+
+
+class SimulatedDevice:
+    """The device on ``bus``. Call :meth:`start`, then :meth:`stop` (it does not close the bus)."""
+
+    def __init__(self, bus: can.BusABC, config: SimDeviceConfig | None = None, codec: FrameCodec | None = None):
+        self.bus = bus
+        self.config = config or SimDeviceConfig()
+        self.codec = codec or FrameCodec()
+        self.plant = PneumaticPlant(self.config.plant)
+        self._state = self.plant.initial_state()
+        self._inputs = PlantInputs(regulator_enabled=False, valves=(Valve.CLOSED,) * self.config.plant.channels)
+        self._faults = dict(FAULTS)
+        self._lock = threading.Lock()
+        self._rng = np.random.default_rng(self.config.seed)
+        self._corrupt_rng = random.Random(self.config.seed)
+        self._stuck_values: dict = {}
+        self._last_valve_command = -math.inf
+        self._stop = threading.Event()
+        self._thread = None
+        self._notifier = None
+        self._started_at = 0.0
+        self.frames_sent = 0
+        self.frames_received = 0
+        self.ticks = 0
+        self.max_tick_overrun_s = 0.0
+
+    # ---- lifecycle ----------------------------------------------------------------------------
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        self._stop.clear()
+        self._started_at = time.monotonic()
+        self._last_valve_command = self._started_at
+        self._notifier = can.Notifier(self.bus, [self._on_frame], timeout=0.05)
+        self._thread = threading.Thread(target=self._run, name="softgrip-sim-device", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        if self._notifier is not None:
+            self._notifier.stop(timeout=1.0)
+            self._notifier = None
+
+    # ---- faults and observation -----------------------------------------------------------------
+    def set_fault(self, name: str, value) -> None:
+        """Inject (or clear) a fault; raises ValueError naming the problem."""
+        if name not in FAULTS:
+            raise ValueError(f"unknown fault {name!r}; known: {sorted(FAULTS)}")
+        kind = type(FAULTS[name])
+        if kind is float:
+            value = float(value)
+            if not math.isfinite(value):
+                raise ValueError(f"fault {name} must be finite")
+            if name == "corrupt_rate" and not 0.0 <= value <= 1.0:
+                raise ValueError("corrupt_rate must lie in [0, 1]")
+        elif kind is bool:
+            value = bool(value)
+        else:
+            value = str(value)
+            known = {s.name for s in self.config.sensors} | {"all", ""}
+            if value not in known:
+                raise ValueError(f"fault {name}: unknown sensor {value!r}; known: {sorted(known - {''})}")
+        with self._lock:
+            self._faults[name] = value
+            if name == "sensor_stuck":
+                self._stuck_values.clear()
+
+    @property
+    def faults(self) -> dict:
+        with self._lock:
+            return dict(self._faults)
+
+    def chamber_gauge_pa(self, channel: int = 0) -> float:
+        with self._lock:
+            return float(self._state.chamber_pa[channel] - P_ATM_PA)
+
+    def valves(self) -> tuple:
+        with self._lock:
+            return tuple(self._inputs.valves)
+
+    # ---- reception (Notifier thread) -----------------------------------------------------------
+    def _on_frame(self, frame: can.Message) -> None:
+        decoded = self.codec.decode(frame)
+        if decoded is None:
+            return
+        self.frames_received += 1
+        with self._lock:
+            if decoded.name == "RegulatorSetpoint":
+                self._inputs = dataclasses.replace(
+                    self._inputs, regulator_setpoint_gauge_pa=decoded.signals["SetpointGaugePressure"],
+                    regulator_enabled=bool(decoded.signals["Enable"]))
+            elif decoded.name == "ValveCommand":
+                self._last_valve_command = time.monotonic()
+                if not self._faults["valve_stuck"]:
+                    channels = self.config.plant.channels
+                    self._inputs = dataclasses.replace(
+                        self._inputs, valves=tuple(Valve(int(decoded.signals[f"Channel{i}"])) for i in range(channels)))
+
+    # ---- the real-time loop ----------------------------------------------------------------------
+    def _run(self) -> None:
+        dt = 1.0 / self.config.plant_rate_hz
+        schedule = [(s, 1.0 / s.rate_hz) for s in self.config.sensors]
+        next_due = {s.name: 0.0 for s in self.config.sensors}
+        status_period, heartbeat_period = 1.0 / self.config.regulator_status_hz, 1.0 / self.config.heartbeat_hz
+        next_status = next_heartbeat = 0.0
+        start = time.monotonic()
+        tick = 0
+        last_time = start
+        while not self._stop.is_set():
+            tick += 1
+            target = start + tick * dt
+            delay = target - time.monotonic()
+            if delay > 0:
+                self._stop.wait(delay)
+            now = time.monotonic()
+            self.max_tick_overrun_s = max(self.max_tick_overrun_s, now - target)
+            elapsed = min(max(now - last_time, dt), 0.05)   # after a stall, catch up in one bounded step
+            last_time = now
+            try:
+                self._advance(elapsed, now)
+                sim_time = now - start
+                for sensor, period in schedule:
+                    if sim_time >= next_due[sensor.name]:
+                        next_due[sensor.name] = max(next_due[sensor.name] + period, sim_time)
+                        self._send_sensor(sensor)
+                if sim_time >= next_status:
+                    next_status += status_period
+                    self._send_status()
+                if sim_time >= next_heartbeat:
+                    next_heartbeat += heartbeat_period
+                    self._send("DeviceHeartbeat", {"DeviceState": 1, "Uptime": min(sim_time, 167772.15)})
+            except can.CanError as error:   # a closed or failing bus: keep simulating, report once
+                LOG.warning("sim device: CAN send failed: %s", error)
+            self.ticks += 1
+
+    def _advance(self, dt: float, now: float) -> None:
+        with self._lock:
+            inputs = self._inputs
+            if now - self._last_valve_command > self.config.command_watchdog_s:
+                inputs = PlantInputs(regulator_enabled=False, valves=(Valve.CLOSED,) * self.config.plant.channels)
+            inputs = dataclasses.replace(inputs, regulator_overshoot_pa=self._faults["regulator_overshoot_pa"])
+            self._state = self.plant.step(self._state, inputs, dt)
+
+    def _send_sensor(self, sensor: SensorSpec) -> None:
+        with self._lock:
+            faults = self._faults
+            if faults["sensor_dropout"] in (sensor.name, "all"):
+                return
+            true_gauge = self._state.chamber_pa[sensor.channel] - P_ATM_PA
+            stuck = faults["sensor_stuck"] in (sensor.name, "all")
+            bias = faults["sensor_bias_pa"]
+        if stuck and sensor.name in self._stuck_values:
+            reading = self._stuck_values[sensor.name]
+        else:
+            reading = true_gauge + sensor.bias_pa + bias + sensor.noise_std_pa * self._rng.standard_normal()
+            if sensor.quantisation_pa > 0.0:
+                reading = round(reading / sensor.quantisation_pa) * sensor.quantisation_pa
+            low, high = self.codec.signal_range(sensor.message, "GaugePressure")
+            reading = min(max(reading, low), high)
+            self._stuck_values[sensor.name] = reading
+        self._send(sensor.message, {"GaugePressure": reading, "SensorStatus": 0})
+
+    def _send_status(self) -> None:
+        with self._lock:
+            actual = self._state.regulator_gauge_pa
+        low, high = self.codec.signal_range("RegulatorStatus", "ActualGaugePressure")
+        self._send("RegulatorStatus", {"ActualGaugePressure": min(max(actual, low), high), "FaultBits": 0})
+
+    def _send(self, message: str, signals: dict) -> None:
+        with self._lock:
+            silent, corrupt_rate = self._faults["bus_silent"], self._faults["corrupt_rate"]
+        if silent:
+            return
+        frame = self.codec.encode(message, signals)
+        if corrupt_rate > 0.0 and self._corrupt_rng.random() < corrupt_rate:
+            data = bytearray(frame.data)
+            if self._corrupt_rng.random() < 0.5:
+                data[self._corrupt_rng.randrange(7)] ^= 1 << self._corrupt_rng.randrange(8)   # bad CRC
+                frame = can.Message(arbitration_id=frame.arbitration_id, data=bytes(data), is_extended_id=False)
+            else:
+                self.bus.send(frame)                                                          # repeated counter
+        self.bus.send(frame)
+        self.frames_sent += 1

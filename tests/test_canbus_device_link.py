@@ -1,0 +1,160 @@
+"""The controller link and the simulated device over python-can's virtual bus (the simulated CAN loopback)."""
+import math
+import time
+import uuid
+
+import can
+import numpy as np
+import pytest
+
+from softgrip_ros.canbus.controller_link import ControllerLink, SensorBinding
+from softgrip_ros.canbus.sim_device import SimDeviceConfig, SimulatedDevice
+from softgrip_ros.control.pressure import Fault, Mode, PressureControlConfig, PressureController, Source
+from softgrip_ros.model.pneumatics import Valve
+
+SENSORS = [SensorBinding("chamber_a", "PressureSensor1"), SensorBinding("chamber_b", "PressureSensor2")]
+
+
+@pytest.fixture
+def rig():
+    """A device and a controller link on a private virtual channel; everything closed afterwards."""
+    channel = f"softgrip-test-{uuid.uuid4().hex[:8]}"
+    device_bus = can.Bus(interface="virtual", channel=channel)
+    controller_bus = can.Bus(interface="virtual", channel=channel)
+    device = SimulatedDevice(device_bus, SimDeviceConfig(seed=1))
+    link = ControllerLink(controller_bus, PressureController(PressureControlConfig()), SENSORS)
+    link.controller.active = True
+    device.start()
+    try:
+        yield device, link
+    finally:
+        link.close()
+        device.stop()
+        controller_bus.shutdown()
+        device_bus.shutdown()
+
+
+def run(link, device, seconds, rate_hz=500):
+    """Run the control loop in real time; return (times, true pressures, outputs)."""
+    period = 1.0 / rate_hz
+    start = time.monotonic()
+    times, pressures, outputs = [], [], []
+    tick = 0
+    while time.monotonic() - start < seconds:
+        tick += 1
+        outputs.append(link.step())
+        times.append(time.monotonic() - start)
+        pressures.append(device.chamber_gauge_pa())
+        delay = start + tick * period - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+    return np.array(times), np.array(pressures), outputs
+
+
+def test_positive_step_vacuum_and_vent(rig):
+    device, link = rig
+    run(link, device, 0.2)                                           # sensors arrive, nothing commanded
+    link.command(25e3, Source.SUPPLY, math.nan)
+    _, pressures, _ = run(link, device, 1.0)
+    # tolerances: within 0.5 kPa at the end (sensor noise 0.15-0.3 kPa, real-time jitter), overshoot <= 5 %
+    assert abs(pressures[-100:].mean() - 25e3) < 500.0
+    assert pressures.max() < 25e3 * 1.05
+    link.command(-20e3, Source.VACUUM, math.nan)
+    _, pressures, outputs = run(link, device, 1.0)
+    assert abs(pressures[-100:].mean() + 20e3) < 500.0
+    assert pressures.min() > -20e3 * 1.05
+    link.command(0.0, Source.VENT, math.nan)
+    _, pressures, outputs = run(link, device, 0.8)
+    assert abs(pressures[-1]) < 500.0
+    assert outputs[-1].mode == Mode.VENT and device.valves() == (Valve.VENT,)
+    assert link.frames_bad == 0 and link.frames_rx > 500
+
+
+def test_sensor_dropout_holds_and_recovers(rig):
+    device, link = rig
+    link.command(15e3, Source.SUPPLY, math.nan)
+    run(link, device, 0.8)
+    device.set_fault("sensor_dropout", "all")
+    _, pressures, outputs = run(link, device, 0.4)
+    assert outputs[-1].mode == Mode.HOLD and Fault.SENSOR_TIMEOUT in outputs[-1].fault_flags
+    assert device.valves() == (Valve.CLOSED,)
+    assert np.ptp(pressures[-50:]) < 50.0                           # held: the air stays in
+    device.set_fault("sensor_dropout", "")
+    link.command(15e3, Source.SUPPLY, math.nan)
+    _, _, outputs = run(link, device, 0.3)
+    assert outputs[-1].mode == Mode.REGULATE and Fault.SENSOR_TIMEOUT not in outputs[-1].fault_flags
+
+
+def test_one_sensor_lost_the_other_carries_on(rig):
+    device, link = rig
+    link.command(10e3, Source.SUPPLY, math.nan)
+    device.set_fault("sensor_dropout", "chamber_a")
+    _, pressures, outputs = run(link, device, 1.0)
+    assert outputs[-1].mode == Mode.REGULATE
+    assert abs(pressures[-100:].mean() - 10e3) < 500.0
+
+
+def test_corrupt_frames_are_counted_and_never_acted_on(rig):
+    device, link = rig
+    link.command(20e3, Source.SUPPLY, math.nan)
+    run(link, device, 0.5)
+    device.set_fault("corrupt_rate", 0.3)
+    before = dict(link.codec.rejected)
+    _, pressures, outputs = run(link, device, 1.0)
+    rejected = {k: link.codec.rejected[k] - before[k] for k in before}
+    assert rejected["bad_crc"] > 20 and rejected["repeated_counter"] > 20
+    assert outputs[-1].mode == Mode.REGULATE
+    assert abs(pressures[-100:].mean() - 20e3) < 700.0               # still regulating on the good frames
+
+
+def test_silent_bus_is_detected(rig):
+    device, link = rig
+    run(link, device, 0.2)
+    device.set_fault("bus_silent", True)
+    _, _, outputs = run(link, device, 0.5)
+    assert Fault.BUS_SILENT in outputs[-1].fault_flags and Fault.SENSOR_TIMEOUT in outputs[-1].fault_flags
+    device.set_fault("bus_silent", False)
+    _, _, outputs = run(link, device, 0.3)
+    assert Fault.BUS_SILENT not in outputs[-1].fault_flags
+
+
+def test_regulator_overshoot_vents_below_limit_plus_margin(rig):
+    device, link = rig
+    config = link.controller.config
+    device.set_fault("regulator_overshoot_pa", 30e3)
+    link.command(45e3, Source.SUPPLY, math.nan)
+    _, pressures, outputs = run(link, device, 1.5)
+    assert any(o.mode == Mode.FAULT for o in outputs) and Fault.OVERPRESSURE in outputs[-1].fault_flags
+    assert pressures.max() <= config.max_gauge_pa + config.overpressure_margin_pa + 1.5e3  # + reaction time
+    assert device.valves() == (Valve.VENT,)
+
+
+def test_vent_frames_reach_the_device(rig):
+    device, link = rig
+    link.command(20e3, Source.SUPPLY, math.nan)
+    run(link, device, 0.5)
+    link.send_vent()
+    time.sleep(0.05)
+    assert device.valves() == (Valve.VENT,)
+
+
+def test_device_watchdog_closes_valves_without_commands(rig):
+    device, link = rig
+    link.command(20e3, Source.SUPPLY, math.nan)
+    _, pressures, _ = run(link, device, 0.6)
+    held = device.chamber_gauge_pa()
+    time.sleep(0.8)                                                   # the controller stops sending
+    assert abs(device.chamber_gauge_pa() - held) < 2e3
+
+
+def test_fault_injection_rejects_bad_values():
+    device = SimulatedDevice(can.Bus(interface="virtual", channel=f"x-{uuid.uuid4().hex[:6]}"))
+    try:
+        with pytest.raises(ValueError, match="unknown fault"):
+            device.set_fault("meteor", 1)
+        with pytest.raises(ValueError, match="unknown sensor 'nope'"):
+            device.set_fault("sensor_dropout", "nope")
+        with pytest.raises(ValueError, match="corrupt_rate"):
+            device.set_fault("corrupt_rate", 2.0)
+    finally:
+        device.bus.shutdown()
