@@ -29,6 +29,12 @@ setup(
     extras_require={"test": ["pytest", "hypothesis"]},
     entry_points={
         "console_scripts": [
+            "pressure_controller = softgrip_ros.nodes.pressure_controller:main",
+            "sim_device = softgrip_ros.nodes.sim_device:main",
+        ],
+        # python-can finds this interface by name: can.Bus(interface="softgrip_ipc", channel=...)
+        "can.interface": [
+            "softgrip_ipc = softgrip_ros.canbus.ipc_bus:LocalSocketBus",
         ],
     },
 )

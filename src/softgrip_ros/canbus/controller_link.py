@@ -7,8 +7,10 @@ sends RegulatorSetpoint, ValveCommand and, at 10 Hz, ControllerHeartbeat.
 """
 from __future__ import annotations
 
+import collections
 import dataclasses
 import math
+import sys
 import threading
 import time
 
@@ -19,6 +21,7 @@ from softgrip_ros.control.pressure import ControlOutput, Fault, Mode, PressureCo
 from softgrip_ros.model.pneumatics import Valve
 
 HEARTBEAT_PERIOD_S = 0.1
+GIL_SWITCH_INTERVAL_S = 2e-4
 CONTROLLER_STATE = {Mode.INACTIVE: 0, Mode.FAULT: 2}
 
 
@@ -51,6 +54,7 @@ class ControllerLink:
         self.frames_rx = 0
         self.frames_tx = 0
         self.send_errors = 0
+        self.listener_errors = 0
         self.regulator_actual_gauge_pa = math.nan
         self.last_frame_time = -math.inf
         self._last_heartbeat = -math.inf
@@ -84,7 +88,10 @@ class ControllerLink:
             else:
                 return
         if self.on_sensor is not None and decoded.signals["SensorStatus"] == 0:
-            self.on_sensor(sensor_name, decoded.signals["GaugePressure"], now)
+            try:
+                self.on_sensor(sensor_name, decoded.signals["GaugePressure"], now)
+            except Exception:            # a failing listener must not kill reception (the Notifier thread)
+                self.listener_errors += 1
 
     # ---- the control period ---------------------------------------------------------------------
     def command(self, target_gauge_pa: float, source: Source, max_rate_pa_per_s: float) -> str:
@@ -133,3 +140,61 @@ class ControllerLink:
     def last_sensor_age_s(self) -> float:
         with self._lock:
             return self.controller.last_sensor_age(self.clock())
+
+
+class ControlLoop:
+    """Calls ``step()`` at ``rate_hz`` on a dedicated thread, scheduled on absolute deadlines.
+
+    An rclpy timer shares the executor (and the GIL) with every callback of the process and
+    loses ticks under load; the pressure loop must not. ``on_status(output)`` is called every
+    ``rate_hz / status_rate_hz`` ticks with the latest output. ``periods_s`` keeps the recent
+    tick-to-tick periods for the benchmark.
+    """
+
+    def __init__(self, step, rate_hz: float, status_rate_hz: float, on_status=None, history: int = 20000):
+        if not 1.0 <= rate_hz <= 5000.0:
+            raise ValueError(f"rate_hz must lie in [1, 5000], got {rate_hz}")
+        self.step_function = step
+        self.period_s = 1.0 / rate_hz
+        self.status_every = max(1, round(rate_hz / status_rate_hz))
+        self.on_status = on_status
+        self.periods_s = collections.deque(maxlen=history)
+        self.ticks = 0
+        self.errors = 0
+        self._stop = threading.Event()
+        self._thread = None
+
+    def start(self) -> None:
+        # CPython hands the GIL over every 5 ms by default, so a woken loop thread can wait
+        # several periods behind busy threads; 0.2 ms keeps the 500 Hz loop's p99 near 3 ms.
+        sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_INTERVAL_S))
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="softgrip-control-loop", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+
+    def _run(self) -> None:
+        start = previous = time.monotonic()
+        tick = 0
+        while not self._stop.is_set():
+            tick += 1
+            delay = start + tick * self.period_s - time.monotonic()
+            if delay > 0.0:
+                self._stop.wait(delay)
+            elif delay < -10 * self.period_s:        # fell far behind: re-anchor instead of bursting
+                start, tick = time.monotonic(), 0
+            now = time.monotonic()
+            self.periods_s.append(now - previous)
+            previous = now
+            output = self.step_function()
+            self.ticks += 1
+            if self.on_status is not None and self.ticks % self.status_every == 0:
+                try:
+                    self.on_status(output)
+                except Exception:                    # publishing must never stop the loop
+                    self.errors += 1

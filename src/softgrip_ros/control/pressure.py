@@ -9,8 +9,9 @@ Control law (source SUPPLY or VACUUM, target r* in Pa gauge):
   the command gives none), after clamping r* to [min_gauge_pa, max_gauge_pa];
 - **boost**: on a rise of more than ``boost_min_step_pa``, while the chamber is more than
   ``boost_band_pa`` below r, the
-  regulator is driven to its maximum with the valve open (the time-optimal rise is the
-  valve fully open to supply); ``boost_lead_s`` before the chamber would reach r at its
+  regulator is driven towards its maximum (capped at the target + ``boost_headroom_pa``, so a
+  late close stays bounded) with the valve open (the time-optimal rise is the valve fully
+  open to supply); ``boost_lead_s`` before the chamber would reach r at its
   current rate the valve closes (**settle**) until the regulator's reported output has
   come down to the regulated value, so its lag cannot overshoot the chamber;
 - **regulation**: regulator setpoint = r (feed-forward) + PI trim on the feedback
@@ -91,8 +92,9 @@ class PressureControlConfig:
     integral_band_pa: float = 1.5e3
     boost_band_pa: float = 1e3
     boost_min_step_pa: float = 5e3
-    boost_lead_s: float = 0.004
-    rate_filter_s: float = 0.004
+    boost_headroom_pa: float = 60e3
+    boost_lead_s: float = 0.005
+    rate_filter_s: float = 0.01
     settle_timeout_s: float = 0.2
     valve_band_pa: float = 5e3
     channels: int = 1
@@ -116,6 +118,7 @@ class PressureControlConfig:
             (0.0 < self.integral_band_pa <= 50e3, "integral_band_pa must lie in (0, 50000] Pa"),
             (0.0 < self.boost_band_pa and 0.0 <= self.boost_lead_s <= 1.0, "boost_band_pa > 0, boost_lead_s in [0, 1]"),
             (self.boost_min_step_pa >= self.boost_band_pa, "boost_min_step_pa must be >= boost_band_pa"),
+            (0.0 < self.boost_headroom_pa <= 500e3, "boost_headroom_pa must lie in (0, 500000] Pa"),
             (0.0 <= self.rate_filter_s <= 1.0, "rate_filter_s must lie in [0, 1] s"),
             (0.0 < self.valve_band_pa, "valve_band_pa must be > 0"),
             (1 <= self.channels <= 4, "channels must lie in 1..4"),
@@ -224,6 +227,11 @@ class PressureController:
             return value
         return self.measured(now)
 
+    def estimate_gauge_pa(self, now: float) -> float:
+        """The latest estimate while fresh, else NaN."""
+        value, stamp = self._estimate
+        return value if now - stamp <= self.config.sensor_timeout_s else math.nan
+
     def last_sensor_age(self, now: float) -> float:
         return min((now - stamp for _, stamp in self._sensors.values()), default=math.inf)
 
@@ -293,7 +301,8 @@ class PressureController:
         if self._phase == "boost":
             time_to_setpoint = error / rate if rate > 0.0 else math.inf
             if error > 0.0 and time_to_setpoint > c.boost_lead_s:
-                return c.regulator_max_gauge_pa, Valve.SUPPLY     # the time-optimal fill
+                # fill hard, but no harder than the headroom: a late close then stays bounded
+                return min(c.regulator_max_gauge_pa, self._target + c.boost_headroom_pa), Valve.SUPPLY
             self._phase, self._settle_started = "settle", now
         command = self._trimmed(error, dt, integrate=self._phase == "track")
         if self._phase == "settle":

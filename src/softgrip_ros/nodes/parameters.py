@@ -1,0 +1,73 @@
+"""Declaring node parameters with a description, a range and a unit, and checking them on set."""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+
+
+@dataclasses.dataclass(frozen=True)
+class ParamSpec:
+    """One parameter: its default, what it means, its unit and its allowed range or choices."""
+
+    name: str
+    default: object
+    description: str
+    unit: str = ""
+    low: float | None = None
+    high: float | None = None
+    choices: tuple = ()
+    read_only: bool = False
+
+    def descriptor(self) -> ParameterDescriptor:
+        text = self.description + (f" [{self.unit}]" if self.unit else "")
+        if self.choices:
+            text += f" (one of: {', '.join(map(str, self.choices))})"
+        descriptor = ParameterDescriptor(description=text, read_only=self.read_only)
+        if self.low is not None and isinstance(self.default, float):
+            descriptor.floating_point_range = [FloatingPointRange(from_value=float(self.low), to_value=float(self.high))]
+        elif self.low is not None and isinstance(self.default, int) and not isinstance(self.default, bool):
+            descriptor.integer_range = [IntegerRange(from_value=int(self.low), to_value=int(self.high))]
+        return descriptor
+
+    def check(self, value) -> str:
+        """'' when ``value`` is acceptable, else the reason."""
+        if isinstance(value, float) and not math.isfinite(value):
+            return f"{self.name} must be finite, got {value}"
+        if self.choices and value not in self.choices:
+            return f"{self.name} must be one of {list(self.choices)}, got {value!r}"
+        if self.low is not None and isinstance(value, (int, float)) and not isinstance(value, bool):
+            if not self.low <= value <= self.high:
+                return f"{self.name} must lie in [{self.low}, {self.high}] {self.unit}, got {value}"
+        if isinstance(self.default, str) and not self.choices and isinstance(value, str) and not value and not self.name.startswith("fault."):
+            return f"{self.name} must not be empty"
+        return ""
+
+
+def declare(node, specs) -> dict:
+    """Declare every spec on ``node``; return {name: value} after overrides (--params-file, -p).
+
+    A value given at start-up that fails its check raises ValueError naming it."""
+    values = {}
+    for spec in specs:
+        values[spec.name] = node.declare_parameter(spec.name, spec.default, spec.descriptor()).value
+        problem = spec.check(values[spec.name])
+        if problem:
+            raise ValueError(f"parameter {problem}")
+    return values
+
+
+def check_all(specs_by_name: dict, parameters, extra_check=None) -> SetParametersResult:
+    """An on-set callback body: every parameter must pass its spec (and ``extra_check``)."""
+    for parameter in parameters:
+        spec = specs_by_name.get(parameter.name)
+        if spec is not None:
+            problem = spec.check(parameter.value)
+            if problem:
+                return SetParametersResult(successful=False, reason=problem)
+    if extra_check is not None:
+        problem = extra_check(parameters)
+        if problem:
+            return SetParametersResult(successful=False, reason=problem)
+    return SetParametersResult(successful=True)

@@ -1,0 +1,240 @@
+"""pressure_controller: the managed node that drives the valves and regulator over CAN.
+
+configure opens the bus, activate starts the control loop, deactivate and shutdown vent.
+It activates itself unless ``autostart`` is false. Topics: pressure/command in;
+pressure/sensor/<name> (FluidPressure, absolute Pa), controller/status and /diagnostics out;
+service ~/vent. The control law and safety rules are in softgrip_ros.control.pressure.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import can
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
+from sensor_msgs.msg import FluidPressure
+from std_srvs.srv import Trigger
+
+from softgrip_interfaces.msg import ControllerStatus, PressureCommand
+from softgrip_ros.canbus.codec import FrameCodec
+from softgrip_ros.canbus.controller_link import ControlLoop, ControllerLink, SensorBinding
+from softgrip_ros.control.pressure import Fault, Mode, PressureControlConfig, PressureController
+from softgrip_ros.nodes.common import P_ATM_PA, open_bus, run_node
+from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
+
+_DEFAULTS = PressureControlConfig()
+CAN_SPECS = [
+    ParamSpec("can.interface", "virtual", "python-can interface (virtual, softgrip_ipc, socketcan, pcan, ...)"),
+    ParamSpec("can.channel", "softgrip", "python-can channel (e.g. can0)"),
+    ParamSpec("can.bitrate", 500_000, "CAN bit rate (ignored by virtual and softgrip_ipc)", "bit/s", 10_000, 1_000_000),
+]
+SPECS = CAN_SPECS + [
+    ParamSpec("autostart", True, "configure and activate on start-up"),
+    ParamSpec("control_rate_hz", 500.0, "control loop rate", "Hz", 10.0, 1000.0),
+    ParamSpec("status_rate_hz", 50.0, "controller/status publish rate", "Hz", 1.0, 200.0),
+    ParamSpec("max_gauge_pressure_pa", _DEFAULTS.max_gauge_pa, "hard upper limit of the setpoint", "Pa", 1e3, 100e3),
+    ParamSpec("min_gauge_pressure_pa", _DEFAULTS.min_gauge_pa, "hard lower limit of the setpoint", "Pa", -100e3, -1e3),
+    ParamSpec("overpressure_margin_pa", _DEFAULTS.overpressure_margin_pa, "measured excess beyond a limit that vents", "Pa", 100.0, 50e3),
+    ParamSpec("sensor_timeout", _DEFAULTS.sensor_timeout_s, "no valid reading for this long: hold and report", "s", 0.005, 10.0),
+    ParamSpec("command_timeout", _DEFAULTS.command_timeout_s, "no command for this long while regulating: safe action", "s", 0.1, 3600.0),
+    ParamSpec("command_timeout_action", _DEFAULTS.command_timeout_action, "safe action on a command timeout", choices=("hold", "vent")),
+    ParamSpec("default_rate_pa_per_s", _DEFAULTS.default_rate_pa_per_s, "setpoint slew when a command gives none", "Pa/s", 1e3, 1e8),
+    ParamSpec("kp", _DEFAULTS.kp, "proportional gain of the trim", "Pa/Pa", 0.0, 10.0),
+    ParamSpec("ki_per_s", _DEFAULTS.ki_per_s, "integral gain of the trim", "1/s", 0.0, 1000.0),
+    ParamSpec("trim_limit_pa", _DEFAULTS.trim_limit_pa, "largest trim of the regulator setpoint", "Pa", 0.0, 50e3),
+    ParamSpec("use_estimate", True, "regulate on pressure/estimate while it is fresh"),
+    ParamSpec("sensors.names", ["chamber_a", "chamber_b"], "sensor names: topics pressure/sensor/<name>"),
+    ParamSpec("sensors.messages", ["PressureSensor1", "PressureSensor2"], "the DBC message of each sensor"),
+    ParamSpec("sensors.noise_std_pa", [300.0, 150.0], "1-sigma noise of each sensor, for FluidPressure.variance", "Pa"),
+]
+LIVE = {"max_gauge_pressure_pa": "max_gauge_pa", "min_gauge_pressure_pa": "min_gauge_pa",
+        "overpressure_margin_pa": "overpressure_margin_pa", "sensor_timeout": "sensor_timeout_s",
+        "command_timeout": "command_timeout_s", "command_timeout_action": "command_timeout_action",
+        "default_rate_pa_per_s": "default_rate_pa_per_s", "kp": "kp", "ki_per_s": "ki_per_s",
+        "trim_limit_pa": "trim_limit_pa"}
+LEVELS = {Mode.FAULT: DiagnosticStatus.ERROR, Mode.HOLD: DiagnosticStatus.WARN}
+
+
+class PressureControllerNode(LifecycleNode):
+    def __init__(self, **kwargs):
+        super().__init__("pressure_controller", **kwargs)
+        self.specs = {s.name: s for s in SPECS}
+        self.values = declare(self, SPECS)
+        self.codec = FrameCodec()
+        frame_specs = [ParamSpec(f"can.frame_ids.{name}", 0, f"arbitration ID of {name}; 0 = the DBC's", "", 0, 0x7FF)
+                       for name in self.codec.message_names]
+        self.specs.update({s.name: s for s in frame_specs})
+        self.values.update(declare(self, frame_specs))
+        self.controller = PressureController(self._control_config(self.values))
+        self.add_on_set_parameters_callback(self._on_set)
+        self.status_pub = self.create_publisher(ControllerStatus, "controller/status", 10)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.sensor_pubs = {}
+        self.create_subscription(PressureCommand, "pressure/command", self._on_command, 10)
+        self.create_subscription(FluidPressure, "pressure/estimate", self._on_estimate, 10)
+        self.create_service(Trigger, "~/vent", self._on_vent)
+        self.bus = self.link = self.loop = None
+        self.last_output = None
+        self.last_note = ""
+        self.create_timer(1.0, self._publish_diagnostics)
+        if self.values["autostart"]:
+            self.trigger_configure()
+            self.trigger_activate()
+
+    # ---- parameters ---------------------------------------------------------------------------
+    def _control_config(self, values) -> PressureControlConfig:
+        return dataclasses.replace(_DEFAULTS, **{field: values[name] for name, field in LIVE.items()})
+
+    def _on_set(self, parameters):
+        def extra(params):
+            changed = {p.name: p.value for p in params}
+            if any(n.startswith(("can.", "sensors.", "control_rate_hz")) for n in changed) and self.link is not None:
+                return "CAN, sensor and rate parameters apply at configure: deactivate and clean up first"
+            if any(n in LIVE for n in changed):
+                try:
+                    config = self._control_config({**self.values, **changed})
+                except ValueError as error:
+                    return str(error)
+                self.controller.config = config
+            self.values.update(changed)
+            return ""
+        return check_all(self.specs, parameters, extra)
+
+    # ---- lifecycle ------------------------------------------------------------------------------
+    def on_configure(self, state) -> TransitionCallbackReturn:
+        names, messages = self.values["sensors.names"], self.values["sensors.messages"]
+        noise = self.values["sensors.noise_std_pa"]
+        if not (len(names) == len(messages) == len(noise)) or not names:
+            self.get_logger().error("sensors.names, sensors.messages and sensors.noise_std_pa need equal, non-zero lengths")
+            return TransitionCallbackReturn.FAILURE
+        try:
+            overrides = {n: self.values[f"can.frame_ids.{n}"] for n in self.codec.message_names
+                         if self.values[f"can.frame_ids.{n}"]}
+            self.codec = FrameCodec(frame_ids=overrides)
+            self.bus = open_bus(self.values["can.interface"], self.values["can.channel"], self.values["can.bitrate"])
+            self.link = ControllerLink(self.bus, self.controller, [SensorBinding(n, m) for n, m in zip(names, messages)],
+                                       codec=self.codec, on_sensor=self._publish_sensor)
+        except (ValueError, can.CanError, OSError, ImportError) as error:
+            self.get_logger().error(f"configure failed: {error}")
+            self._close_bus()
+            return TransitionCallbackReturn.FAILURE
+        self.noise_variance = {n: float(v) ** 2 for n, v in zip(names, noise)}
+        self.sensor_pubs = {n: self.create_publisher(FluidPressure, f"pressure/sensor/{n}", 10) for n in names}
+        self.get_logger().info(f"bus {self.values['can.interface']}:{self.values['can.channel']} open")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state) -> TransitionCallbackReturn:
+        self.controller.active = True
+        self.loop = ControlLoop(self.link.step, self.values["control_rate_hz"], self.values["status_rate_hz"],
+                                on_status=self._on_loop_output)
+        self.loop.start()
+        return super().on_activate(state)
+
+    def on_deactivate(self, state) -> TransitionCallbackReturn:
+        self._stop_loop_and_vent()
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state) -> TransitionCallbackReturn:
+        self._close_bus()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state) -> TransitionCallbackReturn:
+        self.close()
+        return TransitionCallbackReturn.SUCCESS
+
+    def close(self) -> None:
+        """Vent and release the bus (shutdown, SIGINT, SIGTERM)."""
+        self._stop_loop_and_vent()
+        self._close_bus()
+
+    def _stop_loop_and_vent(self):
+        if self.loop is not None:
+            self.loop.stop()
+            self.loop = None
+        if self.link is not None:
+            self.link.send_vent()
+        self.controller.active = False
+
+    def _close_bus(self):
+        if self.link is not None:
+            self.link.close()
+            self.link = None
+        if self.bus is not None:
+            self.bus.shutdown()
+            self.bus = None
+
+    # ---- I/O ------------------------------------------------------------------------------------
+    def _on_loop_output(self, output):
+        self.last_output = output
+        self._publish_status()
+
+    def _on_command(self, msg: PressureCommand):
+        if self.link is None:
+            self.get_logger().warn("pressure command ignored: the controller is not configured")
+            return
+        try:
+            self.last_note = self.link.command(msg.target_gauge_pressure_pa, msg.source, msg.max_rate_pa_per_s)
+        except ValueError as error:
+            self.last_note = f"command rejected: {error}"
+        if self.last_note:
+            self.get_logger().warn(self.last_note)
+
+    def _on_estimate(self, msg: FluidPressure):
+        if self.values["use_estimate"] and self.link is not None:
+            self.link.update_estimate(msg.fluid_pressure - P_ATM_PA)
+
+    def _on_vent(self, request, response):
+        if self.link is None:
+            response.success, response.message = False, "not configured: no bus to vent through"
+        else:
+            self.link.send_vent()
+            response.success, response.message = True, "venting"
+        return response
+
+    def _publish_sensor(self, name: str, gauge_pa: float, _stamp: float):
+        publisher = self.sensor_pubs.get(name)
+        if publisher is not None and self.context.ok():      # not after SIGINT/SIGTERM shut ROS down
+            publisher.publish(FluidPressure(header=self._header(name), fluid_pressure=gauge_pa + P_ATM_PA,
+                                            variance=self.noise_variance[name]))
+
+    def _header(self, frame_id="softgrip_base"):
+        from std_msgs.msg import Header
+        return Header(stamp=self.get_clock().now().to_msg(), frame_id=frame_id)
+
+    def _publish_status(self):
+        out, link = self.last_output, self.link
+        if out is None or link is None:
+            return
+        self.status_pub.publish(ControllerStatus(
+            header=self._header(), mode=int(out.mode), setpoint_gauge_pressure_pa=out.setpoint_gauge_pa,
+            measured_gauge_pressure_pa=self.controller.measured(link.clock()),
+            estimated_gauge_pressure_pa=self.controller.estimate_gauge_pa(link.clock()),
+            regulator_actual_gauge_pressure_pa=link.regulator_actual_gauge_pa,
+            valve_states=[int(v) for v in out.valves], frames_rx=link.frames_rx, frames_tx=link.frames_tx,
+            frames_bad=link.frames_bad, last_sensor_frame_age_s=link.last_sensor_age_s(),
+            fault_flags=int(out.fault_flags), message="; ".join(m for m in (out.message, self.last_note) if m)))
+
+    def _publish_diagnostics(self):
+        out, link = self.last_output, self.link
+        status = DiagnosticStatus(name="softgrip: pressure controller", hardware_id=self.values["can.channel"])
+        if link is None or out is None:
+            status.level, status.message = DiagnosticStatus.WARN, "not active"
+        else:
+            faults = Fault(out.fault_flags)
+            status.level = DiagnosticStatus.ERROR if faults & (Fault.OVERPRESSURE | Fault.SENSOR_TIMEOUT | Fault.BUS_SILENT) \
+                else LEVELS.get(out.mode, DiagnosticStatus.OK)
+            status.message = out.message or ("ok" if not faults else f"faults: {faults!r}")
+            status.values = [KeyValue(key=k, value=str(v)) for k, v in (
+                ("mode", out.mode.name), ("fault_flags", int(faults)), ("frames_rx", link.frames_rx),
+                ("frames_tx", link.frames_tx), ("frames_bad", link.frames_bad),
+                ("rejected", dict(link.codec.rejected)), ("last_sensor_age_s", f"{link.last_sensor_age_s():.4f}"))]
+        self.diagnostics_pub.publish(DiagnosticArray(header=self._header(), status=[status]))
+
+
+def main(args=None) -> int:
+    return run_node(PressureControllerNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

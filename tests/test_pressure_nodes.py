@@ -1,0 +1,178 @@
+"""The pressure_controller and sim_device nodes, driven through real DDS topics, and their executables."""
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import can
+import pytest
+
+from tests.helpers.ros import spinning, unique, wait_for
+
+pytestmark = pytest.mark.ros
+
+
+@pytest.fixture
+def nodes(rclpy_context):
+    """Controller and simulated device on a private virtual channel, plus a client node, all spinning."""
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from softgrip_ros.nodes.pressure_controller import PressureControllerNode
+    from softgrip_ros.nodes.sim_device import SimDeviceNode
+
+    channel = unique("nodes")
+    overrides = [Parameter("can.channel", value=channel)]
+    device = SimDeviceNode(context=rclpy_context, parameter_overrides=overrides + [Parameter("seed", value=3)])
+    controller = PressureControllerNode(context=rclpy_context, parameter_overrides=overrides)
+    client = Node("test_client", context=rclpy_context)
+    try:
+        with spinning(rclpy_context, device, controller, client):
+            yield controller, device, client
+    finally:
+        for node in (controller, device):
+            node.close()
+            node.destroy_node()
+        client.destroy_node()
+
+
+def test_commands_over_dds_move_the_gripper_and_topics_report_it(nodes):
+    from sensor_msgs.msg import FluidPressure
+    from softgrip_interfaces.msg import ControllerStatus, PressureCommand
+    from std_srvs.srv import Trigger
+
+    controller, device, client = nodes
+    sensors, statuses = {}, []
+    for name in ("chamber_a", "chamber_b"):
+        client.create_subscription(FluidPressure, f"pressure/sensor/{name}", lambda m, n=name: sensors.__setitem__(n, m), 10)
+    client.create_subscription(ControllerStatus, "controller/status", statuses.append, 10)
+    command = client.create_publisher(PressureCommand, "pressure/command", 10)
+    wait_for(lambda: len(sensors) == 2 and statuses, message="sensor and status topics")
+    assert sensors["chamber_a"].fluid_pressure == pytest.approx(101_325.0, abs=2e3)   # absolute Pa
+    assert sensors["chamber_a"].variance == pytest.approx(300.0**2)
+
+    wait_for(lambda: command.get_subscription_count() > 0, message="the controller's subscription")
+    command.publish(PressureCommand(target_gauge_pressure_pa=20e3, max_rate_pa_per_s=math.nan, source=PressureCommand.SUPPLY))
+    wait_for(lambda: abs(device.device.chamber_gauge_pa() - 20e3) < 500.0, timeout=5.0, message="20 kPa")
+    time.sleep(0.3)
+    assert abs(device.device.chamber_gauge_pa() - 20e3) < 500.0
+    status = statuses[-1]
+    assert status.mode == ControllerStatus.MODE_REGULATE and status.setpoint_gauge_pressure_pa == 20e3
+    assert status.frames_rx > 100 and status.frames_bad == 0 and status.last_sensor_frame_age_s < 0.05
+
+    command.publish(PressureCommand(target_gauge_pressure_pa=90e3, max_rate_pa_per_s=math.nan, source=PressureCommand.SUPPLY))
+    wait_for(lambda: statuses[-1].fault_flags & ControllerStatus.FAULT_SETPOINT_CLAMPED, message="clamp reported")
+    assert statuses[-1].setpoint_gauge_pressure_pa <= 50e3
+    assert "clamped" in statuses[-1].message
+
+    vent = client.create_client(Trigger, "pressure_controller/vent")
+    assert vent.wait_for_service(timeout_sec=5.0)
+    future = vent.call_async(Trigger.Request())
+    wait_for(future.done, message="vent service")
+    assert future.result().success
+    wait_for(lambda: abs(device.device.chamber_gauge_pa()) < 1e3, timeout=5.0, message="vented")
+
+
+def test_dropout_gives_hold_and_a_diagnostic_error_then_recovers(nodes):
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from rclpy.parameter import Parameter
+    from softgrip_interfaces.msg import ControllerStatus, PressureCommand
+
+    controller, device, client = nodes
+    statuses, diagnostics = [], []
+    client.create_subscription(ControllerStatus, "controller/status", statuses.append, 10)
+    client.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, 10)
+    command = client.create_publisher(PressureCommand, "pressure/command", 10)
+    wait_for(lambda: command.get_subscription_count() > 0, message="subscription")
+    command.publish(PressureCommand(target_gauge_pressure_pa=15e3, max_rate_pa_per_s=math.nan, source=PressureCommand.SUPPLY))
+    wait_for(lambda: statuses and statuses[-1].mode == ControllerStatus.MODE_REGULATE, message="regulating")
+    result = device.set_parameters([Parameter("fault.sensor_dropout", value="all")])[0]
+    assert result.successful
+    wait_for(lambda: statuses[-1].mode == ControllerStatus.MODE_HOLD and statuses[-1].fault_flags & ControllerStatus.FAULT_SENSOR_TIMEOUT,
+             message="hold on dropout")
+    wait_for(lambda: any(s.level == DiagnosticStatus.ERROR for d in diagnostics for s in d.status
+                         if s.name.endswith("pressure controller")), timeout=3.0, message="diagnostic ERROR")
+    device.set_parameters([Parameter("fault.sensor_dropout", value="")])
+    command.publish(PressureCommand(target_gauge_pressure_pa=15e3, max_rate_pa_per_s=math.nan, source=PressureCommand.SUPPLY))
+    wait_for(lambda: statuses[-1].mode == ControllerStatus.MODE_REGULATE and not statuses[-1].fault_flags & ControllerStatus.FAULT_SENSOR_TIMEOUT,
+             message="recovery")
+
+
+def test_bad_parameters_are_refused_with_a_reason(nodes):
+    from rclpy.parameter import Parameter
+
+    controller, device, _ = nodes
+    result = controller.set_parameters([Parameter("command_timeout_action", value="explode")])[0]
+    assert not result.successful and "one of" in result.reason
+    result = controller.set_parameters([Parameter("kp", value=float("nan"))])[0]
+    assert not result.successful and "kp" in result.reason and "nan" in result.reason
+    result = controller.set_parameters([Parameter("can.channel", value="can9")])[0]
+    assert not result.successful and "deactivate" in result.reason
+    result = device.set_parameters([Parameter("fault.sensor_stuck", value="nope")])[0]
+    assert not result.successful and "unknown sensor" in result.reason
+    assert controller.set_parameters([Parameter("max_gauge_pressure_pa", value=40e3)])[0].successful
+    assert controller.controller.config.max_gauge_pa == 40e3
+
+
+def test_lifecycle_deactivate_vents_and_activate_resumes(nodes):
+    from softgrip_ros.model.pneumatics import Valve
+
+    controller, device, _ = nodes
+    controller.link.command(10e3, 0, math.nan)
+    wait_for(lambda: device.device.chamber_gauge_pa() > 8e3, message="pressure")
+    controller.trigger_deactivate()
+    wait_for(lambda: device.device.valves() == (Valve.VENT,), message="vent on deactivate")
+    controller.trigger_activate()
+    controller.link.command(10e3, 0, math.nan)
+    wait_for(lambda: device.device.chamber_gauge_pa() > 8e3, message="pressure after activate")
+
+
+def executable(name):
+    from ament_index_python.packages import get_package_prefix
+    return os.path.join(get_package_prefix("softgrip_ros"), "lib", "softgrip_ros", name)
+
+
+def test_sigterm_vents_and_exits_cleanly(tmp_path):
+    """Both executables on the inter-process bus; SIGTERM to the controller: vent frames, exit 0."""
+    from softgrip_ros.canbus.codec import FrameCodec
+
+    channel = unique("sigterm")
+    ros_args = ["--ros-args", "-p", "can.interface:=softgrip_ipc", "-p", f"can.channel:={channel}"]
+    monitor = can.Bus(interface="softgrip_ipc", channel=channel)
+    logs = {name: open(tmp_path / f"{name}.log", "w+") for name in ("device", "controller")}
+    device = subprocess.Popen([executable("sim_device"), *ros_args], stdout=logs["device"], stderr=subprocess.STDOUT, text=True)
+    controller = subprocess.Popen([executable("pressure_controller"), *ros_args], stdout=logs["controller"],
+                                  stderr=subprocess.STDOUT, text=True)
+    codec = FrameCodec(max_counter_delta=15)
+    valve_frames = []
+    notifier = can.Notifier(monitor, [lambda frame: (lambda d: d and d.name == "ValveCommand" and valve_frames.append(d))(
+        codec.decode(frame))], timeout=0.05)
+    try:
+        wait_for(lambda: valve_frames, timeout=20.0, message="the controller's valve frames")
+        controller.send_signal(signal.SIGTERM)
+        try:
+            controller.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            controller.send_signal(signal.SIGUSR1)            # faulthandler: dump every thread
+            time.sleep(1.0)
+            raise AssertionError("controller ignored SIGTERM:\n" + (tmp_path / "controller.log").read_text())
+        output = (tmp_path / "controller.log").read_text()
+        assert controller.returncode == 0, output
+        assert "Traceback" not in output
+        time.sleep(0.3)
+        assert valve_frames[-1].signals["Channel0"] == 3, "the controller's last valve frame must vent"
+    finally:
+        for process in (controller, device):
+            if process.poll() is None:
+                process.send_signal(signal.SIGTERM)
+                try:
+                    process.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    process.kill()
+                    process.wait()
+        notifier.stop()
+        monitor.shutdown()
+        for log in logs.values():
+            log.close()
+    assert device.returncode == 0
