@@ -52,3 +52,14 @@ def test_bench_model_json_reports_every_figure():
     figures = json.loads(result.stdout)
     assert set(figures) >= {"l0_single_us", "l0_batch_us_per_pressure", "l1_single_us", "inverse_us"}
     assert all(value > 0 for value in figures.values())
+
+
+@pytest.mark.ros
+def test_bench_pressure_json_reports_every_figure():
+    result = run("scripts/bench_pressure.py", "--json", "--repeat", "3", "--steps", "1", timeout=600)
+    assert result.returncode == 0, result.stderr
+    figures = json.loads(result.stdout)
+    for key in ("loop_period_p99_ms", "codec_frames_per_s", "rise_time_ratio", "overshoot_pct",
+                "steady_state_error_kpa", "bus_load_pct_500k", "loop_period_p99_ms_1khz"):
+        assert figures[key] > 0 or key == "overshoot_pct", key
+    assert "Traceback" not in result.stderr

@@ -147,8 +147,8 @@ class ControlLoop:
 
     An rclpy timer shares the executor (and the GIL) with every callback of the process and
     loses ticks under load; the pressure loop must not. ``on_status(output)`` is called every
-    ``rate_hz / status_rate_hz`` ticks with the latest output. ``periods_s`` keeps the recent
-    tick-to-tick periods for the benchmark.
+    ``rate_hz / status_rate_hz`` ticks with the latest output. ``periods_s`` and ``work_s`` keep
+    the recent tick-to-tick periods and the time spent in ``step()``, for the benchmark.
     """
 
     def __init__(self, step, rate_hz: float, status_rate_hz: float, on_status=None, history: int = 20000):
@@ -159,6 +159,7 @@ class ControlLoop:
         self.status_every = max(1, round(rate_hz / status_rate_hz))
         self.on_status = on_status
         self.periods_s = collections.deque(maxlen=history)
+        self.work_s = collections.deque(maxlen=history)
         self.ticks = 0
         self.errors = 0
         self._stop = threading.Event()
@@ -192,6 +193,7 @@ class ControlLoop:
             self.periods_s.append(now - previous)
             previous = now
             output = self.step_function()
+            self.work_s.append(time.monotonic() - now)
             self.ticks += 1
             if self.on_status is not None and self.ticks % self.status_every == 0:
                 try:
