@@ -29,7 +29,7 @@ os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 from softgrip_ros.benchmarking import machine_line, median_seconds, update_section, verdict  # noqa: E402
 from softgrip_ros.canbus.codec import FrameCodec  # noqa: E402
-from softgrip_ros.canbus.controller_link import ControlLoop, ControllerLink, SensorBinding  # noqa: E402
+from softgrip_ros.canbus.controller_link import make_control_loop, ControllerLink, SensorBinding  # noqa: E402
 from softgrip_ros.canbus.sim_device import SimDeviceConfig, SimulatedDevice  # noqa: E402
 from softgrip_ros.control.pressure import PressureController, Source  # noqa: E402
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve  # noqa: E402
@@ -64,7 +64,7 @@ def can_step(seed: int) -> dict:
     counter = {"frames": 0}
     notifier = can.Notifier(buses[2], [lambda _: counter.__setitem__("frames", counter["frames"] + 1)], timeout=0.05)
     link.controller.active = True
-    loop = ControlLoop(link.step, 500.0, 50.0)
+    loop = make_control_loop(link.step, 500.0, 50.0)
     device.start()
     loop.start()
     try:

@@ -7,10 +7,8 @@ sends RegulatorSetpoint, ValveCommand and, at 10 Hz, ControllerHeartbeat.
 """
 from __future__ import annotations
 
-import collections
 import dataclasses
 import math
-import sys
 import threading
 import time
 
@@ -19,9 +17,9 @@ import can
 from softgrip_ros.canbus.codec import FrameCodec
 from softgrip_ros.control.pressure import ControlOutput, Fault, Mode, PressureController, Source
 from softgrip_ros.model.pneumatics import Valve
+from softgrip_ros.realtime import PeriodicThread
 
 HEARTBEAT_PERIOD_S = 0.1
-GIL_SWITCH_INTERVAL_S = 2e-4
 CONTROLLER_STATE = {Mode.INACTIVE: 0, Mode.FAULT: 2}
 
 
@@ -142,61 +140,8 @@ class ControllerLink:
             return self.controller.last_sensor_age(self.clock())
 
 
-class ControlLoop:
-    """Calls ``step()`` at ``rate_hz`` on a dedicated thread, scheduled on absolute deadlines.
 
-    An rclpy timer shares the executor (and the GIL) with every callback of the process and
-    loses ticks under load; the pressure loop must not. ``on_status(output)`` is called every
-    ``rate_hz / status_rate_hz`` ticks with the latest output. ``periods_s`` and ``work_s`` keep
-    the recent tick-to-tick periods and the time spent in ``step()``, for the benchmark.
-    """
-
-    def __init__(self, step, rate_hz: float, status_rate_hz: float, on_status=None, history: int = 20000):
-        if not 1.0 <= rate_hz <= 5000.0:
-            raise ValueError(f"rate_hz must lie in [1, 5000], got {rate_hz}")
-        self.step_function = step
-        self.period_s = 1.0 / rate_hz
-        self.status_every = max(1, round(rate_hz / status_rate_hz))
-        self.on_status = on_status
-        self.periods_s = collections.deque(maxlen=history)
-        self.work_s = collections.deque(maxlen=history)
-        self.ticks = 0
-        self.errors = 0
-        self._stop = threading.Event()
-        self._thread = None
-
-    def start(self) -> None:
-        # CPython hands the GIL over every 5 ms by default, so a woken loop thread can wait
-        # several periods behind busy threads; 0.2 ms keeps the 500 Hz loop's p99 near 3 ms.
-        sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_INTERVAL_S))
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="softgrip-control-loop", daemon=True)
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
-
-    def _run(self) -> None:
-        start = previous = time.monotonic()
-        tick = 0
-        while not self._stop.is_set():
-            tick += 1
-            delay = start + tick * self.period_s - time.monotonic()
-            if delay > 0.0:
-                self._stop.wait(delay)
-            elif delay < -10 * self.period_s:        # fell far behind: re-anchor instead of bursting
-                start, tick = time.monotonic(), 0
-            now = time.monotonic()
-            self.periods_s.append(now - previous)
-            previous = now
-            output = self.step_function()
-            self.work_s.append(time.monotonic() - now)
-            self.ticks += 1
-            if self.on_status is not None and self.ticks % self.status_every == 0:
-                try:
-                    self.on_status(output)
-                except Exception:                    # publishing must never stop the loop
-                    self.errors += 1
+def make_control_loop(step, rate_hz: float, status_rate_hz: float, on_status=None) -> PeriodicThread:
+    """The pressure controller's loop: ``step`` at ``rate_hz``, ``on_status`` at about ``status_rate_hz``."""
+    return PeriodicThread(step, rate_hz, "softgrip-control-loop", on_output=on_status,
+                          output_every=round(rate_hz / status_rate_hz))

@@ -22,6 +22,7 @@ import numpy as np
 
 from softgrip_ros.canbus.codec import FrameCodec
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticParameters, PneumaticPlant, Valve
+from softgrip_ros.realtime import PeriodicThread
 
 LOG = logging.getLogger(__name__)
 
@@ -94,31 +95,25 @@ class SimulatedDevice:
         self._corrupt_rng = random.Random(self.config.seed)
         self._stuck_values: dict = {}
         self._last_valve_command = -math.inf
-        self._stop = threading.Event()
-        self._thread = None
+        self._loop = PeriodicThread(self._tick, self.config.plant_rate_hz, "softgrip-sim-device")
         self._notifier = None
         self._started_at = 0.0
         self.frames_sent = 0
         self.frames_received = 0
-        self.ticks = 0
-        self.max_tick_overrun_s = 0.0
 
     # ---- lifecycle ----------------------------------------------------------------------------
     def start(self) -> None:
-        if self._thread is not None:
+        if self._loop.running:
             return
-        self._stop.clear()
-        self._started_at = time.monotonic()
+        self._started_at = self._last_tick = time.monotonic()
         self._last_valve_command = self._started_at
+        self._next_sensor = {s.name: 0.0 for s in self.config.sensors}
+        self._next_status = self._next_heartbeat = 0.0
         self._notifier = can.Notifier(self.bus, [self._on_frame], timeout=0.05)
-        self._thread = threading.Thread(target=self._run, name="softgrip-sim-device", daemon=True)
-        self._thread.start()
+        self._loop.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+        self._loop.stop()
         if self._notifier is not None:
             self._notifier.stop(timeout=1.0)
             self._notifier = None
@@ -179,41 +174,30 @@ class SimulatedDevice:
                         self._inputs, valves=tuple(Valve(int(decoded.signals[f"Channel{i}"])) for i in range(channels)))
 
     # ---- the real-time loop ----------------------------------------------------------------------
-    def _run(self) -> None:
-        dt = 1.0 / self.config.plant_rate_hz
-        schedule = [(s, 1.0 / s.rate_hz) for s in self.config.sensors]
-        next_due = {s.name: 0.0 for s in self.config.sensors}
-        status_period, heartbeat_period = 1.0 / self.config.regulator_status_hz, 1.0 / self.config.heartbeat_hz
-        next_status = next_heartbeat = 0.0
-        start = time.monotonic()
-        tick = 0
-        last_time = start
-        while not self._stop.is_set():
-            tick += 1
-            target = start + tick * dt
-            delay = target - time.monotonic()
-            if delay > 0:
-                self._stop.wait(delay)
-            now = time.monotonic()
-            self.max_tick_overrun_s = max(self.max_tick_overrun_s, now - target)
-            elapsed = min(max(now - last_time, dt), 0.05)   # after a stall, catch up in one bounded step
-            last_time = now
-            try:
-                self._advance(elapsed, now)
-                sim_time = now - start
-                for sensor, period in schedule:
-                    if sim_time >= next_due[sensor.name]:
-                        next_due[sensor.name] = max(next_due[sensor.name] + period, sim_time)
-                        self._send_sensor(sensor)
-                if sim_time >= next_status:
-                    next_status += status_period
-                    self._send_status()
-                if sim_time >= next_heartbeat:
-                    next_heartbeat += heartbeat_period
-                    self._send("DeviceHeartbeat", {"DeviceState": 1, "Uptime": min(sim_time, 167772.15)})
-            except can.CanError as error:   # a closed or failing bus: keep simulating, report once
-                LOG.warning("sim device: CAN send failed: %s", error)
-            self.ticks += 1
+    @property
+    def ticks(self) -> int:
+        return self._loop.ticks
+
+    def _tick(self) -> None:
+        """One plant step of the real elapsed time (bounded after a stall), then the frames due."""
+        now = time.monotonic()
+        elapsed = min(max(now - self._last_tick, 1.0 / self.config.plant_rate_hz), 0.05)
+        self._last_tick = now
+        sim_time = now - self._started_at
+        try:
+            self._advance(elapsed, now)
+            for sensor in self.config.sensors:
+                if sim_time >= self._next_sensor[sensor.name]:
+                    self._next_sensor[sensor.name] = max(self._next_sensor[sensor.name] + 1.0 / sensor.rate_hz, sim_time)
+                    self._send_sensor(sensor)
+            if sim_time >= self._next_status:
+                self._next_status += 1.0 / self.config.regulator_status_hz
+                self._send_status()
+            if sim_time >= self._next_heartbeat:
+                self._next_heartbeat += 1.0 / self.config.heartbeat_hz
+                self._send("DeviceHeartbeat", {"DeviceState": 1, "Uptime": min(sim_time, 167772.15)})
+        except can.CanError as error:   # a closed or failing bus: keep simulating, report it
+            LOG.warning("sim device: CAN send failed: %s", error)
 
     def _advance(self, dt: float, now: float) -> None:
         with self._lock:

@@ -18,7 +18,7 @@ from std_srvs.srv import Trigger
 
 from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 from softgrip_ros.canbus.codec import FrameCodec
-from softgrip_ros.canbus.controller_link import ControlLoop, ControllerLink, SensorBinding
+from softgrip_ros.canbus.controller_link import make_control_loop, ControllerLink, SensorBinding
 from softgrip_ros.control.pressure import Fault, Mode, PressureControlConfig, PressureController
 from softgrip_ros.nodes.common import P_ATM_PA, open_bus, run_node
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
@@ -126,7 +126,7 @@ class PressureControllerNode(LifecycleNode):
 
     def on_activate(self, state) -> TransitionCallbackReturn:
         self.controller.active = True
-        self.loop = ControlLoop(self.link.step, self.values["control_rate_hz"], self.values["status_rate_hz"],
+        self.loop = make_control_loop(self.link.step, self.values["control_rate_hz"], self.values["status_rate_hz"],
                                 on_status=self._on_loop_output)
         self.loop.start()
         return super().on_activate(state)

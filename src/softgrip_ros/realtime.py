@@ -1,0 +1,81 @@
+"""PeriodicThread: call a function at a fixed rate on its own thread, scheduled on absolute deadlines.
+
+Both real-time loops of the suite use it: the pressure controller's control loop and the
+simulated device's plant. An rclpy timer shares the executor (and the GIL) with every
+callback of the process and loses ticks under load; these loops must not.
+"""
+from __future__ import annotations
+
+import collections
+import sys
+import threading
+import time
+
+# CPython hands the GIL over every 5 ms by default, so a woken loop thread can wait several
+# periods behind busy threads; 0.2 ms keeps a 500 Hz loop's period p99 near 2.5 ms.
+GIL_SWITCH_INTERVAL_S = 2e-4
+
+
+class PeriodicThread:
+    """Calls ``step()`` at ``rate_hz``. ``on_output(result)`` runs every ``output_every`` ticks.
+
+    ``periods_s`` and ``work_s`` keep the recent tick-to-tick periods and the time spent in
+    ``step()``. After falling more than 10 periods behind, the schedule re-anchors rather
+    than bursting to catch up. Exceptions from ``on_output`` are counted, never raised.
+    """
+
+    def __init__(self, step, rate_hz: float, name: str, on_output=None, output_every: int = 1,
+                 history: int = 20000):
+        if not 1.0 <= rate_hz <= 5000.0:
+            raise ValueError(f"rate_hz must lie in [1, 5000], got {rate_hz}")
+        self.step_function = step
+        self.period_s = 1.0 / rate_hz
+        self.name = name
+        self.on_output = on_output
+        self.output_every = max(1, int(output_every))
+        self.periods_s = collections.deque(maxlen=history)
+        self.work_s = collections.deque(maxlen=history)
+        self.ticks = 0
+        self.errors = 0
+        self._stop = threading.Event()
+        self._thread = None
+
+    @property
+    def running(self) -> bool:
+        return self._thread is not None
+
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        sys.setswitchinterval(min(sys.getswitchinterval(), GIL_SWITCH_INTERVAL_S))
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+
+    def _run(self) -> None:
+        start = previous = time.monotonic()
+        tick = 0
+        while not self._stop.is_set():
+            tick += 1
+            delay = start + tick * self.period_s - time.monotonic()
+            if delay > 0.0:
+                self._stop.wait(delay)
+            elif delay < -10 * self.period_s:
+                start, tick = time.monotonic(), 0
+            now = time.monotonic()
+            self.periods_s.append(now - previous)
+            previous = now
+            output = self.step_function()
+            self.work_s.append(time.monotonic() - now)
+            self.ticks += 1
+            if self.on_output is not None and self.ticks % self.output_every == 0:
+                try:
+                    self.on_output(output)
+                except Exception:               # publishing must never stop the loop
+                    self.errors += 1
