@@ -63,3 +63,15 @@ def test_bench_pressure_json_reports_every_figure():
                 "steady_state_error_kpa", "bus_load_pct_500k", "loop_period_p99_ms_1khz"):
         assert figures[key] > 0 or key == "overshoot_pct", key
     assert "Traceback" not in result.stderr
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_demo_runs_the_real_executables_and_exits_cleanly(tmp_path):
+    plot = tmp_path / "demo.png"
+    result = run("scripts/demo_pressure.py", "--plot", str(plot), timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+    lines = [line for line in result.stdout.splitlines() if "within 1 kPa" in line]
+    assert len(lines) == 3, result.stdout            # open, clamp, release each reached
+    assert plot.stat().st_size > 10_000
+    assert "Traceback" not in result.stderr
