@@ -36,6 +36,11 @@ def run_node(node_factory, args=None) -> int:
     except ValueError as error:      # a bad parameter at start-up
         print(f"{sys.argv[0]}: {error}", file=sys.stderr)
         return 1
+    except Exception:
+        # A signal landing while spin builds its wait set surfaces as RCLError ("context is
+        # not valid") instead of ExternalShutdownException: that is the same shutdown.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.close()
