@@ -179,14 +179,6 @@ class FrameCodec:
             self.accepted += 1
         return DecodedFrame(name, signals, frame.timestamp)
 
-    def reset_receiver(self, name: str | None = None) -> None:
-        """Forget the last counters (after a timeout the next frame starts a new sequence)."""
-        with self._lock:
-            if name is None:
-                self._rx_counters.clear()
-            else:
-                self._rx_counters.pop(name, None)
-
     @property
     def rejected_total(self) -> int:
         return sum(self.rejected.values())

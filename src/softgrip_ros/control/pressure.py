@@ -262,6 +262,7 @@ class PressureController:
         if math.isnan(measured):
             self._integral = 0.0
             self._phase = "track"
+            self._previous_feedback = None    # the first reading after recovery starts a new rate estimate
             return self._output(self._setpoint, True, self._regulator_source(), Valve.CLOSED, Mode.HOLD,
                                 faults | Fault.SENSOR_TIMEOUT, feedback,
                                 "no valid pressure reading: valves closed")

@@ -24,7 +24,6 @@ import datetime
 import math
 import pathlib
 
-import numpy as np
 import yaml
 from scipy.optimize import least_squares
 
@@ -177,6 +176,3 @@ def build_kinematics(model: str = "l0", cavity_type: str = "type_II", max_pressu
                              load_calibration(cavity_type, calibration_path),
                              model=model, max_pressure_pa=max_pressure_pa)
 
-
-def rounded(value: float, digits: int = 12) -> float:
-    return float(np.round(value, digits))

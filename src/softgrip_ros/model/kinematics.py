@@ -36,10 +36,6 @@ from softgrip_ros.model.bending import BendingCalibration, make_bending_law
 from softgrip_ros.model.geometry import CHAMBER_COUNT, FingerGeometry
 from softgrip_ros.model.material import YeohMaterial
 
-def _sinc_scalar(x: float) -> float:
-    return math.sin(x) / x if x != 0.0 else 1.0
-
-
 def _sinc_slope_array(x):
     """d sinc(x) / dx = (x cos x - sin x) / x^2, by its series near 0 (the direct form cancels)."""
     x = np.asarray(x, dtype=float)
@@ -283,7 +279,7 @@ class GripperKinematics:
             phi += pieces_phi_jump.get(index, 0.0)
             for _ in range(steps):
                 part, dth = length / steps, th / steps
-                chord = part * _sinc_scalar(0.5 * dth)
+                chord = part * _ratio_scalar(math.sin(0.5 * dth), 0.5 * dth)
                 x += chord * math.sin(phi - 0.5 * dth)
                 z += chord * math.cos(phi - 0.5 * dth)
                 phi -= dth
