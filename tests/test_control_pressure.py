@@ -151,3 +151,16 @@ def test_nan_sensor_readings_are_ignored():
     controller = active(pressure=1e3)
     controller.update_sensor("s", math.nan, 0.001)
     assert controller.measured(0.002) == 1e3
+
+
+def test_severity_of_outputs():
+    from softgrip_ros.control.pressure import Severity, severity
+
+    controller = active(pressure=1e3)
+    controller.command(5e3, Source.SUPPLY, math.nan, 0.0)
+    assert severity(controller.step(0.001)) == Severity.OK
+    controller.command(90e3, Source.SUPPLY, math.nan, 0.002)
+    assert severity(controller.step(0.003)) == Severity.WARN            # clamped setpoint
+    assert severity(controller.step(1.0)) == Severity.ERROR             # no sensor: blind
+    controller.update_sensor("s", 70e3, 1.001)
+    assert severity(controller.step(1.002)) == Severity.ERROR           # overpressure

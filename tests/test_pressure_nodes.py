@@ -176,3 +176,15 @@ def test_sigterm_vents_and_exits_cleanly(tmp_path):
         for log in logs.values():
             log.close()
     assert device.returncode == 0
+
+
+@pytest.mark.parametrize("argument, message", [
+    ("command_timeout_action:=explode", "must be one of ['hold', 'vent']"),
+    ("control_rate_hz:=5000.0", "control_rate_hz out of range"),
+])
+def test_bad_startup_parameter_exits_1_with_its_reason(argument, message):
+    run = subprocess.run([executable("pressure_controller"), "--ros-args", "-p", argument],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 1
+    assert message in run.stderr
+    assert "Traceback" not in run.stderr

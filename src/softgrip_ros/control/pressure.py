@@ -73,6 +73,15 @@ class Fault(enum.IntFlag):
     BUS_ERROR = 64
 
 
+class Severity(enum.IntEnum):
+    OK = 0
+    WARN = 1
+    ERROR = 2
+
+
+ERROR_FAULTS = Fault.OVERPRESSURE | Fault.SENSOR_TIMEOUT | Fault.BUS_SILENT
+
+
 @dataclasses.dataclass(frozen=True)
 class PressureControlConfig:
     """Parameters of the control law and the safety rules. Pressures gauge, Pa; times s."""
@@ -355,3 +364,13 @@ class PressureController:
             valves=(valve,) * self.config.channels, mode=mode, fault_flags=Fault(faults),
             setpoint_gauge_pa=self._setpoint, feedback_gauge_pa=feedback, message=message)
         return self.last_output
+
+
+def severity(output: ControlOutput) -> Severity:
+    """How bad an output is, for diagnostics: the gripper unsafe or blind is an error; holding
+    or a recoverable fault (clamped setpoint, command timeout, regulator report) is a warning."""
+    if output.fault_flags & ERROR_FAULTS or output.mode == Mode.FAULT:
+        return Severity.ERROR
+    if output.fault_flags or output.mode == Mode.HOLD:
+        return Severity.WARN
+    return Severity.OK

@@ -7,6 +7,7 @@ import sys
 
 import can
 import rclpy
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 
 P_ATM_PA = 101_325.0
@@ -27,23 +28,23 @@ def run_node(node_factory, args=None) -> int:
     """
     rclpy.init(args=args)   # rclpy's own handlers turn SIGINT and SIGTERM into a shutdown that wakes spin
     faulthandler.register(signal.SIGUSR1, all_threads=True)   # kill -USR1 <pid>: where is every thread?
-    node = None
     try:
         node = node_factory()
+    except (ValueError, ParameterException) as error:   # a bad parameter at start-up: say which, exit 1
+        print(f"{sys.argv[0]}: {error}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 1
+    try:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except ValueError as error:      # a bad parameter at start-up
-        print(f"{sys.argv[0]}: {error}", file=sys.stderr)
-        return 1
     except Exception:
         # A signal landing while spin builds its wait set surfaces as RCLError ("context is
         # not valid") instead of ExternalShutdownException: that is the same shutdown.
         if rclpy.ok():
             raise
     finally:
-        if node is not None:
-            node.close()
-            node.destroy_node()
+        node.close()
+        node.destroy_node()
         rclpy.try_shutdown()
     return 0

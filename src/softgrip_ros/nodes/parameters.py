@@ -19,6 +19,7 @@ class ParamSpec:
     high: float | None = None
     choices: tuple = ()
     read_only: bool = False
+    allow_empty: bool = False       # for strings: '' is a meaningful value (e.g. "no fault")
 
     def descriptor(self) -> ParameterDescriptor:
         text = self.description + (f" [{self.unit}]" if self.unit else "")
@@ -40,7 +41,7 @@ class ParamSpec:
         if self.low is not None and isinstance(value, (int, float)) and not isinstance(value, bool):
             if not self.low <= value <= self.high:
                 return f"{self.name} must lie in [{self.low}, {self.high}] {self.unit}, got {value}"
-        if isinstance(self.default, str) and not self.choices and isinstance(value, str) and not value and not self.name.startswith("fault."):
+        if isinstance(value, str) and not value and not self.allow_empty:
             return f"{self.name} must not be empty"
         return ""
 
@@ -71,3 +72,11 @@ def check_all(specs_by_name: dict, parameters, extra_check=None) -> SetParameter
         if problem:
             return SetParametersResult(successful=False, reason=problem)
     return SetParametersResult(successful=True)
+
+
+# The CAN bus parameters every node that opens a bus declares.
+CAN_SPECS = [
+    ParamSpec("can.interface", "virtual", "python-can interface (virtual, softgrip_ipc, socketcan, pcan, ...)"),
+    ParamSpec("can.channel", "softgrip", "python-can channel (e.g. can0)"),
+    ParamSpec("can.bitrate", 500_000, "CAN bit rate (ignored by virtual and softgrip_ipc)", "bit/s", 10_000, 1_000_000),
+]

@@ -14,21 +14,17 @@ import can
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from sensor_msgs.msg import FluidPressure
+from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
 from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 from softgrip_ros.canbus.codec import FrameCodec
 from softgrip_ros.canbus.controller_link import make_control_loop, ControllerLink, SensorBinding
-from softgrip_ros.control.pressure import Fault, Mode, PressureControlConfig, PressureController
+from softgrip_ros.control.pressure import PressureControlConfig, PressureController, Severity, severity
 from softgrip_ros.nodes.common import P_ATM_PA, open_bus, run_node
-from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
+from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, check_all, declare
 
 _DEFAULTS = PressureControlConfig()
-CAN_SPECS = [
-    ParamSpec("can.interface", "virtual", "python-can interface (virtual, softgrip_ipc, socketcan, pcan, ...)"),
-    ParamSpec("can.channel", "softgrip", "python-can channel (e.g. can0)"),
-    ParamSpec("can.bitrate", 500_000, "CAN bit rate (ignored by virtual and softgrip_ipc)", "bit/s", 10_000, 1_000_000),
-]
 SPECS = CAN_SPECS + [
     ParamSpec("autostart", True, "configure and activate on start-up"),
     ParamSpec("control_rate_hz", 500.0, "control loop rate", "Hz", 10.0, 1000.0),
@@ -53,7 +49,7 @@ LIVE = {"max_gauge_pressure_pa": "max_gauge_pa", "min_gauge_pressure_pa": "min_g
         "command_timeout": "command_timeout_s", "command_timeout_action": "command_timeout_action",
         "default_rate_pa_per_s": "default_rate_pa_per_s", "kp": "kp", "ki_per_s": "ki_per_s",
         "trim_limit_pa": "trim_limit_pa"}
-LEVELS = {Mode.FAULT: DiagnosticStatus.ERROR, Mode.HOLD: DiagnosticStatus.WARN}
+LEVELS = {Severity.OK: DiagnosticStatus.OK, Severity.WARN: DiagnosticStatus.WARN, Severity.ERROR: DiagnosticStatus.ERROR}
 
 
 class PressureControllerNode(LifecycleNode):
@@ -199,7 +195,6 @@ class PressureControllerNode(LifecycleNode):
                                             variance=self.noise_variance[name]))
 
     def _header(self, frame_id="softgrip_base"):
-        from std_msgs.msg import Header
         return Header(stamp=self.get_clock().now().to_msg(), frame_id=frame_id)
 
     def _publish_status(self):
@@ -221,9 +216,8 @@ class PressureControllerNode(LifecycleNode):
         if link is None or out is None:
             status.level, status.message = DiagnosticStatus.WARN, "not active"
         else:
-            faults = Fault(out.fault_flags)
-            status.level = DiagnosticStatus.ERROR if faults & (Fault.OVERPRESSURE | Fault.SENSOR_TIMEOUT | Fault.BUS_SILENT) \
-                else LEVELS.get(out.mode, DiagnosticStatus.OK)
+            faults = out.fault_flags
+            status.level = LEVELS[severity(out)]
             status.message = out.message or ("ok" if not faults else f"faults: {faults!r}")
             status.values = [KeyValue(key=k, value=str(v)) for k, v in (
                 ("mode", out.mode.name), ("fault_flags", int(faults)), ("frames_rx", link.frames_rx),

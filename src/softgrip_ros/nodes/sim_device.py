@@ -11,12 +11,11 @@ from rclpy.node import Node
 
 from softgrip_ros.canbus.sim_device import DEFAULT_SENSORS, FAULTS, SimDeviceConfig, SimulatedDevice
 from softgrip_ros.nodes.common import open_bus, run_node
-from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
-from softgrip_ros.nodes.pressure_controller import CAN_SPECS
+from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, check_all, declare
 
 FAULT_SPECS = [
-    ParamSpec("fault.sensor_dropout", "", "silence a sensor (its name, or 'all'); '' = none"),
-    ParamSpec("fault.sensor_stuck", "", "freeze a sensor's reading (its name, or 'all'); '' = none"),
+    ParamSpec("fault.sensor_dropout", "", "silence a sensor (its name, or 'all'); '' = none", allow_empty=True),
+    ParamSpec("fault.sensor_stuck", "", "freeze a sensor's reading (its name, or 'all'); '' = none", allow_empty=True),
     ParamSpec("fault.sensor_bias_pa", 0.0, "bias added to every reading", "Pa", -50e3, 50e3),
     ParamSpec("fault.regulator_overshoot_pa", 0.0, "the regulator settles this far above its setpoint", "Pa", -50e3, 100e3),
     ParamSpec("fault.valve_stuck", False, "the valves ignore commands"),
