@@ -97,9 +97,8 @@ def can_step(seed: int) -> dict:
 def node_loop_periods(rate_hz: float, seconds: float) -> np.ndarray:
     """The real nodes in one process: the pressure controller's loop periods during a step."""
     import rclpy
-    from rclpy.executors import MultiThreadedExecutor
     from rclpy.parameter import Parameter
-    import threading
+    from softgrip_ros.nodes.common import spinning
     from softgrip_ros.nodes.pressure_controller import PressureControllerNode
     from softgrip_ros.nodes.sim_device import SimDeviceNode
 
@@ -109,21 +108,14 @@ def node_loop_periods(rate_hz: float, seconds: float) -> np.ndarray:
     device = SimDeviceNode(context=context, parameter_overrides=[Parameter("can.channel", value=channel)])
     controller = PressureControllerNode(context=context, parameter_overrides=[
         Parameter("can.channel", value=channel), Parameter("control_rate_hz", value=rate_hz)])
-    executor = MultiThreadedExecutor(num_threads=4, context=context)
-    executor.add_node(device)
-    executor.add_node(controller)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
     try:
-        time.sleep(0.5)
-        controller.loop.periods_s.clear()
-        controller.link.command(TARGET, Source.SUPPLY, math.nan)
-        time.sleep(seconds)
-        return np.array(controller.loop.periods_s), np.array(controller.loop.work_s)
+        with spinning(device, controller, context=context):
+            time.sleep(0.5)
+            controller.loop.periods_s.clear()
+            controller.link.command(TARGET, Source.SUPPLY, math.nan)
+            time.sleep(seconds)
+            return np.array(controller.loop.periods_s), np.array(controller.loop.work_s)
     finally:
-        executor.shutdown(timeout_sec=2.0)
-        thread.join(timeout=5.0)
-        getattr(executor, "_executor").shutdown(wait=True)
         for node in (controller, device):
             node.close()
             node.destroy_node()

@@ -1,14 +1,16 @@
 """Small pieces every softgrip node uses: the spin-and-exit-cleanly main, CAN bus opening, stamps."""
 from __future__ import annotations
 
+import contextlib
 import faulthandler
 import signal
 import sys
+import threading
 
 import can
 import rclpy
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 
 P_ATM_PA = 101_325.0
 
@@ -48,3 +50,25 @@ def run_node(node_factory, args=None) -> int:
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+@contextlib.contextmanager
+def spinning(*nodes, context=None, threads: int = 4):
+    """Spin ``nodes`` in a background thread (a SingleThreadedExecutor for ``threads=1``, whose
+    per-callback cost is far lower); stop and join on exit. For tools that drive nodes from their
+    own thread: tests, benchmarks, the demo.
+    """
+    executor = (SingleThreadedExecutor(context=context) if threads == 1
+                else MultiThreadedExecutor(num_threads=threads, context=context))
+    for node in nodes:
+        executor.add_node(node)
+    thread = threading.Thread(target=executor.spin, name="softgrip-spin", daemon=True)
+    thread.start()
+    try:
+        yield executor
+    finally:
+        executor.shutdown(timeout_sec=2.0)
+        thread.join(timeout=5.0)
+        pool = getattr(executor, "_executor", None)   # Jazzy's shutdown() leaves its thread pool running
+        if pool is not None:
+            pool.shutdown(wait=True)
