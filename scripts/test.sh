@@ -2,13 +2,8 @@
 # The README's test command: set up the workspace if needed, then run all of pytest.
 # Extra arguments go to pytest (e.g. scripts/test.sh -k codec -x).
 set -euo pipefail
-repo_root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-cd "$repo_root"
-bash scripts/setup.sh
-export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
 # shellcheck disable=SC1091
-source scripts/env.sh
-export MPLBACKEND=Agg
+source "$(dirname "${BASH_SOURCE[0]}")/prepare.sh"
 status=0
 python -m pytest "$@" || status=$?
 if [ "$status" -eq 5 ]; then
