@@ -18,8 +18,8 @@ The paper assumes every orifice is choked; near equilibrium (r -> 1) that is fal
 choked-only model never settles. The subsonic branch has an infinite slope at r = 1,
 which makes the ODE stiff there: a fixed-step explicit Euler cannot settle (it chatters
 with an amplitude that grows with dt^2, and beyond a step size it runs away). :meth:`PneumaticPlant.step`
-therefore integrates each chamber by backward Euler, solved exactly per step with a
-bracketed root finder; the backward-Euler map is monotone, so it never overshoots the
+therefore integrates each chamber by backward Euler, solved per step by a
+bracketed Newton iteration; the backward-Euler map is monotone, so it never overshoots the
 source and settles exactly at equilibrium for any step.
 
 The regulator follows its setpoint with a first-order lag and a rate limit, integrated
@@ -33,7 +33,6 @@ import enum
 import math
 
 import numpy as np
-from scipy.optimize import brentq
 
 P_ATM_PA = 101_325.0
 R_AIR_J_PER_KG_K = 287.05
@@ -181,8 +180,40 @@ class PneumaticPlant:
 
     def chamber_rate(self, chamber_pa: float, valve: Valve, regulator_gauge_pa: float) -> float:
         """dp/dt of one chamber (Pa/s)."""
-        return (self.parameters.gas_constant_times_temperature
-                * self.chamber_mass_flow(chamber_pa, valve, regulator_gauge_pa) / float(self.capacitance(chamber_pa)))
+        source_pa, conductance = self.source(valve, regulator_gauge_pa)
+        return self.rate_and_slopes(float(chamber_pa), source_pa, conductance)[0]
+
+    def rate_and_slopes(self, chamber_pa: float, source_pa: float, conductance: float) -> tuple[float, float, float]:
+        """(dp/dt, its partial derivative by the chamber pressure, by the source pressure) of one
+        chamber joined to a source through ``conductance``; scalar, plain floats (the filters' hot path).
+
+        At r -> 1 the subsonic branch's slope is infinite; it is capped at a finite large value
+        so that the implicit-step Jacobian stays defined (it then tends to the exact limit)."""
+        par = self.parameters
+        if conductance == 0.0:
+            return 0.0, 0.0, 0.0
+        inflow = source_pa >= chamber_pa
+        upstream, downstream = (source_pa, chamber_pa) if inflow else (chamber_pa, source_pa)
+        ratio = downstream / upstream
+        b = par.critical_ratio
+        if ratio <= b:
+            phi, dphi = 1.0, 0.0
+        else:
+            s = (ratio - b) / (1.0 - b)
+            phi = math.sqrt(max(1.0 - s * s, 0.0))
+            dphi = -s / (max(phi, 1e-9) * (1.0 - b))
+        gain = conductance * RHO0_KG_PER_M3 * math.sqrt(T0_K / par.temperature_k)
+        if inflow:
+            flow, dflow_dp, dflow_ds = gain * upstream * phi, gain * dphi, gain * (phi - ratio * dphi)
+        else:
+            flow, dflow_dp, dflow_ds = -gain * upstream * phi, -gain * (phi - ratio * dphi), -gain * dphi
+        volume = par.chamber_volume_m3 + par.chamber_compliance_m3_per_pa * (chamber_pa - P_ATM_PA)
+        swelling = par.chamber_compliance_m3_per_pa if volume > par.min_chamber_volume_m3 else 0.0
+        capacitance = max(volume, par.min_chamber_volume_m3) + chamber_pa * swelling
+        rt = par.gas_constant_times_temperature
+        rate = rt * flow / capacitance
+        return (rate, rt * (dflow_dp - flow * 2.0 * swelling / capacitance) / capacitance,
+                rt * dflow_ds / capacitance)
 
     def regulator_target_gauge_pa(self, inputs: PlantInputs) -> float:
         par = self.parameters
@@ -198,27 +229,52 @@ class PneumaticPlant:
         """Advance by dt (s): the regulator exactly, each chamber by backward Euler."""
         if not (math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be positive and finite, got {dt}")
-        regulator = self._regulator_after(state.regulator_gauge_pa, inputs, dt)
-        chambers = np.array([self._chamber_backward_euler(p, valve, regulator, dt)
+        regulator = self.regulator_step(state.regulator_gauge_pa, inputs, dt)[0]
+        chambers = np.array([self.chamber_step(p, valve, regulator, dt)[0]
                              for p, valve in zip(state.chamber_pa, self._valves(inputs))])
         return PlantState(regulator, chambers)
 
-    def _regulator_after(self, regulator_gauge_pa: float, inputs: PlantInputs, dt: float) -> float:
+    def chamber_step(self, chamber_pa: float, valve: Valve, regulator_gauge_pa: float, dt: float) -> tuple[float, float, float]:
+        """One backward-Euler step of one chamber: (p_next, dp_next/dp, dp_next/d regulator).
+
+        p_next solves g(p) = p - p_n - dt f(p) = 0, which rises strictly from p_n to the source,
+        so a Newton iteration kept inside that bracket (bisection when it leaves) converges.
+        The derivatives follow from the implicit function theorem: 1/(1 - dt f_p) and
+        dt f_s/(1 - dt f_p), with f_s = 0 unless the valve joins the regulator."""
+        source_pa, conductance = self.source(valve, regulator_gauge_pa)
+        p_n = float(chamber_pa)
+        if conductance == 0.0 or source_pa == p_n:
+            return p_n, 1.0, 0.0
+        low, high = (p_n, source_pa) if source_pa > p_n else (source_pa, p_n)
+        p = p_n
+        for _ in range(100):
+            rate, slope_p, _ = self.rate_and_slopes(p, source_pa, conductance)
+            residual = p - p_n - dt * rate
+            step = residual / (1.0 - dt * slope_p)
+            if abs(step) <= 1e-9 + 4e-16 * abs(p):
+                p -= step
+                break
+            if residual > 0.0:
+                high = p
+            else:
+                low = p
+            p = p - step if low < p - step < high else 0.5 * (low + high)
+            if high - low <= 1e-9:
+                break
+        rate, slope_p, slope_s = self.rate_and_slopes(p, source_pa, conductance)
+        denominator = 1.0 - dt * slope_p
+        return p, 1.0 / denominator, (dt * slope_s / denominator if valve == Valve.SUPPLY else 0.0)
+
+    def regulator_step(self, regulator_gauge_pa: float, inputs: PlantInputs, dt: float) -> tuple[float, float]:
+        """The regulator after dt, exactly (lag and rate limit), and its derivative by the start value."""
         par = self.parameters
         target = self.regulator_target_gauge_pa(inputs)
-        lagged = target + (regulator_gauge_pa - target) * math.exp(-dt / par.regulator_time_constant_s)
+        decay = math.exp(-dt / par.regulator_time_constant_s)
+        change = (target - regulator_gauge_pa) * (1.0 - decay)
         max_change = par.regulator_rate_limit_pa_per_s * dt
-        return regulator_gauge_pa + min(max(lagged - regulator_gauge_pa, -max_change), max_change)
-
-    def _chamber_backward_euler(self, chamber_pa: float, valve: Valve, regulator_gauge_pa: float, dt: float) -> float:
-        source_pa, conductance = self.source(valve, regulator_gauge_pa)
-        if conductance == 0.0 or source_pa == chamber_pa:
-            return float(chamber_pa)
-        # g(p) = p - p_n - dt f(p) rises strictly from p_n to the source: one root between them
-        def residual(p):
-            return p - chamber_pa - dt * self.chamber_rate(p, valve, regulator_gauge_pa)
-        low, high = sorted((float(chamber_pa), source_pa))
-        return brentq(residual, low, high, xtol=1e-9, rtol=4 * np.finfo(float).eps)
+        if abs(change) > max_change:
+            return regulator_gauge_pa + math.copysign(max_change, change), 1.0
+        return regulator_gauge_pa + change, decay
 
     def _valves(self, inputs: PlantInputs) -> tuple:
         valves = tuple(Valve(v) for v in inputs.valves)
@@ -230,7 +286,7 @@ class PneumaticPlant:
 
     def explicit_euler_step(self, state: PlantState, inputs: PlantInputs, dt: float) -> PlantState:
         """The naive scheme, kept to show where it fails (tests and the integrator benchmark)."""
-        regulator = self._regulator_after(state.regulator_gauge_pa, inputs, dt)
+        regulator = self.regulator_step(state.regulator_gauge_pa, inputs, dt)[0]
         chambers = np.array([p + dt * self.chamber_rate(p, valve, state.regulator_gauge_pa)
                              for p, valve in zip(state.chamber_pa, self._valves(inputs))])
         return PlantState(regulator, chambers)
