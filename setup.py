@@ -31,6 +31,7 @@ setup(
         "console_scripts": [
             "pressure_controller = softgrip_ros.nodes.pressure_controller:main",
             "sim_device = softgrip_ros.nodes.sim_device:main",
+            "estimator = softgrip_ros.nodes.estimator:main",
         ],
         # python-can finds this interface by name: can.Bus(interface="softgrip_ipc", channel=...)
         "can.interface": [

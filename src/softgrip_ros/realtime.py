@@ -17,22 +17,20 @@ GIL_SWITCH_INTERVAL_S = 2e-4
 
 
 class PeriodicThread:
-    """Calls ``step()`` at ``rate_hz``. ``on_output(result)`` runs every ``output_every`` ticks.
+    """Calls ``step()`` at ``rate_hz``, and ``on_output(result)`` after each tick.
 
     ``periods_s`` and ``work_s`` keep the recent tick-to-tick periods and the time spent in
     ``step()``. After falling more than 10 periods behind, the schedule re-anchors rather
     than bursting to catch up. Exceptions from ``on_output`` are counted, never raised.
     """
 
-    def __init__(self, step, rate_hz: float, name: str, on_output=None, output_every: int = 1,
-                 history: int = 20000):
+    def __init__(self, step, rate_hz: float, name: str, on_output=None, history: int = 20000):
         if not 1.0 <= rate_hz <= 5000.0:
             raise ValueError(f"rate_hz must lie in [1, 5000], got {rate_hz}")
         self.step_function = step
         self.period_s = 1.0 / rate_hz
         self.name = name
         self.on_output = on_output
-        self.output_every = max(1, int(output_every))
         self.periods_s = collections.deque(maxlen=history)
         self.work_s = collections.deque(maxlen=history)
         self.ticks = 0
@@ -74,7 +72,7 @@ class PeriodicThread:
             output = self.step_function()
             self.work_s.append(time.monotonic() - now)
             self.ticks += 1
-            if self.on_output is not None and self.ticks % self.output_every == 0:
+            if self.on_output is not None:
                 try:
                     self.on_output(output)
                 except Exception:               # publishing must never stop the loop

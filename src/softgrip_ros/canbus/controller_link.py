@@ -142,6 +142,26 @@ class ControllerLink:
 
 
 def make_control_loop(step, rate_hz: float, status_rate_hz: float, on_status=None) -> PeriodicThread:
-    """The pressure controller's loop: ``step`` at ``rate_hz``, ``on_status`` at about ``status_rate_hz``."""
-    return PeriodicThread(step, rate_hz, "softgrip-control-loop", on_output=on_status,
-                          output_every=round(rate_hz / status_rate_hz))
+    """The pressure controller's loop: ``step`` at ``rate_hz``; ``on_status`` at about
+    ``status_rate_hz`` and at once on a change (see :class:`StatusOnChange`)."""
+    on_output = None if on_status is None else StatusOnChange(on_status, round(rate_hz / status_rate_hz))
+    return PeriodicThread(step, rate_hz, "softgrip-control-loop", on_output=on_output)
+
+
+class StatusOnChange:
+    """Pass a ControlOutput on every ``every``-th call, and at once when the valves, the mode,
+    the regulator enable or (by more than ``regulator_band_pa``) the regulator command change."""
+
+    def __init__(self, callback, every: int, regulator_band_pa: float = 1e3):
+        self.callback, self.every, self.regulator_band_pa = callback, max(1, int(every)), regulator_band_pa
+        self._count, self._last = 0, None
+
+    def __call__(self, output) -> None:
+        self._count += 1
+        last = self._last
+        changed = (last is None or (output.valves, output.mode, output.regulator_enabled)
+                   != (last.valves, last.mode, last.regulator_enabled)
+                   or abs(output.regulator_setpoint_gauge_pa - last.regulator_setpoint_gauge_pa) > self.regulator_band_pa)
+        if changed or self._count >= self.every:
+            self._count, self._last = 0, output
+            self.callback(output)

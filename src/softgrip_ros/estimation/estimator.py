@@ -172,6 +172,7 @@ class PressureEstimator:
         self.filter = None
         self.time_s = math.nan
         self.reinitialisations = 0
+        self._models = {}
 
     # ---- inputs and time ----------------------------------------------------------------------
     @property
@@ -242,16 +243,21 @@ class PressureEstimator:
                 accepted[name] = value
                 used[name] = True
         if accepted:
-            m = len(accepted)
-            z = np.array(list(accepted.values())).reshape(m, 1)
-            H = np.zeros((m, 2))
-            H[:, CHAMBER] = 1.0
-            R = np.diag([self.sensors[n].noise_std_pa ** 2 for n in accepted])
-            self.filter.update(z, H, R)
+            H, R = self._measurement_model(tuple(accepted))
+            self.filter.update(np.array(list(accepted.values())).reshape(-1, 1), H, R)
         elif self._locked_out(stamp_s):
             self._initialise(valid, stamp_s)
             self.reinitialisations += 1
         return used
+
+    def _measurement_model(self, names: tuple) -> tuple[np.ndarray, np.ndarray]:
+        """(H (m, 2), R (m, m)) for the sensors ``names``, cached: the subsets are few."""
+        model = self._models.get(names)
+        if model is None:
+            H = np.zeros((len(names), 2))
+            H[:, CHAMBER] = 1.0
+            model = self._models[names] = (H, np.diag([self.sensors[n].noise_std_pa ** 2 for n in names]))
+        return model
 
     def _locked_out(self, now: float) -> bool:
         alive = self.alive_sensors(now)

@@ -66,6 +66,17 @@ def _joseph(P_prior: np.ndarray, K: np.ndarray, H: np.ndarray, R: np.ndarray) ->
     return _symmetric(I_KH @ P_prior @ I_KH.T + K @ R @ K.T)
 
 
+def _inverse_small(S: np.ndarray) -> np.ndarray:
+    """Inverse of the 1x1 or 2x2 innovation covariance (one or two sensors at an instant),
+    closed form; numpy's general inv costs more than the rest of a KF update."""
+    if S.shape == (1, 1):
+        return np.array([[1.0 / S[0, 0]]])
+    if S.shape == (2, 2):
+        det = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
+        return np.array([[S[1, 1], -S[0, 1]], [-S[1, 0], S[0, 0]]]) / det
+    return np.linalg.inv(S)
+
+
 def _symmetric(P: np.ndarray) -> np.ndarray:
     return 0.5 * (P + P.T)
 
@@ -110,6 +121,7 @@ class LinearFilter(PressureFilter):
 
     def _setup(self, x0, P0):
         self.f = KalmanFilter(dim_x=2, dim_z=1)
+        self.f.inv = _inverse_small
         self.reset(x0, P0)
         self._one = np.ones((1, 1))
 
@@ -204,6 +216,7 @@ class PlantUKF(PressureFilter):
     def _setup(self, x0, P0):
         points = MerweScaledSigmaPoints(2, alpha=1.0, beta=2.0, kappa=1.0, sqrt_method=_upper_cholesky_2x2)
         self.f = UnscentedKalmanFilter(dim_x=2, dim_z=1, dt=1e-3, hx=self._measure, fx=self._transition, points=points)
+        self.f.inv = _inverse_small
         self.reset(x0, P0)
 
     @property

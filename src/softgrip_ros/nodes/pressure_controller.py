@@ -206,6 +206,7 @@ class PressureControllerNode(LifecycleNode):
             measured_gauge_pressure_pa=self.controller.measured(link.clock()),
             estimated_gauge_pressure_pa=self.controller.estimate_gauge_pa(link.clock()),
             regulator_actual_gauge_pressure_pa=link.regulator_actual_gauge_pa,
+            regulator_command_gauge_pressure_pa=out.regulator_setpoint_gauge_pa, regulator_enabled=out.regulator_enabled,
             valve_states=[int(v) for v in out.valves], frames_rx=link.frames_rx, frames_tx=link.frames_tx,
             frames_bad=link.frames_bad, last_sensor_frame_age_s=link.last_sensor_age_s(),
             fault_flags=int(out.fault_flags), message="; ".join(m for m in (out.message, self.last_note) if m)))

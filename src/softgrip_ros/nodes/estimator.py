@@ -1,0 +1,133 @@
+"""estimator: fuses the chamber pressure sensors into pressure/estimate (FluidPressure, absolute
+Pa, with its variance).
+
+In: pressure/sensor/<name> for each configured sensor; controller/status (the regulator command
+and valve state, the process model's inputs); pressure/command (a VENT or HOLD is applied to the
+model at once, ahead of the status that confirms it). Out: pressure/estimate, stamped with the
+time the estimate refers to, after each fused sample (at most ``frequency``) and, while no
+sample has been fused for two periods, predicted forward at min(``frequency``, 50 Hz) (an rclpy
+timer at hundreds of Hz would starve the sensor callbacks); /diagnostics at 2 Hz.
+Parameters follow robot_localization where they fit. The filters live in softgrip_ros.estimation.
+"""
+from __future__ import annotations
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.node import Node
+from rclpy.time import Time
+from sensor_msgs.msg import FluidPressure
+from std_msgs.msg import Header
+
+from softgrip_interfaces.msg import ControllerStatus, PressureCommand
+from softgrip_ros.estimation.estimator import EstimatorConfig, Health, PressureEstimator, SensorConfig
+from softgrip_ros.model.pneumatics import Valve
+from softgrip_ros.nodes.common import P_ATM_PA, run_node
+from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
+
+_DEFAULTS = EstimatorConfig()
+SPECS = [
+    ParamSpec("frequency", 500.0, "largest pressure/estimate rate (predictions while silent: at most 50 Hz)", "Hz", 1.0, 2000.0),
+    ParamSpec("sensor_timeout", _DEFAULTS.sensor_timeout_s, "a sensor silent this long is dropped from fusion", "s", 0.001, 10.0),
+    ParamSpec("filter_type", _DEFAULTS.filter_type, "the filter", choices=("kf", "ekf", "ukf")),
+    ParamSpec("sensors.names", ["chamber_a", "chamber_b"], "sensors fused: topics pressure/sensor/<name>"),
+    ParamSpec("sensors.noise_std_pa", [300.0, 150.0], "1-sigma noise of each sensor (R = noise^2)", "Pa"),
+    ParamSpec("sensors.rejection_threshold", [16.0, 16.0], "Mahalanobis gate of each sensor, chi-square with 1 dof (16 = 4 sigma)"),
+    ParamSpec("process_noise_covariance", list(_DEFAULTS.process_noise_pa2_per_s),
+              "Q spectral density over [chamber, regulator]: 2 values (diagonal) or 4 (full, row-major)", "Pa^2/s"),
+    ParamSpec("nis_window", _DEFAULTS.nis_window, "samples per sensor in the NIS consistency window", "", 10, 100000),
+    ParamSpec("max_consecutive_rejections", _DEFAULTS.max_consecutive_rejections,
+              "rejections in a row from every live sensor before re-initialising", "", 1, 100000),
+]
+PREDICTION_RATE_LIMIT_HZ = 50.0
+LEVELS = {Health.OK: DiagnosticStatus.OK, Health.WARN: DiagnosticStatus.WARN, Health.ERROR: DiagnosticStatus.ERROR}
+
+
+def config_from(values: dict) -> EstimatorConfig:
+    """The estimator's configuration from the parameter values; ValueError names a bad one."""
+    names, noise, gates = values["sensors.names"], values["sensors.noise_std_pa"], values["sensors.rejection_threshold"]
+    if not (len(names) == len(noise) == len(gates)):
+        raise ValueError(f"sensors.names, sensors.noise_std_pa and sensors.rejection_threshold need one entry per "
+                         f"sensor; got {len(names)}, {len(noise)} and {len(gates)}")
+    sensors = tuple(SensorConfig(n, float(s), float(g)) for n, s, g in zip(names, noise, gates))
+    return EstimatorConfig(filter_type=values["filter_type"], sensors=sensors, sensor_timeout_s=values["sensor_timeout"],
+                           process_noise_pa2_per_s=tuple(float(v) for v in values["process_noise_covariance"]),
+                           nis_window=values["nis_window"], max_consecutive_rejections=values["max_consecutive_rejections"])
+
+
+def _seconds(stamp) -> float:
+    return Time.from_msg(stamp).nanoseconds * 1e-9
+
+
+class EstimatorNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("estimator", **kwargs)
+        specs = {s.name: s for s in SPECS}
+        self.values = declare(self, SPECS)
+        self.estimator = PressureEstimator(config_from(self.values))
+        self.add_on_set_parameters_callback(
+            lambda params: check_all(specs, params, lambda _: "estimator parameters apply at start-up: restart the node"))
+        self.period_s = 1.0 / self.values["frequency"]
+        self.last_publish_s = -float("inf")
+        self.estimate_pub = self.create_publisher(FluidPressure, "pressure/estimate", 10)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        for name in self.values["sensors.names"]:
+            self.create_subscription(FluidPressure, f"pressure/sensor/{name}",
+                                     lambda msg, name=name: self._on_sensor(name, msg), 50)
+        self.create_subscription(ControllerStatus, "controller/status", self._on_status, 10)
+        self.create_subscription(PressureCommand, "pressure/command", self._on_command, 10)
+        self.create_timer(max(self.period_s, 1.0 / PREDICTION_RATE_LIMIT_HZ), self._on_timer)
+        self.create_timer(0.5, self._publish_diagnostics)
+
+    def close(self) -> None:
+        """Nothing to vent: the estimator only listens."""
+
+    def _now(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _on_sensor(self, name: str, msg: FluidPressure) -> None:
+        stamp = _seconds(msg.header.stamp)
+        if self.estimator.add_measurement(name, msg.fluid_pressure - P_ATM_PA, stamp) and \
+                stamp - self.last_publish_s >= 0.9 * self.period_s:
+            self._publish(self.estimator.estimate())
+
+    def _on_status(self, msg: ControllerStatus) -> None:
+        if not msg.valve_states:
+            return
+        try:
+            self.estimator.set_inputs(msg.regulator_command_gauge_pressure_pa, msg.regulator_enabled,
+                                      msg.valve_states[0], _seconds(msg.header.stamp))
+        except ValueError as error:     # a NaN command or an unknown valve value: keep the last inputs
+            self.get_logger().warn(f"controller/status ignored: {error}", throttle_duration_sec=5.0)
+
+    def _on_command(self, msg: PressureCommand) -> None:
+        valve = {PressureCommand.VENT: Valve.VENT, PressureCommand.HOLD: Valve.CLOSED}.get(msg.source)
+        if valve is not None:
+            inputs = self.estimator.inputs
+            self.estimator.set_inputs(inputs.regulator_setpoint_gauge_pa, inputs.regulator_enabled, valve,
+                                      _seconds(msg.header.stamp) or self._now())
+
+    def _on_timer(self) -> None:
+        """While no fused sample has been published for two timer periods, publish the prediction."""
+        now = self._now()
+        if self.estimator.initialised and now - self.last_publish_s >= 2.0 / PREDICTION_RATE_LIMIT_HZ:
+            self.estimator.predict_to(now)    # committed: a sample older than this would be dropped as late anyway
+            self._publish(self.estimator.estimate())
+
+    def _publish(self, estimate) -> None:
+        if estimate is None or not self.context.ok():
+            return
+        self.last_publish_s = estimate.stamp_s
+        stamp = Time(nanoseconds=int(estimate.stamp_s * 1e9)).to_msg()
+        self.estimate_pub.publish(FluidPressure(header=Header(stamp=stamp, frame_id="softgrip_chamber"),
+                                                fluid_pressure=estimate.gauge_pa + P_ATM_PA,
+                                                variance=estimate.variance_pa2))
+
+    def _publish_diagnostics(self) -> None:
+        report = self.estimator.report(self._now())
+        status = DiagnosticStatus(name="softgrip: estimator", hardware_id="pressure", level=LEVELS[report.health],
+                                  message=report.message,
+                                  values=[KeyValue(key=k, value=str(v)) for k, v in report.values.items()])
+        self.diagnostics_pub.publish(DiagnosticArray(header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
+
+
+def main(args=None) -> int:
+    return run_node(EstimatorNode, args)

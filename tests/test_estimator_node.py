@@ -1,0 +1,105 @@
+"""The estimator node over real DDS: another node feeds it sensor samples and controller status."""
+import math
+import subprocess
+
+import numpy as np
+import pytest
+
+from tests.helpers.ros import spinning, wait_for
+from tests.test_pressure_nodes import executable
+
+pytestmark = pytest.mark.ros
+P_ATM_PA = 101_325.0
+
+
+@pytest.fixture
+def wired(rclpy_context):
+    from rclpy.node import Node
+    from sensor_msgs.msg import FluidPressure
+    from diagnostic_msgs.msg import DiagnosticArray
+    from softgrip_interfaces.msg import ControllerStatus
+    from softgrip_ros.nodes.estimator import EstimatorNode
+
+    estimator = EstimatorNode(context=rclpy_context)
+    feeder = Node("test_feeder", context=rclpy_context)
+    publishers = {name: feeder.create_publisher(FluidPressure, f"pressure/sensor/{name}", 50)
+                  for name in ("chamber_a", "chamber_b")}
+    status_pub = feeder.create_publisher(ControllerStatus, "controller/status", 10)
+    estimates, diagnostics = [], []
+    feeder.create_subscription(FluidPressure, "pressure/estimate", estimates.append, 50)
+    feeder.create_subscription(DiagnosticArray, "/diagnostics",
+                               lambda m: diagnostics.extend(s for s in m.status if s.name == "softgrip: estimator"), 10)
+    try:
+        with spinning(rclpy_context, estimator, feeder, threads=1):
+            wait_for(lambda: all(p.get_subscription_count() for p in publishers.values()), message="estimator subscribed")
+            yield feeder, publishers, status_pub, estimates, diagnostics
+    finally:
+        estimator.destroy_node()
+        feeder.destroy_node()
+
+
+def _feed(feeder, publishers, names, truth_pa, seconds, rng, rate_hz=250.0):
+    """Publish noisy samples of a constant gauge pressure in real time, stamped now."""
+    import time
+    from sensor_msgs.msg import FluidPressure
+    noise = {"chamber_a": 300.0, "chamber_b": 150.0}
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        stamp = feeder.get_clock().now().to_msg()
+        for name in names:
+            publishers[name].publish(FluidPressure(fluid_pressure=P_ATM_PA + truth_pa + rng.normal(0, noise[name]),
+                                                   variance=noise[name] ** 2, header=_header(stamp, name)))
+        time.sleep(1.0 / rate_hz)
+
+
+def _header(stamp, frame):
+    from std_msgs.msg import Header
+    return Header(stamp=stamp, frame_id=frame)
+
+
+def test_fuses_sensor_topics_into_a_published_estimate_with_variance(wired):
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from softgrip_interfaces.msg import ControllerStatus
+    feeder, publishers, status_pub, estimates, diagnostics = wired
+    rng = np.random.default_rng(0)
+    truth = 20e3
+    status_pub.publish(ControllerStatus(header=_header(feeder.get_clock().now().to_msg(), ""), valve_states=[0],
+                                        regulator_command_gauge_pressure_pa=truth, regulator_enabled=True))
+    _feed(feeder, publishers, ("chamber_a", "chamber_b"), truth, 1.0, rng)
+    fed = len(estimates)      # the fused ones; after the feed come predictions
+    assert fed > 100
+    last = estimates[fed - 50:fed]
+    values = np.array([m.fluid_pressure - P_ATM_PA for m in last])
+    stds = np.sqrt([m.variance for m in last])
+    assert np.all(np.abs(values - truth) < 4 * stds + 1.0)       # within 4 sigma of the truth
+    assert np.median(stds) < 150.0 / math.sqrt(2)                 # tighter than the best sensor's one-sample noise
+    assert estimates[-1].header.stamp.sec > 0
+    wait_for(lambda: any(d.level == DiagnosticStatus.OK and "fusing 2 sensors" in d.message for d in diagnostics), message="diagnostics OK")
+
+
+def test_silent_sensors_give_predictions_with_growing_variance_and_a_warning(wired):
+    from diagnostic_msgs.msg import DiagnosticStatus
+    feeder, publishers, status_pub, estimates, diagnostics = wired
+    rng = np.random.default_rng(1)
+    _feed(feeder, publishers, ("chamber_a", "chamber_b"), 5e3, 0.5, rng)
+    fused_variance = estimates[-1].variance
+    count = len(estimates)
+    wait_for(lambda: len(estimates) > count + 50, message="predictions while silent")
+    assert estimates[-1].variance > fused_variance
+    wait_for(lambda: any(d.level == DiagnosticStatus.WARN and "all sensors silent" in d.message for d in diagnostics[-3:]),
+             message="a WARN while every sensor is silent")
+    _feed(feeder, publishers, ("chamber_b",), 5e3, 0.5, rng)
+    wait_for(lambda: any(d.level == DiagnosticStatus.WARN and "sensors silent: chamber_a" in d.message for d in diagnostics[-3:]),
+             message="a WARN naming the lost sensor")
+
+
+@pytest.mark.parametrize("argument, message", [
+    ("filter_type:=particle", "must be one of ['kf', 'ekf', 'ukf']"),
+    ("process_noise_covariance:=[1.0,2.0,3.0]", "process noise needs 2 values"),
+    ("sensors.noise_std_pa:=[300.0]", "one entry per sensor"),
+])
+def test_bad_startup_parameter_exits_1_with_its_reason(argument, message):
+    run = subprocess.run([executable("estimator"), "--ros-args", "-p", argument], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 1, run.stderr
+    assert message in run.stderr
+    assert "Traceback" not in run.stderr
