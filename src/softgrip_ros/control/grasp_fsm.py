@@ -1,0 +1,334 @@
+"""The grasp-mode state machine (no ROS): commands in, pressure requests and a state out.
+
+Phases: IDLE -> OPENING -> ENVELOPED -> CLAMPING -> HOLDING -> RELEASING -> IDLE, and FAULT.
+
+- PINCH (object up to ``pinch_max_diameter_m``, down to a 0.1 mm sheet): negative pressure
+  only, straight to CLAMPING at the clamp pressure, then HOLDING.
+- ENVELOP_CLAMP: OPENING at the pressure whose modelled tip spacing D2 is the object plus
+  ``envelop_margin_m`` (the inverse model, plus the pressure tolerance so that D2 still clears
+  the object at the low edge of it), or the ``open_pressure_pa`` override. ENVELOPED once the
+  estimate has settled there and the modelled D2 clears the object; it waits for the arm: a
+  CLAMP command, or the automatic clamp after ``auto_clamp_delay_s`` (negative: never). Then
+  CLAMPING at the pressure of :class:`~softgrip_ros.model.grasp.ClampForceLaw` (or the
+  ``clamp_pressure_pa`` override) and HOLDING once settled.
+- OPEN: OPENING to ``target_tip_spacing_m``, then ENVELOPED (held open; CLAMP may follow).
+- RELEASE: RELEASING vents until the chamber is near 0, then opens to the object plus margin
+  (or ``release_tip_spacing_m``), then IDLE with the valves holding.
+- STOP: vent now, whatever runs; IDLE.
+- CLAMP: clamp now; only from ENVELOPED.
+
+Every phase that waits has a timeout; a timeout or a controller fault gives FAULT, which vents.
+A rejected command changes nothing and says why.
+"""
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+
+from softgrip_ros.control.pressure import Source
+from softgrip_ros.model.grasp import ClampForceLaw
+
+
+class Phase(enum.IntEnum):
+    """GripperState phases."""
+
+    IDLE = 0
+    OPENING = 1
+    ENVELOPED = 2
+    CLAMPING = 3
+    HOLDING = 4
+    RELEASING = 5
+    FAULT = 6
+
+
+class Mode(enum.IntEnum):
+    """GraspCommand modes."""
+
+    PINCH = 0
+    ENVELOP_CLAMP = 1
+    OPEN = 2
+    RELEASE = 3
+    STOP = 4
+    CLAMP = 5
+
+
+@dataclasses.dataclass(frozen=True)
+class GraspRequest:
+    """One command; NaN means "not given" (automatic)."""
+
+    mode: int
+    object_diameter_m: float = math.nan
+    object_mass_kg: float = math.nan
+    target_tip_spacing_m: float = math.nan
+    friction_coefficient: float = math.nan
+    open_pressure_pa: float = math.nan
+    clamp_pressure_pa: float = math.nan
+    command_id: str = ""
+
+
+@dataclasses.dataclass(frozen=True)
+class PressureRequest:
+    """What the pressure controller is asked for (gauge Pa)."""
+
+    target_gauge_pa: float
+    source: Source
+
+
+@dataclasses.dataclass(frozen=True)
+class GraspConfig:
+    """Pressures gauge Pa, lengths m, times s."""
+
+    max_gauge_pa: float = 50e3
+    min_gauge_pa: float = -60e3
+    envelop_margin_m: float = 0.01
+    pinch_max_diameter_m: float = 0.005
+    release_tip_spacing_m: float = 0.02
+    pressure_tolerance_pa: float = 1.5e3
+    settle_s: float = 0.1
+    auto_clamp_delay_s: float = -1.0
+    opening_timeout_s: float = 3.0
+    clamping_timeout_s: float = 3.0
+    releasing_timeout_s: float = 3.0
+    vented_below_pa: float = 1.5e3
+
+    def __post_init__(self):
+        if not self.min_gauge_pa < 0.0 < self.max_gauge_pa:
+            raise ValueError("need min_gauge_pa < 0 < max_gauge_pa")
+        for name in ("envelop_margin_m", "pinch_max_diameter_m", "release_tip_spacing_m", "pressure_tolerance_pa",
+                     "settle_s", "opening_timeout_s", "clamping_timeout_s", "releasing_timeout_s", "vented_below_pa"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"{name} must be positive and finite, got {value}")
+        if not math.isfinite(self.auto_clamp_delay_s):
+            raise ValueError("auto_clamp_delay_s must be finite (negative: never)")
+
+
+@dataclasses.dataclass
+class GraspState:
+    """Everything GripperState reports, in SI units."""
+
+    phase: Phase = Phase.IDLE
+    mode: int = Mode.STOP
+    command_id: str = ""
+    command_rejected: bool = False
+    target_gauge_pa: float = 0.0
+    estimated_gauge_pa: float = math.nan
+    estimated_std_pa: float = math.nan
+    included_angle_rad: float = math.nan
+    tip_spacing_m: float = math.nan
+    root_spacing_m: float = math.nan
+    clamp_force_n: float = 0.0
+    model_fidelity: str = ""
+    in_validated_range: bool = True
+    message: str = "idle"
+
+
+TERMINAL = {Mode.ENVELOP_CLAMP: (Phase.HOLDING,), Mode.PINCH: (Phase.HOLDING,), Mode.OPEN: (Phase.ENVELOPED,),
+            Mode.RELEASE: (Phase.IDLE,), Mode.STOP: (Phase.IDLE,), Mode.CLAMP: (Phase.HOLDING,)}
+
+
+class GraspStateMachine:
+    """Feed it commands (:meth:`command`) and estimates (:meth:`update`); read :attr:`state` and
+    :attr:`request`. ``kinematics`` is a :class:`~softgrip_ros.model.kinematics.GripperKinematics`."""
+
+    def __init__(self, kinematics, config: GraspConfig | None = None, force_law: ClampForceLaw | None = None):
+        self.kinematics = kinematics
+        self.config = config or GraspConfig()
+        self.force_law = force_law or ClampForceLaw()
+        self.state = GraspState(model_fidelity=kinematics.model)
+        self.request = PressureRequest(0.0, Source.VENT)
+        self.changes = 0                       # counts every phase or request change
+        self._request: GraspRequest | None = None
+        self._phase_start = 0.0
+        self._settled_since = None
+        self._contact_pa = 0.0
+        self._open_pa = 0.0
+        self._clamp_pa = 0.0
+        self._release_step = ""
+
+    # ---- commands -----------------------------------------------------------------------------
+    def command(self, request: GraspRequest, now: float, controller_fault: str = "") -> str:
+        """Accept ``request`` ('' returned) or reject it (the reason returned); nothing moves on a rejection."""
+        reason = self._rejection(request, controller_fault)
+        if reason:
+            self.state.command_rejected, self.state.message = True, f"rejected: {reason}"
+            self.state.command_id = request.command_id
+            self.changes += 1
+            return reason
+        self.state.command_rejected = False
+        self.state.command_id, self.state.mode = request.command_id, request.mode
+        mode = Mode(request.mode)
+        if mode == Mode.STOP:
+            self._enter(Phase.IDLE, PressureRequest(0.0, Source.VENT), now, "stopped: venting")
+        elif mode == Mode.CLAMP:
+            self._enter(Phase.CLAMPING, self._pressure(self._clamp_pa), now, "clamping")
+        elif mode == Mode.RELEASE:
+            self._release_step = "vent"
+            self._enter(Phase.RELEASING, PressureRequest(0.0, Source.VENT), now, "releasing: venting")
+        else:
+            self._request = request
+            if mode == Mode.PINCH:
+                self._enter(Phase.CLAMPING, self._pressure(self._clamp_pa), now, "pinching")
+            else:
+                self._enter(Phase.OPENING, self._pressure(self._open_pa), now, "opening")
+        return ""
+
+    def _rejection(self, r: GraspRequest, controller_fault: str) -> str:
+        c = self.config
+        try:
+            mode = Mode(r.mode)
+        except ValueError:
+            return f"unknown mode {r.mode}"
+        if mode == Mode.STOP:
+            return ""
+        if controller_fault:
+            return f"the pressure controller reports a fault: {controller_fault}"
+        if mode == Mode.RELEASE:
+            return ""
+        if mode == Mode.CLAMP:
+            if self.state.phase != Phase.ENVELOPED or self._request is None:
+                return f"CLAMP needs the ENVELOPED phase, the gripper is {self.state.phase.name}"
+            return ""
+        for name in ("open_pressure_pa", "clamp_pressure_pa"):
+            value = getattr(r, name)
+            if not math.isnan(value) and not (math.isfinite(value) and c.min_gauge_pa <= value <= c.max_gauge_pa):
+                return f"{name} {value} Pa is beyond the pressure limits [{c.min_gauge_pa:.0f}, {c.max_gauge_pa:.0f}] Pa"
+        low, high = self.kinematics.tip_spacing_range_m()
+        if mode == Mode.OPEN:
+            if not math.isfinite(r.target_tip_spacing_m) or r.target_tip_spacing_m < 0.0:
+                return f"OPEN needs a finite, non-negative target_tip_spacing_m, got {r.target_tip_spacing_m}"
+            if r.target_tip_spacing_m > high:
+                return f"target_tip_spacing_m {r.target_tip_spacing_m * 1e3:.1f} mm is wider than the gripper opens ({high * 1e3:.1f} mm)"
+            self._open_pa = self._open_pressure(r.target_tip_spacing_m, r.open_pressure_pa)
+            return ""
+        if not math.isfinite(r.object_diameter_m) or r.object_diameter_m < 0.0:
+            return f"object_diameter_m must be finite and >= 0, got {r.object_diameter_m}"
+        if not math.isfinite(r.object_mass_kg) or r.object_mass_kg < 0.0:
+            return f"object_mass_kg must be finite and >= 0, got {r.object_mass_kg}"
+        mu = r.friction_coefficient
+        if not math.isnan(mu) and not (math.isfinite(mu) and 0.0 < mu <= 2.0):
+            return f"friction_coefficient must lie in (0, 2] (NaN: the default {self.force_law.friction_coefficient}), got {mu}"
+        if mode == Mode.PINCH and r.object_diameter_m > c.pinch_max_diameter_m:
+            return (f"PINCH takes objects up to {c.pinch_max_diameter_m * 1e3:.1f} mm, got "
+                    f"{r.object_diameter_m * 1e3:.1f} mm: use ENVELOP_CLAMP")
+        needed = r.object_diameter_m + (c.envelop_margin_m if mode == Mode.ENVELOP_CLAMP else 0.0)
+        if needed > high:
+            return (f"the object ({r.object_diameter_m * 1e3:.1f} mm plus {c.envelop_margin_m * 1e3:.0f} mm margin) is wider "
+                    f"than the gripper opens ({high * 1e3:.1f} mm)")
+        self._contact_pa = self._contact_pressure(r.object_diameter_m)
+        clamp = (r.clamp_pressure_pa if not math.isnan(r.clamp_pressure_pa) else
+                 self.force_law.clamp_pressure_pa(r.object_mass_kg, self._contact_pa, None if math.isnan(mu) else mu))
+        if clamp < c.min_gauge_pa:
+            return (f"holding {r.object_mass_kg:.3g} kg needs {clamp / 1e3:.1f} kPa, below the limit "
+                    f"{c.min_gauge_pa / 1e3:.0f} kPa: too heavy for this gripper")
+        if clamp >= self._contact_pa:
+            return f"clamp_pressure_pa {clamp:.0f} Pa does not squeeze: contact is at {self._contact_pa:.0f} Pa"
+        self._clamp_pa = clamp
+        if mode == Mode.ENVELOP_CLAMP:
+            if not math.isnan(r.open_pressure_pa) and self.kinematics.pose(r.open_pressure_pa).tip_spacing_m < needed:
+                return (f"open_pressure_pa {r.open_pressure_pa:.0f} Pa opens the tips to "
+                        f"{self.kinematics.pose(r.open_pressure_pa).tip_spacing_m * 1e3:.1f} mm, short of the object plus margin")
+            self._open_pa = self._open_pressure(needed, r.open_pressure_pa)
+        return ""
+
+    def _open_pressure(self, tip_spacing_m: float, override_pa: float) -> float:
+        if not math.isnan(override_pa):
+            return override_pa
+        return min(self.kinematics.pressure_for_tip_spacing(tip_spacing_m) + self.config.pressure_tolerance_pa,
+                   self.config.max_gauge_pa)
+
+    def _contact_pressure(self, diameter_m: float) -> float:
+        low, _ = self.kinematics.tip_spacing_range_m()
+        return self.kinematics.contact_pressure_pa if diameter_m <= low else self.kinematics.pressure_for_tip_spacing(diameter_m)
+
+    # ---- time ---------------------------------------------------------------------------------
+    def update(self, now: float, estimate_gauge_pa: float, estimate_std_pa: float = math.nan,
+               controller_fault: str = "") -> GraspState:
+        """Advance on a new estimate (NaN when none) and the controller's fault ('' when none)."""
+        s, c = self.state, self.config
+        s.estimated_gauge_pa, s.estimated_std_pa = estimate_gauge_pa, estimate_std_pa
+        self._model(estimate_gauge_pa)
+        if controller_fault and s.phase not in (Phase.IDLE, Phase.FAULT):
+            self._enter(Phase.FAULT, PressureRequest(0.0, Source.VENT), now, f"fault: {controller_fault}; venting")
+            return s
+        settled = self._settled(now, estimate_gauge_pa)
+        elapsed = now - self._phase_start
+        if s.phase == Phase.OPENING:
+            clears = s.tip_spacing_m >= self._required_spacing() - 1e-9
+            if settled and clears:
+                self._enter(Phase.ENVELOPED, self.request, now, f"enveloped: D2 {s.tip_spacing_m * 1e3:.1f} mm")
+            elif elapsed > c.opening_timeout_s:
+                self._timeout(now, "opening")
+        elif s.phase == Phase.ENVELOPED:
+            if (self._request is not None and Mode(self._request.mode) == Mode.ENVELOP_CLAMP
+                    and c.auto_clamp_delay_s >= 0.0 and elapsed >= c.auto_clamp_delay_s):
+                self._enter(Phase.CLAMPING, self._pressure(self._clamp_pa), now, "clamping (automatic)")
+        elif s.phase == Phase.CLAMPING:
+            if settled:
+                self._enter(Phase.HOLDING, self.request, now, "holding")
+            elif elapsed > c.clamping_timeout_s:
+                self._timeout(now, "clamping")
+        elif s.phase == Phase.RELEASING:
+            if self._release_step == "vent" and math.isfinite(estimate_gauge_pa) and abs(estimate_gauge_pa) < c.vented_below_pa:
+                self._release_step = "open"
+                spacing = c.release_tip_spacing_m
+                if self._request is not None and math.isfinite(self._request.object_diameter_m):
+                    spacing = max(spacing, self._request.object_diameter_m + c.envelop_margin_m)
+                self._enter(Phase.RELEASING, self._pressure(self._open_pressure(spacing, math.nan)), now, "releasing: opening")
+            elif self._release_step == "open" and settled:
+                self._request = None
+                self._enter(Phase.IDLE, PressureRequest(self.request.target_gauge_pa, Source.HOLD), now, "released")
+            elif elapsed > c.releasing_timeout_s:
+                self._timeout(now, "releasing")
+        holding = s.phase in (Phase.CLAMPING, Phase.HOLDING)
+        s.clamp_force_n = self.force_law.normal_force_n(estimate_gauge_pa, self._contact_pa) \
+            if holding and math.isfinite(estimate_gauge_pa) else 0.0
+        return s
+
+    def _required_spacing(self) -> float:
+        r = self._request
+        if r is None:
+            return 0.0
+        if Mode(r.mode) == Mode.OPEN:
+            return r.target_tip_spacing_m
+        # an override was checked against the object when accepted; the estimate's tolerance then rules
+        return r.object_diameter_m + self.config.envelop_margin_m if math.isnan(r.open_pressure_pa) else 0.0
+
+    def _settled(self, now: float, estimate: float) -> bool:
+        near = math.isfinite(estimate) and abs(estimate - self.request.target_gauge_pa) <= self.config.pressure_tolerance_pa
+        if not near or self.request.source in (Source.VENT, Source.HOLD):
+            self._settled_since = None
+            return False
+        if self._settled_since is None:
+            self._settled_since = now
+        return now - self._settled_since >= self.config.settle_s
+
+    def _model(self, estimate: float) -> None:
+        s = self.state
+        if not math.isfinite(estimate):
+            return
+        k = self.kinematics
+        pose = k.pose(min(max(estimate, k.MODEL_MIN_PRESSURE_PA), k.MODEL_MAX_PRESSURE_PA))
+        s.included_angle_rad, s.tip_spacing_m, s.root_spacing_m = (pose.included_angle_rad, pose.tip_spacing_m,
+                                                                   pose.root_spacing_m)
+        s.in_validated_range = bool(pose.in_validated_range) and estimate <= k.MODEL_MAX_PRESSURE_PA
+
+    def _pressure(self, target: float) -> PressureRequest:
+        return PressureRequest(target, Source.SUPPLY if target >= 0.0 else Source.VACUUM)
+
+    def _timeout(self, now: float, what: str) -> None:
+        self._enter(Phase.FAULT, PressureRequest(0.0, Source.VENT), now,
+                    f"fault: {what} timed out at {self.state.estimated_gauge_pa:.0f} Pa "
+                    f"(target {self.request.target_gauge_pa:.0f} Pa); venting")
+
+    def _enter(self, phase: Phase, request: PressureRequest, now: float, message: str) -> None:
+        self.state.phase, self.state.message = phase, message
+        self.state.target_gauge_pa = request.target_gauge_pa if request.source != Source.VENT else 0.0
+        self.request = request
+        self._phase_start, self._settled_since = now, None
+        self.changes += 1
+
+    def done(self, mode: int) -> bool:
+        """Whether a command of ``mode`` has finished (or failed)."""
+        return self.state.phase == Phase.FAULT or self.state.phase in TERMINAL.get(Mode(mode), ())

@@ -1,0 +1,134 @@
+"""The grasp state machine, closed around the pressure controller and the pneumatic plant
+(tests/helpers/grasp_loop), with no ROS or CAN: phases, timings, rejections, faults."""
+import math
+
+import pytest
+
+from softgrip_ros.control.grasp_fsm import GraspConfig, GraspRequest, GraspStateMachine, Mode, Phase
+from softgrip_ros.control.pressure import Source
+from softgrip_ros.model.calibration import build_kinematics
+from softgrip_ros.model.grasp import ClampForceLaw, G_M_PER_S2
+from tests.helpers.grasp_loop import GraspLoop
+
+
+@pytest.fixture(scope="module")
+def kinematics():
+    return build_kinematics("l0")
+
+
+def test_envelop_clamp_40mm_runs_its_phases_in_order_and_holds(kinematics):
+    loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.3))
+    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2, command_id="g1"))
+    loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
+    phases = [p for _, p in loop.phase_log]
+    assert phases == [Phase.OPENING, Phase.ENVELOPED, Phase.CLAMPING, Phase.HOLDING]
+    times = dict((p, t) for t, p in loop.phase_log)
+    assert times[Phase.ENVELOPED] - times[Phase.OPENING] < 1.0        # opening: well under its 3 s timeout
+    assert times[Phase.HOLDING] - times[Phase.CLAMPING] < 1.0
+    assert loop.spacing_at_enveloped >= 0.04 + 0.01                  # D2 cleared the object plus margin
+    target = loop.fsm.request.target_gauge_pa
+    expected = ClampForceLaw().clamp_pressure_pa(0.2, kinematics.pressure_for_tip_spacing(0.04))
+    assert target == pytest.approx(expected)
+    loop.run_for(2.0)                                                # HOLDING stays put for 2 s
+    assert loop.fsm.state.phase == Phase.HOLDING
+    assert max(abs(p - target) for p in loop.pressures_since(loop.now - 2.0)) < 2.5e3
+    force = loop.fsm.state.clamp_force_n
+    assert 2 * 0.5 * force >= 0.2 * G_M_PER_S2 * 0.9 * ClampForceLaw().safety_factor   # holds with margin
+
+
+def test_release_vents_then_opens_then_idles(kinematics):
+    loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
+    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.03, object_mass_kg=0.1))
+    loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
+    loop.command(GraspRequest(Mode.RELEASE))
+    loop.run_until(lambda s: s.phase == Phase.IDLE, 5.0)
+    assert "released" in loop.fsm.state.message
+    assert loop.fsm.request.source == Source.HOLD and loop.fsm.state.tip_spacing_m >= 0.04 - 1e-3
+
+
+def test_pinch_holds_a_tenth_of_a_millimetre_sheet(kinematics):
+    loop = GraspLoop(kinematics)
+    loop.command(GraspRequest(Mode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.05))
+    loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
+    assert [p for _, p in loop.phase_log] == [Phase.CLAMPING, Phase.HOLDING]
+    assert loop.fsm.request.source == Source.VACUUM and loop.fsm.state.clamp_force_n > 0.0
+    assert all(p <= 0.5e3 for p in loop.pressures_since(0.0))      # negative pressure only (noise aside)
+
+
+def test_enveloped_waits_for_the_arm_then_clamps_on_request(kinematics):
+    loop = GraspLoop(kinematics)          # no automatic clamp
+    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.run_until(lambda s: s.phase == Phase.ENVELOPED, 5.0)
+    loop.run_for(1.0)
+    assert loop.fsm.state.phase == Phase.ENVELOPED
+    loop.command(GraspRequest(Mode.CLAMP))
+    loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
+
+
+def test_stop_during_opening_vents_at_once(kinematics):
+    loop = GraspLoop(kinematics)
+    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.run_for(0.05)
+    assert loop.fsm.state.phase == Phase.OPENING
+    loop.command(GraspRequest(Mode.STOP))
+    assert loop.fsm.request.source == Source.VENT and loop.fsm.state.phase == Phase.IDLE
+    loop.run_for(0.5)
+    assert abs(loop.pressures_since(loop.now - 0.05)[-1]) < 1e3
+
+
+def test_a_controller_fault_while_holding_gives_fault_and_vents(kinematics):
+    loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
+    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
+    loop.controller_fault = "sensor timeout"
+    loop.run_for(0.02)
+    assert loop.fsm.state.phase == Phase.FAULT and "sensor timeout" in loop.fsm.state.message
+    assert loop.fsm.request.source == Source.VENT
+    assert "fault" in loop.fsm.command(GraspRequest(Mode.OPEN, target_tip_spacing_m=0.05), loop.now, "sensor timeout")
+    loop.controller_fault = ""
+    assert loop.fsm.command(GraspRequest(Mode.STOP), loop.now) == ""
+    assert loop.fsm.state.phase == Phase.IDLE
+
+
+def test_a_phase_that_cannot_finish_times_out_into_fault(kinematics):
+    loop = GraspLoop(kinematics, GraspConfig(opening_timeout_s=0.3), valve_stuck=True)
+    loop.command(GraspRequest(Mode.OPEN, target_tip_spacing_m=0.08))
+    loop.run_until(lambda s: s.phase == Phase.FAULT, 2.0)
+    assert "opening timed out" in loop.fsm.state.message and loop.fsm.request.source == Source.VENT
+
+
+NAN = math.nan
+REJECTIONS = [
+    (GraspRequest(9), "unknown mode 9"),
+    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=NAN, object_mass_kg=0.1), "object_diameter_m must be finite"),
+    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=NAN), "object_mass_kg must be finite"),
+    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=-0.01, object_mass_kg=0.1), "object_diameter_m must be finite and >= 0"),
+    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=-1.0), "object_mass_kg must be finite and >= 0"),
+    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.15, object_mass_kg=0.1), "wider than the gripper opens"),
+    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, open_pressure_pa=80e3), "beyond the pressure limits"),
+    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, clamp_pressure_pa=-90e3), "beyond the pressure limits"),
+    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, open_pressure_pa=5e3), "short of the object plus margin"),
+    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=5.0), "too heavy"),
+    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, friction_coefficient=-0.2), "friction_coefficient"),
+    (GraspRequest(Mode.PINCH, object_diameter_m=0.02, object_mass_kg=0.1), "PINCH takes objects up to 5.0 mm"),
+    (GraspRequest(Mode.OPEN, target_tip_spacing_m=NAN), "OPEN needs a finite"),
+    (GraspRequest(Mode.OPEN, target_tip_spacing_m=0.3), "wider than the gripper opens"),
+    (GraspRequest(Mode.CLAMP), "CLAMP needs the ENVELOPED phase"),
+]
+
+
+@pytest.mark.parametrize("request_, reason", REJECTIONS, ids=[r for _, r in REJECTIONS])
+def test_every_invalid_command_is_rejected_with_its_reason_and_nothing_moves(kinematics, request_, reason):
+    fsm = GraspStateMachine(kinematics)
+    before = (fsm.state.phase, fsm.request)
+    got = fsm.command(request_, 0.0)
+    assert reason in got
+    assert fsm.state.command_rejected and reason in fsm.state.message
+    assert (fsm.state.phase, fsm.request) == before
+
+
+def test_bad_configuration_is_refused():
+    with pytest.raises(ValueError, match="settle_s"):
+        GraspConfig(settle_s=0.0)
+    with pytest.raises(ValueError, match="safety_factor"):
+        ClampForceLaw(safety_factor=0.5)
