@@ -3,7 +3,7 @@ import math
 
 import numpy as np
 
-from softgrip_ros.control.grasp_fsm import GraspStateMachine
+from softgrip_ros.control.grasp_fsm import GraspStateMachine, fault_text
 from softgrip_ros.control.pressure import PressureController
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 
@@ -21,11 +21,12 @@ class GraspLoop:
         self.controller = PressureController()
         self.controller.active = True
         self.rng = np.random.default_rng(seed)
-        self.now, self.valve_stuck, self.controller_fault = 0.0, valve_stuck, ""
+        self.now, self.valve_stuck, self.controller_fault, self.overshoot_pa = 0.0, valve_stuck, "", 0.0
         self.inputs = PlantInputs(valves=(Valve.CLOSED,))
         self.phase_log, self.history = [], []
         self.spacing_at_enveloped = math.nan
         self._sent = None
+        self.reported_fault = ""
 
     def command(self, request):
         reason = self.fsm.command(request, self.now, self.controller_fault)
@@ -48,12 +49,15 @@ class GraspLoop:
         if i % 2 == 0:
             self.controller.update_sensor("sensor1", self.gauge() + 300.0 * self.rng.standard_normal(), self.now)
             out = self.controller.step(self.now)
+            self.reported_fault = fault_text(out.fault_flags)
             valves = (Valve.CLOSED,) if self.valve_stuck else out.valves
-            self.inputs = PlantInputs(out.regulator_setpoint_gauge_pa, out.regulator_enabled, valves)
+            self.inputs = PlantInputs(out.regulator_setpoint_gauge_pa, out.regulator_enabled, valves,
+                                      regulator_overshoot_pa=self.overshoot_pa)
         if i % 10 == 0:
             self.controller.update_regulator_status(self.state.regulator_gauge_pa, 0)
             before = self.fsm.state.phase
-            self.fsm.update(self.now, self.gauge() + 100.0 * self.rng.standard_normal(), 100.0, self.controller_fault)
+            self.fsm.update(self.now, self.gauge() + 100.0 * self.rng.standard_normal(), 100.0,
+                            self.controller_fault or self.reported_fault)
             if self.fsm.state.phase != before and self.fsm.state.phase.name == "ENVELOPED":
                 self.spacing_at_enveloped = self.fsm.state.tip_spacing_m
             self._forward()

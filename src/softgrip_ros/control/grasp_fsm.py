@@ -17,7 +17,8 @@ Phases: IDLE -> OPENING -> ENVELOPED -> CLAMPING -> HOLDING -> RELEASING -> IDLE
 - STOP: vent now, whatever runs; IDLE.
 - CLAMP: clamp now; only from ENVELOPED.
 
-Every phase that waits has a timeout; a timeout or a controller fault gives FAULT, which vents.
+Every phase that waits has a timeout; a timeout, a controller fault or a HOLDING pressure that
+drifts off its target gives FAULT, which vents.
 A rejected command changes nothing and says why.
 """
 from __future__ import annotations
@@ -26,8 +27,17 @@ import dataclasses
 import enum
 import math
 
-from softgrip_ros.control.pressure import Source
+from softgrip_ros.control.pressure import ERROR_FAULTS, Fault, Source
 from softgrip_ros.model.grasp import ClampForceLaw
+
+
+HALTING_FAULTS = ERROR_FAULTS | Fault.REGULATOR | Fault.BUS_ERROR
+
+
+def fault_text(fault_flags: int) -> str:
+    """The controller faults that stop a grasp, named ('' when none)."""
+    bad = Fault(fault_flags) & HALTING_FAULTS
+    return ", ".join(f.name.lower().replace("_", " ") for f in Fault if f and f in bad)
 
 
 class Phase(enum.IntEnum):
@@ -91,12 +101,15 @@ class GraspConfig:
     clamping_timeout_s: float = 3.0
     releasing_timeout_s: float = 3.0
     vented_below_pa: float = 1.5e3
+    hold_error_limit_pa: float = 5e3
+    hold_error_time_s: float = 0.3
 
     def __post_init__(self):
         if not self.min_gauge_pa < 0.0 < self.max_gauge_pa:
             raise ValueError("need min_gauge_pa < 0 < max_gauge_pa")
         for name in ("envelop_margin_m", "pinch_max_diameter_m", "release_tip_spacing_m", "pressure_tolerance_pa",
-                     "settle_s", "opening_timeout_s", "clamping_timeout_s", "releasing_timeout_s", "vented_below_pa"):
+                     "settle_s", "opening_timeout_s", "clamping_timeout_s", "releasing_timeout_s", "vented_below_pa",
+                     "hold_error_limit_pa", "hold_error_time_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{name} must be positive and finite, got {value}")
@@ -142,6 +155,7 @@ class GraspStateMachine:
         self._request: GraspRequest | None = None
         self._phase_start = 0.0
         self._settled_since = None
+        self._off_target_since = None
         self._contact_pa = 0.0
         self._open_pa = 0.0
         self._clamp_pa = 0.0
@@ -264,6 +278,8 @@ class GraspStateMachine:
             if (self._request is not None and Mode(self._request.mode) == Mode.ENVELOP_CLAMP
                     and c.auto_clamp_delay_s >= 0.0 and elapsed >= c.auto_clamp_delay_s):
                 self._enter(Phase.CLAMPING, self._pressure(self._clamp_pa), now, "clamping (automatic)")
+        elif s.phase == Phase.HOLDING:
+            self._check_hold(now, estimate_gauge_pa)
         elif s.phase == Phase.CLAMPING:
             if settled:
                 self._enter(Phase.HOLDING, self.request, now, "holding")
@@ -285,6 +301,18 @@ class GraspStateMachine:
         s.clamp_force_n = self.force_law.normal_force_n(estimate_gauge_pa, self._contact_pa) \
             if holding and math.isfinite(estimate_gauge_pa) else 0.0
         return s
+
+    def _check_hold(self, now: float, estimate: float) -> None:
+        """HOLDING lost: the pressure off its target by more than hold_error_limit_pa for hold_error_time_s."""
+        c = self.config
+        if not math.isfinite(estimate) or abs(estimate - self.request.target_gauge_pa) <= c.hold_error_limit_pa:
+            self._off_target_since = None
+            return
+        if self._off_target_since is None:
+            self._off_target_since = now
+        elif now - self._off_target_since >= c.hold_error_time_s:
+            self._enter(Phase.FAULT, PressureRequest(0.0, Source.VENT), now,
+                        f"fault: holding lost, {estimate:.0f} Pa against a target of {self.request.target_gauge_pa:.0f} Pa; venting")
 
     def _required_spacing(self) -> float:
         r = self._request
@@ -326,7 +354,7 @@ class GraspStateMachine:
         self.state.phase, self.state.message = phase, message
         self.state.target_gauge_pa = request.target_gauge_pa if request.source != Source.VENT else 0.0
         self.request = request
-        self._phase_start, self._settled_since = now, None
+        self._phase_start, self._settled_since, self._off_target_since = now, None, None
         self.changes += 1
 
     def done(self, mode: int) -> bool:

@@ -105,6 +105,8 @@ class PressureControlConfig:
     boost_lead_s: float = 0.005
     rate_filter_s: float = 0.01
     settle_timeout_s: float = 0.2
+    regulator_tracking_limit_pa: float = 10e3
+    regulator_tracking_time_s: float = 0.3
     valve_band_pa: float = 5e3
     channels: int = 1
 
@@ -172,6 +174,7 @@ class PressureController:
         self._evacuating = False
         self._latched = Fault.NONE
         self._regulator_faults = 0
+        self._regulator_off_since = None
         self.active = False
         self.last_output: ControlOutput | None = None
 
@@ -254,7 +257,7 @@ class PressureController:
         dt = 0.0 if self._last_step is None else max(0.0, now - self._last_step)
         self._last_step = now
         faults = self._latched
-        if self._regulator_faults:
+        if self._regulator_faults or self._regulator_off_track(now):
             faults |= Fault.REGULATOR
         measured = self.measured(now)
         feedback = self.feedback(now)
@@ -300,6 +303,19 @@ class PressureController:
         valve = valve if valve_override is None else valve_override  # Valve.CLOSED is 0: no "or"
         return self._output(regulator, True, self._regulator_source(), valve, Mode.REGULATE,
                             faults, feedback, self._phase if self._phase != "track" else "")
+
+    def _regulator_off_track(self, now: float) -> bool:
+        """The regulator's reported output away from what it was last told, by more than
+        regulator_tracking_limit_pa for regulator_tracking_time_s (its lag is tens of ms): a
+        regulator that overshoots or sticks. Judged only while regulating with it enabled."""
+        c, last = self.config, self.last_output
+        if last is None or last.mode != Mode.REGULATE or not last.regulator_enabled or \
+                abs(self._regulator_actual - last.regulator_setpoint_gauge_pa) <= c.regulator_tracking_limit_pa:
+            self._regulator_off_since = None
+            return False
+        if self._regulator_off_since is None:
+            self._regulator_off_since = now
+        return now - self._regulator_off_since >= c.regulator_tracking_time_s
 
     def _regulation(self, error: float, feedback: float, dt: float, now: float) -> tuple:
         """(regulator setpoint, valve override or None) for one REGULATE period."""
