@@ -32,6 +32,9 @@ setup(
             "pressure_controller = softgrip_ros.nodes.pressure_controller:main",
             "sim_device = softgrip_ros.nodes.sim_device:main",
             "estimator = softgrip_ros.nodes.estimator:main",
+            "kinematics = softgrip_ros.nodes.kinematics:main",
+            "grasp_manager = softgrip_ros.nodes.grasp_manager:main",
+            "controller = softgrip_ros.nodes.controller:main",
         ],
         # python-can finds this interface by name: can.Bus(interface="softgrip_ipc", channel=...)
         "can.interface": [

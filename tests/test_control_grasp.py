@@ -130,7 +130,8 @@ REJECTIONS = [
     (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=5.0), "too heavy"),
     (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, friction_coefficient=-0.2), "friction_coefficient"),
     (GraspRequest(Mode.PINCH, object_diameter_m=0.02, object_mass_kg=0.1), "PINCH takes objects up to 5.0 mm"),
-    (GraspRequest(Mode.OPEN, target_tip_spacing_m=NAN), "OPEN needs a finite"),
+    (GraspRequest(Mode.OPEN, target_tip_spacing_m=-0.01), "OPEN needs a finite"),
+    (GraspRequest(Mode.OPEN, target_tip_spacing_m=math.inf), "OPEN needs a finite"),
     (GraspRequest(Mode.OPEN, target_tip_spacing_m=0.3), "wider than the gripper opens"),
     (GraspRequest(Mode.CLAMP), "CLAMP needs the ENVELOPED phase"),
 ]

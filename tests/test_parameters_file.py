@@ -4,7 +4,7 @@ import pathlib
 import pytest
 import yaml
 
-from softgrip_ros.nodes import estimator, pressure_controller, sim_device
+from softgrip_ros.nodes import estimator, grasp_manager, kinematics, pressure_controller, sim_device
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
 PARAMS = yaml.safe_load((REPO_ROOT / "config" / "softgrip.yaml").read_text())
@@ -19,7 +19,9 @@ def declared(node):
 @pytest.mark.parametrize("node_class, section", [
     (pressure_controller.PressureControllerNode, "pressure_controller"),
     (sim_device.SimDeviceNode, "sim_device"),
-    (estimator.EstimatorNode, "estimator")])
+    (estimator.EstimatorNode, "estimator"),
+    (kinematics.KinematicsNode, "kinematics"),
+    (grasp_manager.GraspManagerNode, "grasp_manager")])
 def test_every_parameter_is_in_the_params_file_at_its_default(rclpy_context, node_class, section):
     from rclpy.parameter import Parameter
     node = node_class(context=rclpy_context, parameter_overrides=[Parameter("autostart", value=False)]

@@ -152,6 +152,7 @@ class GraspStateMachine:
         self.state = GraspState(model_fidelity=kinematics.model)
         self.request = PressureRequest(0.0, Source.VENT)
         self.changes = 0                       # counts every phase or request change
+        self.accepted = 0                      # counts accepted commands
         self._request: GraspRequest | None = None
         self._phase_start = 0.0
         self._settled_since = None
@@ -172,7 +173,10 @@ class GraspStateMachine:
             return reason
         self.state.command_rejected = False
         self.state.command_id, self.state.mode = request.command_id, request.mode
+        self.accepted += 1
         mode = Mode(request.mode)
+        if mode == Mode.OPEN and math.isnan(request.target_tip_spacing_m):
+            request = dataclasses.replace(request, target_tip_spacing_m=self.kinematics.tip_spacing_range_m()[1])
         if mode == Mode.STOP:
             self._enter(Phase.IDLE, PressureRequest(0.0, Source.VENT), now, "stopped: venting")
         elif mode == Mode.CLAMP:
@@ -210,11 +214,12 @@ class GraspStateMachine:
                 return f"{name} {value} Pa is beyond the pressure limits [{c.min_gauge_pa:.0f}, {c.max_gauge_pa:.0f}] Pa"
         low, high = self.kinematics.tip_spacing_range_m()
         if mode == Mode.OPEN:
-            if not math.isfinite(r.target_tip_spacing_m) or r.target_tip_spacing_m < 0.0:
-                return f"OPEN needs a finite, non-negative target_tip_spacing_m, got {r.target_tip_spacing_m}"
-            if r.target_tip_spacing_m > high:
-                return f"target_tip_spacing_m {r.target_tip_spacing_m * 1e3:.1f} mm is wider than the gripper opens ({high * 1e3:.1f} mm)"
-            self._open_pa = self._open_pressure(r.target_tip_spacing_m, r.open_pressure_pa)
+            spacing = high if math.isnan(r.target_tip_spacing_m) else r.target_tip_spacing_m    # NaN: fully open
+            if not math.isfinite(spacing) or spacing < 0.0:
+                return f"OPEN needs a finite, non-negative target_tip_spacing_m (NaN: fully open), got {spacing}"
+            if spacing > high:
+                return f"target_tip_spacing_m {spacing * 1e3:.1f} mm is wider than the gripper opens ({high * 1e3:.1f} mm)"
+            self._open_pa = self._open_pressure(spacing, r.open_pressure_pa)
             return ""
         if not math.isfinite(r.object_diameter_m) or r.object_diameter_m < 0.0:
             return f"object_diameter_m must be finite and >= 0, got {r.object_diameter_m}"

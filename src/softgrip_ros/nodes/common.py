@@ -21,23 +21,31 @@ def open_bus(interface: str, channel: str, bitrate: int) -> can.BusABC:
     return can.Bus(interface=interface, channel=channel, **kwargs)
 
 
-def run_node(node_factory, args=None) -> int:
-    """rclpy.init, build the node, spin until SIGINT/SIGTERM, then ``node.close()`` (vent) and exit 0.
+def run_node(node_factory, args=None, executor_factory=None) -> int:
+    """rclpy.init, build the node(s), spin until SIGINT/SIGTERM, then ``close()`` each (the pressure
+    controller vents) in reverse order of creation, and exit 0.
 
-    rclpy (Jazzy) handles SIGTERM as it does Ctrl-C, waking the executor, so the node's close
-    runs and no traceback is printed. (A Python-level handler would not run while spin waits
-    in C on a node without timers.) A node that fails to start prints its reason and returns 1.
+    ``node_factory()`` returns a node or a list of nodes (a factory that fails part-way closes
+    what it made before raising); ``executor_factory`` (default: a
+    SingleThreadedExecutor) spins them. rclpy (Jazzy) handles SIGTERM as it does Ctrl-C, waking
+    the executor, so close runs and no traceback is printed. (A Python-level handler would not
+    run while spin waits in C on a node without timers.) A node that fails to start prints its
+    reason and returns 1.
     """
     rclpy.init(args=args)   # rclpy's own handlers turn SIGINT and SIGTERM into a shutdown that wakes spin
     faulthandler.register(signal.SIGUSR1, all_threads=True)   # kill -USR1 <pid>: where is every thread?
     try:
-        node = node_factory()
+        made = node_factory()
     except (ValueError, ParameterException) as error:   # a bad parameter at start-up: say which, exit 1
         print(f"{sys.argv[0]}: {error}", file=sys.stderr)
         rclpy.try_shutdown()
         return 1
+    nodes = made if isinstance(made, list) else [made]
+    executor = executor_factory() if executor_factory is not None else SingleThreadedExecutor()
     try:
-        rclpy.spin(node)
+        for node in nodes:
+            executor.add_node(node)
+        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception:
@@ -46,10 +54,20 @@ def run_node(node_factory, args=None) -> int:
         if rclpy.ok():
             raise
     finally:
-        node.close()
-        node.destroy_node()
+        close_all(nodes)
+        executor.shutdown(timeout_sec=1.0)
+        pool = getattr(executor, "_executor", None)   # Jazzy's shutdown() leaves its thread pool running
+        if pool is not None:
+            pool.shutdown(wait=True)
         rclpy.try_shutdown()
     return 0
+
+
+def close_all(nodes) -> None:
+    """close() and destroy each node, the last made first."""
+    for node in reversed(nodes):
+        node.close()
+        node.destroy_node()
 
 
 @contextlib.contextmanager
@@ -62,13 +80,22 @@ def spinning(*nodes, context=None, threads: int = 4):
                 else MultiThreadedExecutor(num_threads=threads, context=context))
     for node in nodes:
         executor.add_node(node)
-    thread = threading.Thread(target=executor.spin, name="softgrip-spin", daemon=True)
+    stop = threading.Event()
+
+    def spin():
+        # spin_once until told: shutdown() while spin() waits races with its guard conditions
+        # (Jazzy: "'NoneType' object has no attribute 'handle'" when actions are present)
+        while not stop.is_set() and executor.context.ok():
+            executor.spin_once(timeout_sec=0.05)
+
+    thread = threading.Thread(target=spin, name="softgrip-spin", daemon=True)
     thread.start()
     try:
         yield executor
     finally:
-        executor.shutdown(timeout_sec=2.0)
+        stop.set()
         thread.join(timeout=5.0)
+        executor.shutdown(timeout_sec=2.0)
         pool = getattr(executor, "_executor", None)   # Jazzy's shutdown() leaves its thread pool running
         if pool is not None:
             pool.shutdown(wait=True)

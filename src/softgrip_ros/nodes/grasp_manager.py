@@ -1,0 +1,226 @@
+"""grasp_manager: grasp commands in, pressure commands out, and the gripper's state.
+
+In: grasp_command (GraspCommand), the Grasp action, pressure/estimate, controller/status.
+Out: pressure/command (on every change, and refreshed every ``command_refresh_s`` so that the
+controller's command timeout never trips during a long hold), grasp_state (GripperState) on
+every change and at ``state_rate_hz``, /diagnostics. The state machine is
+softgrip_ros.control.grasp_fsm; the clamp force law is softgrip_ros.model.grasp.
+"""
+from __future__ import annotations
+
+import math
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.node import Node
+from rclpy.task import Future
+from sensor_msgs.msg import FluidPressure
+from std_msgs.msg import Header
+
+from softgrip_interfaces.action import Grasp
+from softgrip_interfaces.msg import ControllerStatus, GraspCommand, GripperState, PressureCommand
+from softgrip_ros.control.grasp_fsm import (GraspConfig, GraspRequest, GraspStateMachine, Mode, Phase, fault_text)
+from softgrip_ros.control.pressure import Source
+from softgrip_ros.model.calibration import build_kinematics
+from softgrip_ros.model.grasp import ClampForceLaw
+from softgrip_ros.nodes.common import P_ATM_PA, run_node
+from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
+
+_G, _F = GraspConfig(), ClampForceLaw()
+SPECS = [
+    ParamSpec("cavity_type", "type_II", "finger type of config/gripper_geometry.yaml", choices=("type_I", "type_II", "type_III")),
+    ParamSpec("fidelity", "l0", "bending law of the grasp model", choices=("l0", "l1")),
+    ParamSpec("state_rate_hz", 20.0, "grasp_state publish rate (and on every change)", "Hz", 10.0, 200.0),
+    ParamSpec("command_refresh_s", 0.5, "pressure/command re-sent this often", "s", 0.05, 10.0),
+    ParamSpec("estimate_timeout", 0.1, "an estimate older than this is not used (controller/status instead)", "s", 0.01, 5.0),
+    ParamSpec("status_timeout", 1.0, "no controller/status this long during a grasp: FAULT", "s", 0.1, 60.0),
+    ParamSpec("max_gauge_pressure_pa", _G.max_gauge_pa, "highest pressure a command may ask for", "Pa", 1e3, 100e3),
+    ParamSpec("min_gauge_pressure_pa", _G.min_gauge_pa, "lowest pressure a command may ask for", "Pa", -100e3, -1e3),
+    ParamSpec("envelop_margin_m", _G.envelop_margin_m, "D2 beyond the object before ENVELOPED", "m", 1e-4, 0.1),
+    ParamSpec("pinch_max_diameter_m", _G.pinch_max_diameter_m, "largest object for PINCH", "m", 1e-4, 0.02),
+    ParamSpec("release_tip_spacing_m", _G.release_tip_spacing_m, "least opening after RELEASE", "m", 1e-3, 0.15),
+    ParamSpec("pressure_tolerance_pa", _G.pressure_tolerance_pa, "a phase's pressure counts as reached within this", "Pa", 100.0, 20e3),
+    ParamSpec("settle_time", _G.settle_s, "time within tolerance before a phase completes", "s", 0.01, 5.0),
+    ParamSpec("auto_clamp_delay", _G.auto_clamp_delay_s, "ENVELOPED to CLAMPING on its own after this; < 0: wait for CLAMP", "s", -1.0, 600.0),
+    ParamSpec("opening_timeout", _G.opening_timeout_s, "OPENING longer than this: FAULT", "s", 0.1, 60.0),
+    ParamSpec("clamping_timeout", _G.clamping_timeout_s, "CLAMPING longer than this: FAULT", "s", 0.1, 60.0),
+    ParamSpec("releasing_timeout", _G.releasing_timeout_s, "RELEASING longer than this: FAULT", "s", 0.1, 60.0),
+    ParamSpec("hold_error_limit_pa", _G.hold_error_limit_pa, "HOLDING pressure off target by more than this ...", "Pa", 500.0, 50e3),
+    ParamSpec("hold_error_time", _G.hold_error_time_s, "... for this long: FAULT", "s", 0.01, 10.0),
+    ParamSpec("clamp_stiffness_n_per_pa", _F.stiffness_n_per_pa, "clamp force law: normal force per Pa below contact", "N/Pa", 1e-6, 1e-2),
+    ParamSpec("friction_coefficient", _F.friction_coefficient, "friction when a command gives none", "", 0.05, 2.0),
+    ParamSpec("safety_factor", _F.safety_factor, "clamp force over what the weight needs", "", 1.0, 10.0),
+]
+
+
+def _request_from(msg: GraspCommand) -> GraspRequest:
+    friction = math.nan if msg.friction_coefficient == 0.0 else msg.friction_coefficient   # 0 (unset): the default
+    return GraspRequest(mode=msg.mode, object_diameter_m=msg.object_diameter_m, object_mass_kg=msg.object_mass_kg,
+                        target_tip_spacing_m=msg.target_tip_spacing_m, friction_coefficient=friction,
+                        open_pressure_pa=msg.open_pressure_pa, clamp_pressure_pa=msg.clamp_pressure_pa,
+                        command_id=msg.command_id)
+
+
+class GraspManagerNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__("grasp_manager", **kwargs)
+        specs = {s.name: s for s in SPECS}
+        v = self.values = declare(self, SPECS)
+        self.add_on_set_parameters_callback(
+            lambda params: check_all(specs, params, lambda _: "grasp_manager parameters apply at start-up: restart the node"))
+        config = GraspConfig(
+            max_gauge_pa=v["max_gauge_pressure_pa"], min_gauge_pa=v["min_gauge_pressure_pa"], envelop_margin_m=v["envelop_margin_m"],
+            pinch_max_diameter_m=v["pinch_max_diameter_m"], release_tip_spacing_m=v["release_tip_spacing_m"],
+            pressure_tolerance_pa=v["pressure_tolerance_pa"], settle_s=v["settle_time"], auto_clamp_delay_s=v["auto_clamp_delay"],
+            opening_timeout_s=v["opening_timeout"], clamping_timeout_s=v["clamping_timeout"],
+            releasing_timeout_s=v["releasing_timeout"], hold_error_limit_pa=v["hold_error_limit_pa"],
+            hold_error_time_s=v["hold_error_time"])
+        force_law = ClampForceLaw(v["clamp_stiffness_n_per_pa"], v["friction_coefficient"], v["safety_factor"])
+        kinematics = build_kinematics(v["fidelity"], v["cavity_type"], max_pressure_pa=v["max_gauge_pressure_pa"])
+        self.fsm = GraspStateMachine(kinematics, config, force_law)
+        self.estimate = (math.nan, math.nan, -math.inf)     # gauge, std, arrival time
+        self.status: ControllerStatus | None = None
+        self.status_time = -math.inf
+        self.sent = (None, -math.inf)
+        self.published_changes = -1
+        self.waiters: list[Future] = []
+        self.state_pub = self.create_publisher(GripperState, "grasp_state", 10)
+        self.command_pub = self.create_publisher(PressureCommand, "pressure/command", 10)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_subscription(GraspCommand, "grasp_command", self._on_command, 10)
+        self.create_subscription(FluidPressure, "pressure/estimate", self._on_estimate, 10)
+        self.create_subscription(ControllerStatus, "controller/status", self._on_status, 10)
+        self.create_timer(1.0 / v["state_rate_hz"], self._on_timer)
+        self.create_timer(1.0, self._publish_diagnostics)
+        self.action_server = ActionServer(self, Grasp, "grasp", execute_callback=self._execute,
+                                          goal_callback=lambda _: GoalResponse.ACCEPT,
+                                          cancel_callback=lambda _: CancelResponse.ACCEPT)
+
+    def close(self) -> None:
+        """Stop whatever runs: the pressure controller vents on its own shutdown too."""
+        if self.context.ok() and self.fsm.state.phase != Phase.IDLE:
+            self.submit(GraspRequest(Mode.STOP, command_id="shutdown"))
+        self.action_server.destroy()
+
+    # ---- inputs ---------------------------------------------------------------------------------
+    def _now(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _controller_fault(self, now: float) -> str:
+        if self.status is None:
+            return "" if self.fsm.state.phase == Phase.IDLE else "no controller/status yet"
+        if now - self.status_time > self.values["status_timeout"]:
+            return f"no controller/status for {now - self.status_time:.1f} s"
+        return fault_text(self.status.fault_flags)
+
+    def submit(self, request: GraspRequest) -> str:
+        """Apply a command from the topic or the action; '' or the rejection reason."""
+        now = self._now()
+        reason = self.fsm.command(request, now, self._controller_fault(now))
+        if reason:
+            self.get_logger().warn(f"grasp command {request.command_id!r} rejected: {reason}")
+        self._after_change(now)
+        return reason
+
+    def _on_command(self, msg: GraspCommand) -> None:
+        self.submit(_request_from(msg))
+
+    def _on_estimate(self, msg: FluidPressure) -> None:
+        self.estimate = (msg.fluid_pressure - P_ATM_PA, math.sqrt(max(msg.variance, 0.0)), self._now())
+        self._tick()
+
+    def _on_status(self, msg: ControllerStatus) -> None:
+        self.status, self.status_time = msg, self._now()
+
+    def _on_timer(self) -> None:
+        self._tick(force_state=True)
+
+    def _tick(self, force_state: bool = False) -> None:
+        now = self._now()
+        gauge, std, stamp = self.estimate
+        if now - stamp > self.values["estimate_timeout"]:
+            gauge = self.status.measured_gauge_pressure_pa if self.status is not None else math.nan
+            std = math.nan
+        self.fsm.update(now, gauge, std, self._controller_fault(now))
+        self._after_change(now, force_state)
+
+    def _after_change(self, now: float, force_state: bool = False) -> None:
+        request, (sent, sent_at) = self.fsm.request, self.sent
+        if request != sent or now - sent_at >= self.values["command_refresh_s"]:
+            self._send(request, now)
+        if force_state or self.fsm.changes != self.published_changes:
+            self.published_changes = self.fsm.changes
+            self._publish_state()
+            for waiter in self.waiters:
+                waiter.set_result(True)
+            self.waiters.clear()
+
+    # ---- outputs --------------------------------------------------------------------------------
+    def _send(self, request, now: float) -> None:
+        if not self.context.ok():
+            return
+        self.sent = (request, now)
+        source = {Source.SUPPLY: PressureCommand.SUPPLY, Source.VACUUM: PressureCommand.VACUUM,
+                  Source.VENT: PressureCommand.VENT, Source.HOLD: PressureCommand.HOLD}[request.source]
+        self.command_pub.publish(PressureCommand(header=self._header(), target_gauge_pressure_pa=request.target_gauge_pa,
+                                                 max_rate_pa_per_s=math.nan, source=source))
+
+    def state_message(self) -> GripperState:
+        s = self.fsm.state
+        return GripperState(
+            header=self._header(), phase=int(s.phase), mode=int(s.mode), command_id=s.command_id,
+            command_rejected=s.command_rejected, target_gauge_pressure_pa=s.target_gauge_pa,
+            estimated_gauge_pressure_pa=s.estimated_gauge_pa, estimated_gauge_pressure_std_pa=s.estimated_std_pa,
+            included_angle_rad=s.included_angle_rad, tip_spacing_m=s.tip_spacing_m, root_spacing_m=s.root_spacing_m,
+            clamp_force_n=s.clamp_force_n, model_fidelity=s.model_fidelity,
+            pressure_in_validated_range=s.in_validated_range, message=s.message)
+
+    def _publish_state(self) -> None:
+        if self.context.ok():
+            self.state_pub.publish(self.state_message())
+
+    def _header(self) -> Header:
+        return Header(stamp=self.get_clock().now().to_msg(), frame_id="softgrip_base")
+
+    def _publish_diagnostics(self) -> None:
+        s = self.fsm.state
+        level = DiagnosticStatus.ERROR if s.phase == Phase.FAULT else DiagnosticStatus.OK
+        status = DiagnosticStatus(name="softgrip: grasp manager", hardware_id="gripper", level=level, message=s.message,
+                                  values=[KeyValue(key="phase", value=s.phase.name),
+                                          KeyValue(key="command_id", value=s.command_id),
+                                          KeyValue(key="model_fidelity", value=s.model_fidelity)])
+        self.diagnostics_pub.publish(DiagnosticArray(header=self._header(), status=[status]))
+
+    # ---- the Grasp action -----------------------------------------------------------------------
+    async def _execute(self, goal_handle):
+        request = _request_from(goal_handle.request.command)
+        reason = self.submit(request)
+        if reason:
+            goal_handle.abort()
+            return self._result(False, f"rejected: {reason}")
+        generation = self.fsm.accepted
+        while True:
+            if goal_handle.is_cancel_requested:
+                self.submit(GraspRequest(Mode.STOP, command_id=request.command_id))
+                goal_handle.canceled()
+                return self._result(False, "canceled: venting")
+            if self.fsm.accepted != generation:
+                goal_handle.abort()
+                return self._result(False, f"superseded by command {self.fsm.state.command_id!r}")
+            if self.fsm.done(request.mode):
+                held = self.fsm.state.phase == Phase.HOLDING
+                (goal_handle.succeed if self.fsm.state.phase != Phase.FAULT else goal_handle.abort)()
+                return self._result(held, self.fsm.state.message)
+            goal_handle.publish_feedback(Grasp.Feedback(state=self.state_message()))
+            waiter = Future()
+            self.waiters.append(waiter)
+            await waiter
+
+    def _result(self, held: bool, message: str) -> Grasp.Result:
+        s = self.fsm.state
+        return Grasp.Result(object_held=held, final_phase=int(s.phase), final_gauge_pressure_pa=s.estimated_gauge_pa,
+                            clamp_force_n=s.clamp_force_n, message=message)
+
+
+def main(args=None) -> int:
+    return run_node(GraspManagerNode, args)

@@ -1,0 +1,211 @@
+"""End to end: the composed suite (the `controller` executable's nodes) on the simulated device,
+driven over DDS by topic and by action, in-process and as the installed executable."""
+import math
+import signal
+import subprocess
+import time
+
+import can
+import pytest
+
+from tests.helpers.ros import spinning, unique, wait_for
+from tests.test_pressure_nodes import executable
+
+pytestmark = pytest.mark.ros
+NAN = math.nan
+
+
+def grasp(mode, **fields):
+    from softgrip_interfaces.msg import GraspCommand
+    values = dict(object_diameter_m=NAN, object_mass_kg=NAN, target_tip_spacing_m=NAN, friction_coefficient=NAN,
+                  open_pressure_pa=NAN, clamp_pressure_pa=NAN)
+    values.update(fields)
+    return GraspCommand(mode=mode, **values)
+
+
+@pytest.fixture
+def suite(rclpy_context):
+    """The composed nodes on a private virtual channel, and a user node watching grasp_state."""
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from softgrip_interfaces.msg import GraspCommand, GripperState
+    from softgrip_ros.nodes.common import close_all
+    from softgrip_ros.nodes.controller import make_nodes
+
+    nodes = make_nodes(rclpy_context, {"pressure_controller": [Parameter("can.channel", value=unique("e2e"))]})
+    user = Node("test_user", context=rclpy_context)
+    states = []
+    user.create_subscription(GripperState, "grasp_state", states.append, 100)
+    publisher = user.create_publisher(GraspCommand, "grasp_command", 10)
+    try:
+        with spinning(rclpy_context, *nodes, user, threads=2):
+            wait_for(lambda: states and publisher.get_subscription_count(), message="grasp_state")
+            yield {n.get_name(): n for n in nodes}, user, publisher, states
+    finally:
+        close_all(nodes)
+        user.destroy_node()
+
+
+def phases_after(states, start):
+    """The phases since ``start``, each once per run, after the IDLE the command found."""
+    seen = []
+    for s in states[start:]:
+        if (seen or s.phase != 0) and (not seen or seen[-1] != s.phase):
+            seen.append(s.phase)
+    return seen
+
+
+def test_envelop_clamp_40mm_then_release_over_topics(suite):
+    from softgrip_interfaces.msg import GraspCommand, GripperState as S
+    nodes, user, publisher, states = suite
+    start = len(states)
+    t0 = time.monotonic()
+    publisher.publish(grasp(GraspCommand.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2, command_id="g40"))
+    enveloped = wait_for(lambda: next((s for s in states[start:] if s.phase == S.ENVELOPED), None), timeout=3.0,
+                         message="ENVELOPED")
+    opened_in = time.monotonic() - t0
+    assert enveloped.tip_spacing_m >= 0.04 + 0.01 and enveloped.command_id == "g40"
+    publisher.publish(grasp(GraspCommand.CLAMP, command_id="g40-clamp"))
+    holding = wait_for(lambda: next((s for s in states[start:] if s.phase == S.HOLDING), None), timeout=3.0, message="HOLDING")
+    assert phases_after(states, start)[:4] == [S.OPENING, S.ENVELOPED, S.CLAMPING, S.HOLDING]
+    assert opened_in < 2.0
+    target = holding.target_gauge_pressure_pa
+    assert target < 0.0 and abs(holding.estimated_gauge_pressure_pa - target) <= 1.5e3
+    hold_start = len(states)
+    time.sleep(2.0)                                               # HOLDING stays stable for 2 s
+    held = states[hold_start:]
+    assert len(held) >= 30 and all(s.phase == S.HOLDING for s in held)     # >= 10 Hz (20 Hz configured)
+    assert max(abs(s.estimated_gauge_pressure_pa - target) for s in held) < 3e3
+    assert all(s.clamp_force_n > 0.0 for s in held)
+    publisher.publish(grasp(GraspCommand.RELEASE, command_id="rel"))
+    wait_for(lambda: states[-1].phase == S.IDLE and states[-1].command_id == "rel", timeout=5.0, message="IDLE after RELEASE")
+
+
+def test_pinch_a_sheet_by_action_with_feedback_and_result(suite):
+    from rclpy.action import ActionClient
+    from softgrip_interfaces.action import Grasp
+    from softgrip_interfaces.msg import GraspCommand, GripperState as S
+    nodes, user, publisher, states = suite
+    client = ActionClient(user, Grasp, "grasp")     # destroyed with the user node, after the executor stops
+    assert client.wait_for_server(timeout_sec=5.0)
+    feedback = []
+    future = client.send_goal_async(Grasp.Goal(command=grasp(GraspCommand.PINCH, object_diameter_m=1e-4,
+                                                             object_mass_kg=0.05, command_id="sheet")),
+                                    feedback_callback=feedback.append)
+    handle = wait_for(lambda: future.done() and future.result(), message="goal accepted")
+    result_future = handle.get_result_async()
+    result = wait_for(lambda: result_future.done() and result_future.result(), timeout=5.0, message="result").result
+    assert result.object_held and result.final_phase == S.HOLDING and result.clamp_force_n > 0.0
+    assert result.final_gauge_pressure_pa < 0.0 and feedback
+    rejected = client.send_goal_async(Grasp.Goal(command=grasp(GraspCommand.PINCH, object_diameter_m=0.03,
+                                                               object_mass_kg=0.05)))
+    handle = wait_for(lambda: rejected.done() and rejected.result(), message="goal")
+    result_future = handle.get_result_async()
+    result = wait_for(lambda: result_future.done() and result_future.result(), message="result").result
+    assert not result.object_held and "PINCH takes objects up to 5.0 mm" in result.message
+
+
+def test_stop_during_opening_vents_within_a_control_period(suite):
+    from softgrip_interfaces.msg import GraspCommand, GripperState as S
+    from softgrip_ros.model.pneumatics import Valve
+    nodes, user, publisher, states = suite
+    device = nodes["sim_device"].device
+    publisher.publish(grasp(GraspCommand.ENVELOP_CLAMP, object_diameter_m=0.06, object_mass_kg=0.1))
+    wait_for(lambda: states[-1].phase == S.OPENING and device.chamber_gauge_pa() > 3e3, message="OPENING")
+    sent = time.monotonic()
+    publisher.publish(grasp(GraspCommand.STOP))
+    wait_for(lambda: device.valves()[0] == Valve.VENT, timeout=1.0, period=0.0005, message="vent valves")
+    # one 2 ms control period plus DDS and CAN latency; generous for a shared 2-core machine
+    assert time.monotonic() - sent < 0.1
+    wait_for(lambda: abs(device.chamber_gauge_pa()) < 1e3, timeout=2.0, message="vented")
+
+
+def test_faults_during_holding_give_fault_and_a_safe_state(suite):
+    from softgrip_interfaces.msg import GraspCommand, GripperState as S
+    from softgrip_ros.model.pneumatics import Valve
+    nodes, user, publisher, states = suite
+    device = nodes["sim_device"].device
+    for fault, value in (("sensor_dropout", "all"), ("regulator_overshoot_pa", 30e3)):
+        publisher.publish(grasp(GraspCommand.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1))
+        wait_for(lambda: states[-1].phase == S.HOLDING, timeout=5.0, message="HOLDING")
+        peak = []
+        device.set_fault(fault, value)
+        try:
+            wait_for(lambda: (peak.append(device.chamber_gauge_pa()) or states[-1].phase == S.FAULT), timeout=3.0,
+                     message=f"FAULT after {fault}")
+            assert fault.split("_")[0] in states[-1].message or "regulator" in states[-1].message
+            wait_for(lambda: device.valves()[0] in (Valve.VENT, Valve.CLOSED), message="a safe valve state")
+            assert max(peak) < 50e3 + 5e3
+        finally:
+            device.set_fault(fault, "" if isinstance(value, str) else 0.0)
+        wait_for(lambda: "fault" not in (nodes["grasp_manager"]._controller_fault(nodes["grasp_manager"]._now()) or "fault"[:0]),
+                 timeout=3.0, message="the controller fault clears")
+        publisher.publish(grasp(GraspCommand.STOP))
+        wait_for(lambda: states[-1].phase == S.IDLE, message="IDLE after STOP")
+
+
+@pytest.mark.parametrize("command, reason", [
+    (dict(mode=1, object_diameter_m=NAN, object_mass_kg=0.1), "object_diameter_m must be finite"),
+    (dict(mode=1, object_diameter_m=0.2, object_mass_kg=0.1), "wider than the gripper opens"),
+    (dict(mode=1, object_diameter_m=0.04, object_mass_kg=0.1, clamp_pressure_pa=-95e3), "beyond the pressure limits"),
+    (dict(mode=7), "unknown mode 7"),
+])
+def test_rejected_commands_say_why_over_the_topic_and_move_nothing(suite, command, reason):
+    from softgrip_interfaces.msg import GripperState as S
+    nodes, user, publisher, states = suite
+    before = nodes["sim_device"].device.valves()
+    publisher.publish(grasp(command.pop("mode"), command_id="bad", **command))
+    state = wait_for(lambda: next((s for s in reversed(states) if s.command_rejected and s.command_id == "bad"), None),
+                     message="a rejection")
+    assert reason in state.message and state.phase == S.IDLE
+    assert nodes["sim_device"].device.valves() == before
+
+
+def test_the_installed_controller_grasps_over_dds_and_exits_cleanly_on_sigterm(tmp_path, ros_node):
+    """The real user path: <prefix>/lib/softgrip_ros/controller as a process; this process sends the
+    grasp and watches grasp_state and tip_pose/left; the device runs apart on the inter-process bus
+    so that the vent frames on SIGTERM can be seen."""
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+    from softgrip_interfaces.msg import GraspCommand, GripperState
+    from softgrip_ros.canbus.codec import FrameCodec
+
+    channel = unique("e2e-proc")
+    ros_args = ["--ros-args", "-p", "can.interface:=softgrip_ipc", "-p", f"can.channel:={channel}"]
+    monitor = can.Bus(interface="softgrip_ipc", channel=channel)
+    codec, valve_frames = FrameCodec(max_counter_delta=15), []
+    notifier = can.Notifier(monitor, [lambda f: (lambda d: d and d.name == "ValveCommand" and valve_frames.append(d))(
+        codec.decode(f))], timeout=0.05)
+    log = open(tmp_path / "controller.log", "w+")
+    device = subprocess.Popen([executable("sim_device"), *ros_args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    controller = subprocess.Popen([executable("controller"), *ros_args], stdout=log, stderr=subprocess.STDOUT, text=True)
+    states, poses = [], []
+    ros_node.create_subscription(GripperState, "grasp_state", states.append, 100)
+    ros_node.create_subscription(PoseWithCovarianceStamped, "tip_pose/left", poses.append, 100)
+    publisher = ros_node.create_publisher(GraspCommand, "grasp_command", 10)
+    try:
+        with spinning(ros_node.context, ros_node, threads=1):
+            wait_for(lambda: states and publisher.get_subscription_count(), timeout=30.0, message="the controller's grasp_state")
+            publisher.publish(grasp(GraspCommand.OPEN, target_tip_spacing_m=0.06, command_id="open60"))
+            wait_for(lambda: states[-1].phase == GripperState.ENVELOPED and states[-1].command_id == "open60", timeout=5.0,
+                     message="open to 60 mm")
+            wait_for(lambda: poses and abs(-2 * poses[-1].pose.pose.position.x) > 0.05, message="tip_pose follows")
+            assert poses[-1].pose.covariance[0] > 0.0
+        controller.send_signal(signal.SIGTERM)
+        controller.wait(timeout=15)
+        output = (tmp_path / "controller.log").read_text()
+        assert controller.returncode == 0, output
+        assert "Traceback" not in output
+        time.sleep(0.3)
+        assert valve_frames and valve_frames[-1].signals["Channel0"] == 3, "the last valve frame must vent"
+    finally:
+        for process in (controller, device):
+            if process.poll() is None:
+                process.send_signal(signal.SIGTERM)
+                try:
+                    process.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    process.kill()
+                    process.wait()
+        notifier.stop()
+        monitor.shutdown()
+        log.close()
