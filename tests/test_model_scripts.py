@@ -67,11 +67,11 @@ def test_bench_pressure_json_reports_every_figure():
 
 @pytest.mark.ros
 @pytest.mark.slow
-def test_demo_runs_the_real_executables_and_exits_cleanly(tmp_path):
+def test_demo_grasps_with_the_controller_executable_and_exits_cleanly(tmp_path):
     plot = tmp_path / "demo.png"
-    result = run("scripts/demo_pressure.py", "--plot", str(plot), timeout=300)
+    result = run("scripts/demo_grasp.py", "--plot", str(plot), timeout=300)
     assert result.returncode == 0, result.stdout + result.stderr
-    lines = [line for line in result.stdout.splitlines() if "within 1 kPa" in line]
-    assert len(lines) == 3, result.stdout            # open, clamp, release each reached
+    for phase in ("reached ENVELOPED", "reached HOLDING", "reached IDLE"):
+        assert phase in result.stdout, result.stdout
     assert plot.stat().st_size > 10_000
     assert "Traceback" not in result.stderr

@@ -39,7 +39,7 @@ SPECS = CAN_SPECS + [
     ParamSpec("kp", _DEFAULTS.kp, "proportional gain of the trim", "Pa/Pa", 0.0, 10.0),
     ParamSpec("ki_per_s", _DEFAULTS.ki_per_s, "integral gain of the trim", "1/s", 0.0, 1000.0),
     ParamSpec("trim_limit_pa", _DEFAULTS.trim_limit_pa, "largest trim of the regulator setpoint", "Pa", 0.0, 50e3),
-    ParamSpec("use_estimate", True, "regulate on pressure/estimate while it is fresh"),
+    ParamSpec("use_estimate", False, "regulate on pressure/estimate while it is fresh (its latency makes the boost overshoot)"),
     ParamSpec("sensors.names", ["chamber_a", "chamber_b"], "sensor names: topics pressure/sensor/<name>"),
     ParamSpec("sensors.messages", ["PressureSensor1", "PressureSensor2"], "the DBC message of each sensor"),
     ParamSpec("sensors.noise_std_pa", [300.0, 150.0], "1-sigma noise of each sensor, for FluidPressure.variance", "Pa"),
