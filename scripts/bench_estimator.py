@@ -162,7 +162,8 @@ def main(argv=None) -> int:
              f"`rmse_ratio_vs_best_sensor` is the worst of the three filters. Time-averaged ANEES over {args.runs} runs: "
              f"{anees_text} (95 % interval [{low:.2f}, {high:.2f}], 2 states). Most of each step is the plant model in "
              "pure Python (one backward-Euler Newton solve per step, five for the UKF's sigma points) and filterpy's "
-             "per-call overhead. Chart: `docs/estimator_speed_accuracy.png`.")
+             "per-call overhead. Step costs move by up to about 30 % between runs on a shared machine: compare the "
+             "filters within one run. Chart: `docs/estimator_speed_accuracy.png`.")
     update_section("bench_estimator", "## Pressure estimators (`scripts/bench_estimator.py`)\n\n"
                    f"Command: `python scripts/bench_estimator.py` ({machine_line()}, step cost median of {args.repeat} "
                    f"passes over {2.2:.1f} s of trajectory at 200 Hz)\n\n" + "\n".join(rows) + "\n\n" + notes)

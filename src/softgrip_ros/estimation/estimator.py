@@ -162,6 +162,7 @@ class PressureEstimator:
         self.config = config or EstimatorConfig()
         self.plant = plant or PneumaticPlant()
         self.sensors = {s.name: s for s in self.config.sensors}
+        self._variance = {s.name: s.noise_std_pa ** 2 for s in self.config.sensors}
         self.stats = {s.name: SensorStats(nis=collections.deque(maxlen=self.config.nis_window))
                       for s in self.config.sensors}
         self.q_continuous = process_noise_matrix(self.config.process_noise_pa2_per_s)
@@ -228,10 +229,9 @@ class PressureEstimator:
         x, P = self.filter.x, self.filter.P
         for name, value in valid.items():
             stats = self.stats[name]
-            stats.last_stamp_s = max(stats.last_stamp_s, stamp_s)
-            r = self.sensors[name].noise_std_pa ** 2
-            innovation_variance = P[CHAMBER, CHAMBER] + r
-            d2 = (value - x[CHAMBER, 0]) ** 2 / innovation_variance
+            if stamp_s > stats.last_stamp_s:
+                stats.last_stamp_s = stamp_s
+            d2 = (value - x[CHAMBER, 0]) ** 2 / (P[CHAMBER, CHAMBER] + self._variance[name])
             stats.nis.append(d2)
             if d2 > self.sensors[name].rejection_threshold:
                 stats.rejected += 1
@@ -256,7 +256,7 @@ class PressureEstimator:
         if model is None:
             H = np.zeros((len(names), 2))
             H[:, CHAMBER] = 1.0
-            model = self._models[names] = (H, np.diag([self.sensors[n].noise_std_pa ** 2 for n in names]))
+            model = self._models[names] = (H, np.diag([self._variance[n] for n in names]))
         return model
 
     def _locked_out(self, now: float) -> bool:
