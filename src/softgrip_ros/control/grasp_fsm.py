@@ -27,6 +27,7 @@ import dataclasses
 import enum
 import math
 
+from softgrip_ros.checks import require_positive
 from softgrip_ros.control.pressure import ERROR_FAULTS, Fault, Source
 from softgrip_ros.model.grasp import ClampForceLaw
 
@@ -107,12 +108,9 @@ class GraspConfig:
     def __post_init__(self):
         if not self.min_gauge_pa < 0.0 < self.max_gauge_pa:
             raise ValueError("need min_gauge_pa < 0 < max_gauge_pa")
-        for name in ("envelop_margin_m", "pinch_max_diameter_m", "release_tip_spacing_m", "pressure_tolerance_pa",
-                     "settle_s", "opening_timeout_s", "clamping_timeout_s", "releasing_timeout_s", "vented_below_pa",
-                     "hold_error_limit_pa", "hold_error_time_s"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be positive and finite, got {value}")
+        require_positive(self, "envelop_margin_m", "pinch_max_diameter_m", "release_tip_spacing_m", "pressure_tolerance_pa",
+                         "settle_s", "opening_timeout_s", "clamping_timeout_s", "releasing_timeout_s", "vented_below_pa",
+                         "hold_error_limit_pa", "hold_error_time_s")
         if not math.isfinite(self.auto_clamp_delay_s):
             raise ValueError("auto_clamp_delay_s must be finite (negative: never)")
 

@@ -30,6 +30,7 @@ import math
 import numpy as np
 from scipy.stats import chi2
 
+from softgrip_ros.checks import require_positive
 from softgrip_ros.estimation.filters import CHAMBER, FILTER_TYPES, make_filter
 from softgrip_ros.model.pneumatics import PlantInputs, PneumaticPlant, Valve
 
@@ -106,10 +107,7 @@ class EstimatorConfig:
         if len(set(names)) != len(names):
             raise ValueError(f"sensor names must be unique, got {names}")
         process_noise_matrix(self.process_noise_pa2_per_s)
-        for name in ("sensor_timeout_s", "max_step_s", "max_lag_s", "initial_regulator_std_pa"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be positive and finite, got {value}")
+        require_positive(self, "sensor_timeout_s", "max_step_s", "max_lag_s", "initial_regulator_std_pa")
         if self.nis_window < 10:
             raise ValueError(f"nis_window must be at least 10 samples, got {self.nis_window}")
         if not 0.5 < self.nis_confidence < 1.0:

@@ -19,6 +19,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from softgrip_ros.checks import require_positive
+
 G_M_PER_S2 = 9.80665
 
 
@@ -33,10 +35,7 @@ class ClampForceLaw:
     min_squeeze_pa: float = 3e3
 
     def __post_init__(self):
-        for name in ("stiffness_n_per_pa", "friction_coefficient", "safety_factor"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"ClampForceLaw.{name} must be positive and finite, got {value}")
+        require_positive(self, "stiffness_n_per_pa", "friction_coefficient", "safety_factor")
         if self.safety_factor < 1.0:
             raise ValueError(f"safety_factor must be at least 1, got {self.safety_factor}")
         if not (math.isfinite(self.min_squeeze_pa) and self.min_squeeze_pa >= 0.0):

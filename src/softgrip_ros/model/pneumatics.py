@@ -34,6 +34,8 @@ import math
 
 import numpy as np
 
+from softgrip_ros.checks import require_positive
+
 P_ATM_PA = 101_325.0
 R_AIR_J_PER_KG_K = 287.05
 RHO0_KG_PER_M3 = 1.185       # ISO 6358 reference density
@@ -82,13 +84,9 @@ class PneumaticParameters:
     regulator_rate_limit_pa_per_s: float = 2.0e6
 
     def __post_init__(self):
-        positive = ("chamber_volume_m3", "min_chamber_volume_m3", "supply_conductance", "vacuum_conductance",
-                    "vent_conductance", "temperature_k", "regulator_time_constant_s",
-                    "regulator_rate_limit_pa_per_s")
-        for name in positive:
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"PneumaticParameters.{name} must be positive and finite, got {value}")
+        require_positive(self, "chamber_volume_m3", "min_chamber_volume_m3", "supply_conductance", "vacuum_conductance",
+                         "vent_conductance", "temperature_k", "regulator_time_constant_s",
+                         "regulator_rate_limit_pa_per_s")
         if not 1 <= self.channels <= 4:
             raise ValueError(f"channels must lie in 1..4 (the ValveCommand frame has 4), got {self.channels}")
         if not 0.0 < self.critical_ratio < 1.0:
