@@ -12,7 +12,6 @@ import argparse
 import math
 import os
 import pathlib
-import signal
 import subprocess
 import sys
 import time
@@ -25,16 +24,12 @@ from sensor_msgs.msg import FluidPressure  # noqa: E402
 
 from softgrip_interfaces.msg import GraspCommand, GripperState  # noqa: E402
 from softgrip_ros.nodes.common import P_ATM_PA, spinning  # noqa: E402
+from softgrip_ros.processes import installed_executable, stop_process  # noqa: E402
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
 PHASES = {getattr(GripperState, n): n for n in ("IDLE", "OPENING", "ENVELOPED", "CLAMPING", "HOLDING", "RELEASING", "FAULT")}
 COLOURS = {"OPENING": "#cfe8ff", "ENVELOPED": "#e0f5d0", "CLAMPING": "#ffe3c2", "HOLDING": "#ffd0d0",
            "RELEASING": "#eadcff", "FAULT": "#ff8080"}
-
-
-def executable(name):
-    from ament_index_python.packages import get_package_prefix
-    return os.path.join(get_package_prefix("softgrip_ros"), "lib", "softgrip_ros", name)
 
 
 def command(mode, command_id, **fields):
@@ -102,7 +97,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--plot", default=str(REPO_ROOT / "docs" / "demo_grasp.png"), help="where to save the plot")
     args = parser.parse_args(argv)
-    controller = subprocess.Popen([executable("controller"), "--ros-args", "--log-level", "warn"])
+    controller = subprocess.Popen([installed_executable("controller"), "--ros-args", "--log-level", "warn"])
     rclpy.init()
     node = Node("softgrip_demo")
     states, samples = [], []
@@ -151,14 +146,9 @@ def main(argv=None) -> int:
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
-        controller.send_signal(signal.SIGTERM)
-        try:
-            controller.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            controller.kill()
-            controller.wait()
-        if controller.returncode != 0:
-            print(f"demo: the controller exited with {controller.returncode}", file=sys.stderr)
+        returncode = stop_process(controller, timeout_s=15.0)
+        if returncode != 0:
+            print(f"demo: the controller exited with {returncode} (None: killed)", file=sys.stderr)
             status = 1
     return status
 

@@ -5,8 +5,9 @@ import subprocess
 import numpy as np
 import pytest
 
+from softgrip_ros.processes import installed_executable
+
 from tests.helpers.ros import spinning, wait_for
-from tests.test_pressure_nodes import executable
 
 pytestmark = pytest.mark.ros
 P_ATM_PA = 101_325.0
@@ -99,7 +100,7 @@ def test_silent_sensors_give_predictions_with_growing_variance_and_a_warning(wir
     ("sensors.noise_std_pa:=[300.0]", "one entry per sensor"),
 ])
 def test_bad_startup_parameter_exits_1_with_its_reason(argument, message):
-    run = subprocess.run([executable("estimator"), "--ros-args", "-p", argument], capture_output=True, text=True, timeout=60)
+    run = subprocess.run([installed_executable("estimator"), "--ros-args", "-p", argument], capture_output=True, text=True, timeout=60)
     assert run.returncode == 1, run.stderr
     assert message in run.stderr
     assert "Traceback" not in run.stderr

@@ -1,13 +1,13 @@
 """The pressure_controller and sim_device nodes, driven through real DDS topics, and their executables."""
 import math
-import os
 import signal
 import subprocess
-import sys
 import time
 
 import can
 import pytest
+
+from softgrip_ros.processes import installed_executable, stop_process
 
 from tests.helpers.ros import spinning, unique, wait_for
 
@@ -128,11 +128,6 @@ def test_lifecycle_deactivate_vents_and_activate_resumes(nodes):
     wait_for(lambda: device.device.chamber_gauge_pa() > 8e3, message="pressure after activate")
 
 
-def executable(name):
-    from ament_index_python.packages import get_package_prefix
-    return os.path.join(get_package_prefix("softgrip_ros"), "lib", "softgrip_ros", name)
-
-
 def test_sigterm_vents_and_exits_cleanly(tmp_path):
     """Both executables on the inter-process bus; SIGTERM to the controller: vent frames, exit 0."""
     from softgrip_ros.canbus.codec import FrameCodec
@@ -141,8 +136,8 @@ def test_sigterm_vents_and_exits_cleanly(tmp_path):
     ros_args = ["--ros-args", "-p", "can.interface:=softgrip_ipc", "-p", f"can.channel:={channel}"]
     monitor = can.Bus(interface="softgrip_ipc", channel=channel)
     logs = {name: open(tmp_path / f"{name}.log", "w+") for name in ("device", "controller")}
-    device = subprocess.Popen([executable("sim_device"), *ros_args], stdout=logs["device"], stderr=subprocess.STDOUT, text=True)
-    controller = subprocess.Popen([executable("pressure_controller"), *ros_args], stdout=logs["controller"],
+    device = subprocess.Popen([installed_executable("sim_device"), *ros_args], stdout=logs["device"], stderr=subprocess.STDOUT, text=True)
+    controller = subprocess.Popen([installed_executable("pressure_controller"), *ros_args], stdout=logs["controller"],
                                   stderr=subprocess.STDOUT, text=True)
     codec = FrameCodec(max_counter_delta=15)
     valve_frames = []
@@ -164,13 +159,7 @@ def test_sigterm_vents_and_exits_cleanly(tmp_path):
         assert valve_frames[-1].signals["Channel0"] == 3, "the controller's last valve frame must vent"
     finally:
         for process in (controller, device):
-            if process.poll() is None:
-                process.send_signal(signal.SIGTERM)
-                try:
-                    process.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    process.kill()
-                    process.wait()
+            stop_process(process)
         notifier.stop()
         monitor.shutdown()
         for log in logs.values():
@@ -183,7 +172,7 @@ def test_sigterm_vents_and_exits_cleanly(tmp_path):
     ("control_rate_hz:=5000.0", "control_rate_hz out of range"),
 ])
 def test_bad_startup_parameter_exits_1_with_its_reason(argument, message):
-    run = subprocess.run([executable("pressure_controller"), "--ros-args", "-p", argument],
+    run = subprocess.run([installed_executable("pressure_controller"), "--ros-args", "-p", argument],
                          capture_output=True, text=True, timeout=60)
     assert run.returncode == 1
     assert message in run.stderr
