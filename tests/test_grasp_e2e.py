@@ -8,8 +8,9 @@ import time
 import can
 import pytest
 
+from softgrip_ros.processes import installed_executable, stop_process
+
 from tests.helpers.ros import spinning, unique, wait_for
-from tests.test_pressure_nodes import executable
 
 pytestmark = pytest.mark.ros
 NAN = math.nan
@@ -176,8 +177,8 @@ def test_the_installed_controller_grasps_over_dds_and_exits_cleanly_on_sigterm(t
     notifier = can.Notifier(monitor, [lambda f: (lambda d: d and d.name == "ValveCommand" and valve_frames.append(d))(
         codec.decode(f))], timeout=0.05)
     log = open(tmp_path / "controller.log", "w+")
-    device = subprocess.Popen([executable("sim_device"), *ros_args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    controller = subprocess.Popen([executable("controller"), *ros_args], stdout=log, stderr=subprocess.STDOUT, text=True)
+    device = subprocess.Popen([installed_executable("sim_device"), *ros_args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    controller = subprocess.Popen([installed_executable("controller"), *ros_args], stdout=log, stderr=subprocess.STDOUT, text=True)
     states, poses = [], []
     ros_node.create_subscription(GripperState, "grasp_state", states.append, 100)
     ros_node.create_subscription(PoseWithCovarianceStamped, "tip_pose/left", poses.append, 100)
@@ -195,17 +196,12 @@ def test_the_installed_controller_grasps_over_dds_and_exits_cleanly_on_sigterm(t
         output = (tmp_path / "controller.log").read_text()
         assert controller.returncode == 0, output
         assert "Traceback" not in output
+        assert "never retrieved" not in output, output      # no callback publishing into a shut-down context
         time.sleep(0.3)
         assert valve_frames and valve_frames[-1].signals["Channel0"] == 3, "the last valve frame must vent"
     finally:
         for process in (controller, device):
-            if process.poll() is None:
-                process.send_signal(signal.SIGTERM)
-                try:
-                    process.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    process.kill()
-                    process.wait()
+            stop_process(process)
         notifier.stop()
         monitor.shutdown()
         log.close()

@@ -10,6 +10,7 @@ import threading
 import can
 import rclpy
 from rclpy.exceptions import ParameterException
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 
 P_ATM_PA = 101_325.0
@@ -19,6 +20,17 @@ def open_bus(interface: str, channel: str, bitrate: int) -> can.BusABC:
     """A python-can bus; the virtual and softgrip_ipc interfaces take no bitrate."""
     kwargs = {} if interface in ("virtual", "softgrip_ipc") else {"bitrate": bitrate}
     return can.Bus(interface=interface, channel=channel, **kwargs)
+
+
+def publish(node, publisher, message) -> None:
+    """``publisher.publish(message)``, quietly dropped once SIGINT/SIGTERM has shut ROS down: a
+    callback or CAN thread still running then would raise ("publisher's context is invalid"),
+    and no check beforehand can close that race."""
+    try:
+        publisher.publish(message)
+    except RCLError:
+        if node.context.ok():
+            raise
 
 
 def run_node(node_factory, args=None, executor_factory=None) -> int:

@@ -20,7 +20,7 @@ from std_msgs.msg import Header
 from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 from softgrip_ros.estimation.estimator import EstimatorConfig, Health, PressureEstimator, SensorConfig
 from softgrip_ros.model.pneumatics import Valve
-from softgrip_ros.nodes.common import P_ATM_PA, run_node
+from softgrip_ros.nodes.common import P_ATM_PA, publish, run_node
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
 _DEFAULTS = EstimatorConfig()
@@ -113,11 +113,11 @@ class EstimatorNode(Node):
             self._publish(self.estimator.estimate())
 
     def _publish(self, estimate) -> None:
-        if estimate is None or not self.context.ok():
+        if estimate is None:
             return
         self.last_publish_s = estimate.stamp_s
         stamp = Time(nanoseconds=int(estimate.stamp_s * 1e9)).to_msg()
-        self.estimate_pub.publish(FluidPressure(header=Header(stamp=stamp, frame_id="softgrip_chamber"),
+        publish(self, self.estimate_pub, FluidPressure(header=Header(stamp=stamp, frame_id="softgrip_chamber"),
                                                 fluid_pressure=estimate.gauge_pa + P_ATM_PA,
                                                 variance=estimate.variance_pa2))
 
@@ -126,7 +126,7 @@ class EstimatorNode(Node):
         status = DiagnosticStatus(name="softgrip: estimator", hardware_id="pressure", level=LEVELS[report.health],
                                   message=report.message,
                                   values=[KeyValue(key=k, value=str(v)) for k, v in report.values.items()])
-        self.diagnostics_pub.publish(DiagnosticArray(header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
+        publish(self, self.diagnostics_pub, DiagnosticArray(header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
 
 
 def main(args=None) -> int:

@@ -23,7 +23,7 @@ from softgrip_ros.control.grasp_fsm import (GraspConfig, GraspRequest, GraspStat
 from softgrip_ros.control.pressure import Source
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.grasp import ClampForceLaw
-from softgrip_ros.nodes.common import P_ATM_PA, run_node
+from softgrip_ros.nodes.common import P_ATM_PA, publish, run_node
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
 _G, _F = GraspConfig(), ClampForceLaw()
@@ -157,12 +157,10 @@ class GraspManagerNode(Node):
 
     # ---- outputs --------------------------------------------------------------------------------
     def _send(self, request, now: float) -> None:
-        if not self.context.ok():
-            return
         self.sent = (request, now)
         source = {Source.SUPPLY: PressureCommand.SUPPLY, Source.VACUUM: PressureCommand.VACUUM,
                   Source.VENT: PressureCommand.VENT, Source.HOLD: PressureCommand.HOLD}[request.source]
-        self.command_pub.publish(PressureCommand(header=self._header(), target_gauge_pressure_pa=request.target_gauge_pa,
+        publish(self, self.command_pub, PressureCommand(header=self._header(), target_gauge_pressure_pa=request.target_gauge_pa,
                                                  max_rate_pa_per_s=math.nan, source=source))
 
     def state_message(self) -> GripperState:
@@ -176,8 +174,7 @@ class GraspManagerNode(Node):
             pressure_in_validated_range=s.in_validated_range, message=s.message)
 
     def _publish_state(self) -> None:
-        if self.context.ok():
-            self.state_pub.publish(self.state_message())
+        publish(self, self.state_pub, self.state_message())
 
     def _header(self) -> Header:
         return Header(stamp=self.get_clock().now().to_msg(), frame_id="softgrip_base")
@@ -189,7 +186,7 @@ class GraspManagerNode(Node):
                                   values=[KeyValue(key="phase", value=s.phase.name),
                                           KeyValue(key="command_id", value=s.command_id),
                                           KeyValue(key="model_fidelity", value=s.model_fidelity)])
-        self.diagnostics_pub.publish(DiagnosticArray(header=self._header(), status=[status]))
+        publish(self, self.diagnostics_pub, DiagnosticArray(header=self._header(), status=[status]))
 
     # ---- the Grasp action -----------------------------------------------------------------------
     async def _execute(self, goal_handle):

@@ -23,7 +23,7 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from softgrip_ros.model.calibration import build_kinematics
-from softgrip_ros.nodes.common import P_ATM_PA, run_node
+from softgrip_ros.nodes.common import P_ATM_PA, publish, run_node
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
 SPECS = [
@@ -84,7 +84,7 @@ class KinematicsNode(Node):
             message.pose.pose.position.x, message.pose.pose.position.z = x, z
             message.pose.pose.orientation.y, message.pose.pose.orientation.w = math.sin(0.5 * angle), math.cos(0.5 * angle)
             message.pose.covariance = [a * b * msg.variance for a in jacobian for b in jacobian]
-            publisher.publish(message)
+            publish(self, publisher, message)
 
     def _publish_markers(self) -> None:
         if self.last is None or self.marker_pub.get_subscription_count() == 0:
@@ -100,7 +100,7 @@ class KinematicsNode(Node):
             marker.color = ColorRGBA(r=0.9, g=0.5, b=0.1, a=1.0)
             marker.points = [Point(x=sign * x, y=0.0, z=z) for x, z in backbone]
             markers.markers.append(marker)
-        self.marker_pub.publish(markers)
+        publish(self, self.marker_pub, markers)
 
     def _publish_diagnostics(self) -> None:
         status = DiagnosticStatus(name="softgrip: kinematics", hardware_id="model")
@@ -113,7 +113,7 @@ class KinematicsNode(Node):
             status.values = [KeyValue(key="model_fidelity", value=model.model),
                              KeyValue(key="pressure_in_validated_range", value=str(bool(pose.in_validated_range))),
                              KeyValue(key="tip_spacing_m", value=f"{pose.tip_spacing_m:.5f}")]
-        self.diagnostics_pub.publish(DiagnosticArray(header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
+        publish(self, self.diagnostics_pub, DiagnosticArray(header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
 
 
 def main(args=None) -> int:

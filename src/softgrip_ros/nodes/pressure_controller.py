@@ -21,7 +21,7 @@ from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 from softgrip_ros.canbus.codec import FrameCodec
 from softgrip_ros.canbus.controller_link import make_control_loop, ControllerLink, SensorBinding
 from softgrip_ros.control.pressure import PressureControlConfig, PressureController, Severity, severity
-from softgrip_ros.nodes.common import P_ATM_PA, open_bus, run_node
+from softgrip_ros.nodes.common import P_ATM_PA, open_bus, publish, run_node
 from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, check_all, declare
 
 _DEFAULTS = PressureControlConfig()
@@ -190,8 +190,8 @@ class PressureControllerNode(LifecycleNode):
 
     def _publish_sensor(self, name: str, gauge_pa: float, _stamp: float):
         publisher = self.sensor_pubs.get(name)
-        if publisher is not None and self.context.ok():      # not after SIGINT/SIGTERM shut ROS down
-            publisher.publish(FluidPressure(header=self._header(name), fluid_pressure=gauge_pa + P_ATM_PA,
+        if publisher is not None:
+            publish(self, publisher, FluidPressure(header=self._header(name), fluid_pressure=gauge_pa + P_ATM_PA,
                                             variance=self.noise_variance[name]))
 
     def _header(self, frame_id="softgrip_base"):
@@ -201,7 +201,7 @@ class PressureControllerNode(LifecycleNode):
         out, link = self.last_output, self.link
         if out is None or link is None:
             return
-        self.status_pub.publish(ControllerStatus(
+        publish(self, self.status_pub, ControllerStatus(
             header=self._header(), mode=int(out.mode), setpoint_gauge_pressure_pa=out.setpoint_gauge_pa,
             measured_gauge_pressure_pa=self.controller.measured(link.clock()),
             estimated_gauge_pressure_pa=self.controller.estimate_gauge_pa(link.clock()),
@@ -224,7 +224,7 @@ class PressureControllerNode(LifecycleNode):
                 ("mode", out.mode.name), ("fault_flags", int(faults)), ("frames_rx", link.frames_rx),
                 ("frames_tx", link.frames_tx), ("frames_bad", link.frames_bad),
                 ("rejected", dict(link.codec.rejected)), ("last_sensor_age_s", f"{link.last_sensor_age_s():.4f}"))]
-        self.diagnostics_pub.publish(DiagnosticArray(header=self._header(), status=[status]))
+        publish(self, self.diagnostics_pub, DiagnosticArray(header=self._header(), status=[status]))
 
 
 def main(args=None) -> int:
