@@ -18,11 +18,9 @@ import sys
 import time
 
 import numpy as np
-from scipy.stats import chi2
-
 from softgrip_ros.benchmarking import machine_line, median_seconds, update_section, verdict
 from softgrip_ros.estimation import simulation as sim
-from softgrip_ros.estimation.estimator import EstimatorConfig, PressureEstimator, process_noise_matrix
+from softgrip_ros.estimation.estimator import PressureEstimator
 from softgrip_ros.estimation.filters import FILTER_TYPES
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
@@ -45,41 +43,17 @@ def step_cost_us(filter_type: str, trajectory, repeat: int) -> float:
 
     def one_pass():
         estimator = PressureEstimator(config)
-        change = 0
+        feed = sim.InputFeed(trajectory.input_changes)
         for t, samples in pairs:
-            while change < len(trajectory.input_changes) and trajectory.input_changes[change][0] <= t:
-                start, inputs = trajectory.input_changes[change]
-                estimator.set_inputs(inputs.regulator_setpoint_gauge_pa, True, inputs.valves[0], start)
-                change += 1
+            feed.until(estimator, t)
             estimator.add_measurements(samples, t)
 
     return 1e6 * median_seconds(one_pass, 1, repeat) / len(pairs)
 
 
-def raw_rmse(trajectory) -> dict:
-    result = {}
-    for name in trajectory.sensor_std:
-        samples = np.array([(t, v) for t, n, v in trajectory.samples if n == name])
-        truth = np.interp(samples[:, 0], trajectory.truth_t, trajectory.truth[:, 0])
-        result[name] = float(np.sqrt(np.mean((samples[:, 1] - truth) ** 2)))
-    return result
-
-
-def anees(filter_type: str, runs: int) -> tuple[float, tuple]:
-    q = process_noise_matrix(EstimatorConfig().process_noise_pa2_per_s)
-    grid = np.linspace(0.25, 2.15, 120)
-    values = []
-    for seed in range(runs):
-        trajectory = sim.simulate(seed=1000 + seed, process_noise_pa2_per_s=q)
-        run = sim.run(trajectory, sim.config_for(trajectory, filter_type))
-        values.append(run.nees[np.minimum(np.searchsorted(run.t, grid), len(run.t) - 1)])
-    bounds = (chi2.ppf(0.025, 2 * runs) / runs, chi2.ppf(0.975, 2 * runs) / runs)
-    return float(np.mean(values)), bounds
-
-
 def measure(repeat: int, runs: int) -> tuple[dict, dict]:
     trajectory = sim.simulate(seed=7)
-    raw = raw_rmse(trajectory)
+    raw = {name: trajectory.raw_rmse(name) for name in trajectory.sensor_std}
     best_name = min(raw, key=raw.get)
     figures, details = {}, {"raw_rmse_pa": raw, "rmse_pa": {}, "anees": {}, "best_sensor_alone_rmse_pa": {}}
     for filter_type in FILTER_TYPES:
@@ -91,8 +65,8 @@ def measure(repeat: int, runs: int) -> tuple[dict, dict]:
         details["best_sensor_alone_rmse_pa"][filter_type] = alone.rmse()
         figures[f"rmse_ratio_{filter_type}"] = run.rmse() / raw[best_name]
         progress(f"[{filter_type}] NEES over {runs} Monte Carlo runs")
-        value, bounds = anees(filter_type, runs)
-        details["anees"][filter_type] = {"value": value, "bounds": bounds}
+        values, bounds = sim.anees(filter_type, runs)
+        details["anees"][filter_type] = {"value": float(values.mean()), "bounds": bounds}
     details["nees_bounds"] = bounds
     figures["rmse_ratio_vs_best_sensor"] = max(figures[f"rmse_ratio_{f}"] for f in FILTER_TYPES)
     figures["nees_in_bounds"] = all(b[0] <= d["value"] <= b[1] for d in details["anees"].values()

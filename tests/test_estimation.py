@@ -8,12 +8,10 @@ import math
 
 import numpy as np
 import pytest
-from scipy.stats import chi2
 
 from softgrip_ros.canbus.sim_device import DEFAULT_SENSORS
 from softgrip_ros.estimation import simulation as sim
-from softgrip_ros.estimation.estimator import (EstimatorConfig, Health, PressureEstimator, SensorConfig,
-                                               process_noise_matrix)
+from softgrip_ros.estimation.estimator import EstimatorConfig, Health, PressureEstimator, SensorConfig
 from softgrip_ros.estimation.filters import FILTER_TYPES, plant_step
 from softgrip_ros.model.pneumatics import PlantInputs, PneumaticPlant, Valve
 
@@ -25,13 +23,6 @@ def _mask(t, windows):
     return np.any([(t >= a) & (t < b) for a, b in windows], axis=0)
 
 
-def _raw_rmse(trajectory, name, windows):
-    samples = np.array([(t, v) for t, n, v in trajectory.samples if n == name])
-    keep = _mask(samples[:, 0], windows)
-    truth = np.interp(samples[keep, 0], trajectory.truth_t, trajectory.truth[:, 0])
-    return float(np.sqrt(np.mean((samples[keep, 1] - truth) ** 2)))
-
-
 @pytest.fixture(scope="module")
 def trajectory():
     return sim.simulate(seed=7)
@@ -41,7 +32,7 @@ def trajectory():
 @pytest.mark.parametrize("windows", [STEADY, STEPS], ids=["steady", "steps"])
 def test_fused_rmse_beats_the_best_sensor_by_root_n(trajectory, filter_type, windows):
     run = sim.run(trajectory, sim.config_for(trajectory, filter_type))
-    best = min(_raw_rmse(trajectory, name, windows) for name in trajectory.sensor_std)
+    best = min(trajectory.raw_rmse(name, windows) for name in trajectory.sensor_std)
     limit = 1.2 / math.sqrt(2) * best
     assert run.rmse(_mask(run.t, windows)) <= limit
 
@@ -61,19 +52,9 @@ def test_estimate_is_unbiased(filter_type):
 @pytest.mark.parametrize("filter_type", FILTER_TYPES)
 def test_nees_is_consistent_over_50_monte_carlo_runs(filter_type):
     """Truth with the filter's own process noise; the time-averaged ANEES (2 states) must lie in
-    the 95 % interval chi2(2M)/M. Taken after 0.25 s: before the first fill the regulator is
-    behind a closed valve, unobservable, and its prior (20 kPa) rightly exceeds its error."""
-    runs = 50
-    q = process_noise_matrix(EstimatorConfig().process_noise_pa2_per_s)
-    grid = np.linspace(0.25, 2.15, 120)
-    nees = []
-    for seed in range(runs):
-        trajectory = sim.simulate(seed=1000 + seed, process_noise_pa2_per_s=q)
-        run = sim.run(trajectory, sim.config_for(trajectory, filter_type))
-        nees.append(run.nees[np.minimum(np.searchsorted(run.t, grid), len(run.t) - 1)])
-    anees = np.mean(nees, axis=0)
-    low, high = chi2.ppf(0.025, 2 * runs) / runs, chi2.ppf(0.975, 2 * runs) / runs
-    assert low <= anees.mean() <= high
+    the 95 % interval chi2(2M)/M (see simulation.anees for why it starts at 0.25 s)."""
+    values, (low, high) = sim.anees(filter_type, runs=50)
+    assert low <= values.mean() <= high
 
 
 @pytest.mark.parametrize("filter_type", FILTER_TYPES)
@@ -161,17 +142,12 @@ def test_covariance_stays_symmetric_positive_definite_when_ill_conditioned(filte
                dataclasses.replace(DEFAULT_SENSORS[1], noise_std_pa=100.0, quantisation_pa=0.0))
     trajectory = sim.simulate(duration_s=0.8, seed=4, sensors=sensors)
     config = dataclasses.replace(sim.config_for(trajectory, filter_type), initial_regulator_std_pa=1e5)
-    estimator = PressureEstimator(config)
-    change = 0
-    for t, name, value in trajectory.samples:
-        while change < len(trajectory.input_changes) and trajectory.input_changes[change][0] <= t:
-            start, inputs = trajectory.input_changes[change]
-            estimator.set_inputs(inputs.regulator_setpoint_gauge_pa, True, inputs.valves[0], start)
-            change += 1
-        estimator.add_measurement(name, value, t)
+    def check(estimator):
         P = estimator.filter.P
         assert np.array_equal(P, P.T)
         assert np.min(np.linalg.eigvalsh(P)) > 0.0
+
+    estimator = sim.run(trajectory, config, after_each=check).estimator
     assert estimator.stats["chamber_a"].accepted > 300
 
 

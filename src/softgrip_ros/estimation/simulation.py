@@ -10,8 +10,10 @@ import math
 
 import numpy as np
 
+from scipy.stats import chi2
+
 from softgrip_ros.canbus.sim_device import DEFAULT_SENSORS
-from softgrip_ros.estimation.estimator import EstimatorConfig, PressureEstimator, SensorConfig
+from softgrip_ros.estimation.estimator import EstimatorConfig, PressureEstimator, SensorConfig, process_noise_matrix
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 
 
@@ -36,6 +38,14 @@ class Trajectory:
     samples: list
     input_changes: list
     sensor_std: dict
+
+    def raw_rmse(self, name: str, windows=None) -> float:
+        """RMSE of one sensor's raw samples against the truth (inside ``windows``, [(t0, t1)], if given)."""
+        samples = np.array([(t, v) for t, n, v in self.samples if n == name])
+        keep = np.ones(len(samples), bool) if windows is None else \
+            np.any([(samples[:, 0] >= a) & (samples[:, 0] < b) for a, b in windows], axis=0)
+        truth = np.interp(samples[keep, 0], self.truth_t, self.truth[:, 0])
+        return float(np.sqrt(np.mean((samples[keep, 1] - truth) ** 2)))
 
     def truth_at(self, t: float) -> np.ndarray:
         """The truth at t, linear between the plant's steps (as the sensors sample it)."""
@@ -122,21 +132,33 @@ class Run:
         return float(np.sqrt(np.mean(error[mask] ** 2 if mask is not None else error ** 2)))
 
 
+class InputFeed:
+    """Hands a trajectory's input changes to an estimator as its samples' time passes."""
+
+    def __init__(self, input_changes):
+        self.changes, self.next = list(input_changes), 0
+
+    def until(self, estimator: PressureEstimator, t: float) -> None:
+        while self.next < len(self.changes) and self.changes[self.next][0] <= t:
+            start, inputs = self.changes[self.next]
+            estimator.set_inputs(inputs.regulator_setpoint_gauge_pa, inputs.regulator_enabled, inputs.valves[0], start)
+            self.next += 1
+
+
 def run(trajectory: Trajectory, config: EstimatorConfig, plant: PneumaticPlant | None = None,
-        sensors: tuple | None = None) -> Run:
-    """Feed ``trajectory`` (only ``sensors`` if given) and its inputs to a new estimator."""
+        sensors: tuple | None = None, after_each=None) -> Run:
+    """Feed ``trajectory`` (only ``sensors`` if given) and its inputs to a new estimator;
+    ``after_each(estimator)`` runs after every sample."""
     estimator = PressureEstimator(config, plant)
-    changes = list(trajectory.input_changes)
+    feed = InputFeed(trajectory.input_changes)
     t_out, names, est, var, tru, nees = [], [], [], [], [], []
-    change = 0
     for t, name, value in trajectory.samples:
         if sensors is not None and name not in sensors:
             continue
-        while change < len(changes) and changes[change][0] <= t:
-            start, inputs = changes[change]
-            estimator.set_inputs(inputs.regulator_setpoint_gauge_pa, inputs.regulator_enabled, inputs.valves[0], start)
-            change += 1
+        feed.until(estimator, t)
         estimator.add_measurement(name, value, t)
+        if after_each is not None:
+            after_each(estimator)
         truth = trajectory.truth_at(t)
         x, P = estimator.filter.x[:, 0], estimator.filter.P
         error = truth - x
@@ -147,3 +169,18 @@ def run(trajectory: Trajectory, config: EstimatorConfig, plant: PneumaticPlant |
         tru.append(truth[0])
         nees.append(float(error @ np.linalg.solve(P, error)))
     return Run(np.array(t_out), np.array(names), np.array(est), np.array(var), np.array(tru), np.array(nees), estimator)
+
+
+def anees(filter_type: str, runs: int = 50, grid=np.linspace(0.25, 2.15, 120)) -> tuple[np.ndarray, tuple]:
+    """Average NEES over ``runs`` Monte Carlo runs at the times ``grid`` (truth with the filter's
+    own process noise), and the two-sided 95 % interval chi2(2 runs)/runs for 2 states.
+
+    The grid starts at 0.25 s: before the first fill the regulator is behind a closed valve,
+    unobservable, and its prior (20 kPa) rightly exceeds its error."""
+    q = process_noise_matrix(EstimatorConfig().process_noise_pa2_per_s)
+    values = []
+    for seed in range(runs):
+        trajectory = simulate(seed=1000 + seed, process_noise_pa2_per_s=q)
+        result = run(trajectory, config_for(trajectory, filter_type))
+        values.append(result.nees[np.minimum(np.searchsorted(result.t, grid), len(result.t) - 1)])
+    return np.mean(values, axis=0), (chi2.ppf(0.025, 2 * runs) / runs, chi2.ppf(0.975, 2 * runs) / runs)
