@@ -51,3 +51,19 @@ def update_section(name: str, markdown: str, path: pathlib.Path = BENCHMARKS_MD)
 def verdict(value: float, target: float, smaller_is_better: bool = True) -> str:
     ok = value <= target if smaller_is_better else value >= target
     return "meets" if ok else "**misses**"
+
+
+def figure_rows(figures: dict, targets: dict) -> list:
+    """A markdown table of ``figures`` against ``targets`` {key: (target, smaller_is_better)};
+    booleans are judged against True, keys without a target are reported."""
+    rows = ["| key | median | target | |", "|---|---|---|---|"]
+    for key, value in figures.items():
+        if isinstance(value, bool):
+            rows.append(f"| `{key}` | {str(value).lower()} | true | {'meets' if value else '**misses**'} |")
+        elif key in targets:
+            target, smaller_is_better = targets[key]
+            rows.append(f"| `{key}` | {value:.4g} | {'<=' if smaller_is_better else '>='} {target:g} | "
+                        f"{verdict(value, target, smaller_is_better)} |")
+        else:
+            rows.append(f"| `{key}` | {value:.4g} | reported | |")
+    return rows
