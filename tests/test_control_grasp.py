@@ -152,3 +152,19 @@ def test_bad_configuration_is_refused():
         GraspConfig(settle_s=0.0)
     with pytest.raises(ValueError, match="safety_factor"):
         ClampForceLaw(safety_factor=0.5)
+
+
+def test_controller_feedback_prefers_a_fresh_estimate_and_reports_silence():
+    from softgrip_ros.control.grasp_fsm import ControllerFeedback
+    from softgrip_ros.control.pressure import Fault
+    feedback = ControllerFeedback(estimate_timeout_s=0.1, status_timeout_s=1.0)
+    assert math.isnan(feedback.pressure(0.0)[0])
+    assert feedback.fault(0.0, idle=True) == "" and "no controller/status yet" in feedback.fault(0.0, idle=False)
+    feedback.on_status(int(Fault.SETPOINT_CLAMPED), 9e3, 0.0)
+    feedback.on_estimate(10e3, 80.0, 0.0)
+    assert feedback.pressure(0.05) == (10e3, 80.0)                   # the estimate while fresh
+    assert feedback.pressure(0.2)[0] == 9e3 and math.isnan(feedback.pressure(0.2)[1])   # then the measurement
+    assert feedback.fault(0.5, idle=False) == ""                     # a clamped setpoint does not stop a grasp
+    feedback.on_status(int(Fault.SENSOR_TIMEOUT | Fault.REGULATOR), math.nan, 0.5)
+    assert feedback.fault(0.6, idle=False) == "sensor timeout, regulator"
+    assert "no controller/status for 1.6 s" in feedback.fault(2.1, idle=False)

@@ -135,6 +135,38 @@ class GraspState:
     message: str = "idle"
 
 
+class ControllerFeedback:
+    """What the grasp sees of the pressure controller: the pressure (the estimate while fresher
+    than ``estimate_timeout_s``, else the controller's own measurement) and the fault that stops
+    a grasp (the controller's halting faults, or its silence for ``status_timeout_s``)."""
+
+    def __init__(self, estimate_timeout_s: float, status_timeout_s: float):
+        self.estimate_timeout_s, self.status_timeout_s = estimate_timeout_s, status_timeout_s
+        self._estimate = (math.nan, math.nan, -math.inf)        # gauge, std, arrival
+        self._status = None                                       # (fault flags, measured gauge, arrival)
+
+    def on_estimate(self, gauge_pa: float, std_pa: float, now: float) -> None:
+        self._estimate = (gauge_pa, std_pa, now)
+
+    def on_status(self, fault_flags: int, measured_gauge_pa: float, now: float) -> None:
+        self._status = (fault_flags, measured_gauge_pa, now)
+
+    def pressure(self, now: float) -> tuple[float, float]:
+        """(gauge Pa, std Pa; NaN when unknown)."""
+        gauge, std, stamp = self._estimate
+        if now - stamp <= self.estimate_timeout_s:
+            return gauge, std
+        return (self._status[1] if self._status is not None else math.nan), math.nan
+
+    def fault(self, now: float, idle: bool) -> str:
+        if self._status is None:
+            return "" if idle else "no controller/status yet"
+        flags, _, stamp = self._status
+        if now - stamp > self.status_timeout_s:
+            return f"no controller/status for {now - stamp:.1f} s"
+        return fault_text(flags)
+
+
 TERMINAL = {Mode.ENVELOP_CLAMP: (Phase.HOLDING,), Mode.PINCH: (Phase.HOLDING,), Mode.OPEN: (Phase.ENVELOPED,),
             Mode.RELEASE: (Phase.IDLE,), Mode.STOP: (Phase.IDLE,), Mode.CLAMP: (Phase.HOLDING,)}
 

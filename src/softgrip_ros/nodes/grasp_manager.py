@@ -19,7 +19,8 @@ from std_msgs.msg import Header
 
 from softgrip_interfaces.action import Grasp
 from softgrip_interfaces.msg import ControllerStatus, GraspCommand, GripperState, PressureCommand
-from softgrip_ros.control.grasp_fsm import (GraspConfig, GraspRequest, GraspStateMachine, Mode, Phase, fault_text)
+from softgrip_ros.control.grasp_fsm import (ControllerFeedback, GraspConfig, GraspRequest, GraspStateMachine, Mode,
+                                            Phase)
 from softgrip_ros.control.pressure import Source
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.grasp import ClampForceLaw
@@ -78,9 +79,7 @@ class GraspManagerNode(Node):
         force_law = ClampForceLaw(v["clamp_stiffness_n_per_pa"], v["friction_coefficient"], v["safety_factor"])
         kinematics = build_kinematics(v["fidelity"], v["cavity_type"], max_pressure_pa=v["max_gauge_pressure_pa"])
         self.fsm = GraspStateMachine(kinematics, config, force_law)
-        self.estimate = (math.nan, math.nan, -math.inf)     # gauge, std, arrival time
-        self.status: ControllerStatus | None = None
-        self.status_time = -math.inf
+        self.feedback = ControllerFeedback(v["estimate_timeout"], v["status_timeout"])
         self.sent = (None, -math.inf)
         self.published_changes = -1
         self.waiters: list[Future] = []
@@ -107,11 +106,7 @@ class GraspManagerNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _controller_fault(self, now: float) -> str:
-        if self.status is None:
-            return "" if self.fsm.state.phase == Phase.IDLE else "no controller/status yet"
-        if now - self.status_time > self.values["status_timeout"]:
-            return f"no controller/status for {now - self.status_time:.1f} s"
-        return fault_text(self.status.fault_flags)
+        return self.feedback.fault(now, idle=self.fsm.state.phase == Phase.IDLE)
 
     def submit(self, request: GraspRequest) -> str:
         """Apply a command from the topic or the action; '' or the rejection reason."""
@@ -126,21 +121,18 @@ class GraspManagerNode(Node):
         self.submit(_request_from(msg))
 
     def _on_estimate(self, msg: FluidPressure) -> None:
-        self.estimate = (msg.fluid_pressure - P_ATM_PA, math.sqrt(max(msg.variance, 0.0)), self._now())
+        self.feedback.on_estimate(msg.fluid_pressure - P_ATM_PA, math.sqrt(max(msg.variance, 0.0)), self._now())
         self._tick()
 
     def _on_status(self, msg: ControllerStatus) -> None:
-        self.status, self.status_time = msg, self._now()
+        self.feedback.on_status(msg.fault_flags, msg.measured_gauge_pressure_pa, self._now())
 
     def _on_timer(self) -> None:
         self._tick(force_state=True)
 
     def _tick(self, force_state: bool = False) -> None:
         now = self._now()
-        gauge, std, stamp = self.estimate
-        if now - stamp > self.values["estimate_timeout"]:
-            gauge = self.status.measured_gauge_pressure_pa if self.status is not None else math.nan
-            std = math.nan
+        gauge, std = self.feedback.pressure(now)
         self.fsm.update(now, gauge, std, self._controller_fault(now))
         self._after_change(now, force_state)
 
