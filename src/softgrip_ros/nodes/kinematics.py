@@ -8,8 +8,7 @@ J var J' with J = d(x, z, tip angle)/dp. finger_markers (MarkerArray line strips
 backbones) only while someone subscribes. /diagnostics: the model in use and whether the
 pressure lies in its validated range.
 
-``fidelity``: l0, l1, or auto (provisional: l0 inside the validated range, l1 outside it or in
-contact; the error-bound table that auto will read is future work).
+``fidelity``: l0, l1, or auto (softgrip_ros.model.calibration.FidelityChoice).
 """
 from __future__ import annotations
 
@@ -22,14 +21,14 @@ from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from softgrip_ros.model.calibration import build_kinematics
+from softgrip_ros.model.calibration import FidelityChoice
 from softgrip_ros.nodes.common import P_ATM_PA, publish, run_node
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
 SPECS = [
     ParamSpec("publish_rate_hz", 200.0, "largest tip_pose rate (one per estimate up to this)", "Hz", 1.0, 2000.0),
     ParamSpec("marker_rate_hz", 10.0, "finger_markers rate while subscribed", "Hz", 0.5, 60.0),
-    ParamSpec("fidelity", "l0", "bending law: l0, l1, or auto (l0 in the validated range, else l1)", choices=("l0", "l1", "auto")),
+    ParamSpec("fidelity", "l0", "bending law: l0, l1, or auto (l0 in the validated range, else l1)", choices=FidelityChoice.CHOICES),
     ParamSpec("cavity_type", "type_II", "finger type of config/gripper_geometry.yaml", choices=("type_I", "type_II", "type_III")),
     ParamSpec("frame_id", "softgrip_base", "frame of the tip poses and markers"),
 ]
@@ -42,8 +41,7 @@ class KinematicsNode(Node):
         self.values = declare(self, SPECS)
         self.add_on_set_parameters_callback(
             lambda params: check_all(specs, params, lambda _: "kinematics parameters apply at start-up: restart the node"))
-        self.models = {name: build_kinematics(name, self.values["cavity_type"]) for name in ("l0", "l1")
-                       if self.values["fidelity"] in (name, "auto")}
+        self.fidelity = FidelityChoice(self.values["fidelity"], self.values["cavity_type"])
         self.period_s = 1.0 / self.values["publish_rate_hz"]
         self.last_publish_s = -math.inf
         self.last = None                     # (pressure, variance, model name, pose)
@@ -58,19 +56,11 @@ class KinematicsNode(Node):
     def close(self) -> None:
         """Nothing to vent: the kinematics only listens."""
 
-    def model_for(self, pressure_pa: float):
-        """The model the fidelity setting picks at this pressure."""
-        if self.values["fidelity"] != "auto":
-            return self.models[self.values["fidelity"]]
-        l0 = self.models["l0"]
-        inside = l0.contact_pressure_pa < pressure_pa <= l0.calibration.validated_max_pressure_pa
-        return l0 if inside else self.models["l1"]
-
     def _on_estimate(self, msg: FluidPressure) -> None:
         stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
         if stamp_s - self.last_publish_s < 0.9 * self.period_s or not math.isfinite(msg.fluid_pressure):
             return
-        model = self.model_for(msg.fluid_pressure - P_ATM_PA)
+        model = self.fidelity.model_for(msg.fluid_pressure - P_ATM_PA)
         pressure = min(max(msg.fluid_pressure - P_ATM_PA, model.MODEL_MIN_PRESSURE_PA), model.max_pressure_pa)
         pose = model.pose(pressure)
         slope = model.tip_slope([pressure])[0]          # d(x, z, angle)/dp of the left tip
