@@ -137,7 +137,6 @@ class Estimate:
     stamp_s: float
     gauge_pa: float
     variance_pa2: float
-    regulator_gauge_pa: float
 
     @property
     def std_pa(self) -> float:
@@ -299,7 +298,7 @@ class PressureEstimator:
 
     @staticmethod
     def _estimate_from(x, P, stamp) -> Estimate:
-        return Estimate(stamp, float(x[CHAMBER, 0]), float(P[CHAMBER, CHAMBER]), float(x[1, 0]))
+        return Estimate(stamp, float(x[CHAMBER, 0]), float(P[CHAMBER, CHAMBER]))
 
     def nis_verdict(self, name: str) -> str:
         """'' while the sensor's windowed NIS is consistent (or too few samples), else why not."""

@@ -84,8 +84,6 @@ def _symmetric(P: np.ndarray) -> np.ndarray:
 class PressureFilter:
     """The interface every filter type offers to :class:`~softgrip_ros.estimation.estimator.PressureEstimator`."""
 
-    name = ""
-
     def __init__(self, plant: PneumaticPlant, x0: np.ndarray, P0: np.ndarray, q_continuous: np.ndarray):
         self.plant = plant
         self.q_continuous = np.asarray(q_continuous, dtype=float)
@@ -116,8 +114,6 @@ class PressureFilter:
 
 class LinearFilter(PressureFilter):
     """``kf``: filterpy ``KalmanFilter`` on the linear lag model (see the module docstring)."""
-
-    name = "kf"
 
     def _setup(self, x0, P0):
         self.f = KalmanFilter(dim_x=2, dim_z=1)
@@ -183,8 +179,6 @@ class _PlantEKFCore(ExtendedKalmanFilter):
 class PlantEKF(PressureFilter):
     """``ekf``: backward-Euler plant with its exact Jacobian."""
 
-    name = "ekf"
-
     def _setup(self, x0, P0):
         self.f = _PlantEKFCore(dim_x=2, dim_z=1)
         self.reset(x0, P0)
@@ -210,8 +204,6 @@ class PlantEKF(PressureFilter):
 class PlantUKF(PressureFilter):
     """``ukf``: the plant on Merwe scaled sigma points (alpha 1, beta 2, kappa 1: all weights
     positive for n = 2, so the predicted covariance cannot lose definiteness)."""
-
-    name = "ukf"
 
     def _setup(self, x0, P0):
         points = MerweScaledSigmaPoints(2, alpha=1.0, beta=2.0, kappa=1.0, sqrt_method=_upper_cholesky_2x2)
