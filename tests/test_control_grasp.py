@@ -168,3 +168,17 @@ def test_controller_feedback_prefers_a_fresh_estimate_and_reports_silence():
     feedback.on_status(int(Fault.SENSOR_TIMEOUT | Fault.REGULATOR), math.nan, 0.5)
     assert feedback.fault(0.6, idle=False) == "sensor timeout, regulator"
     assert "no controller/status for 1.6 s" in feedback.fault(2.1, idle=False)
+
+
+def test_a_rejected_command_leaves_a_running_grasp_untouched(kinematics):
+    loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
+    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
+    before = (loop.fsm.request, loop.fsm.state.phase, loop.fsm._contact_pa, loop.fsm._clamp_pa, loop.fsm._open_pa)
+    force = loop.fsm.state.clamp_force_n
+    assert "too heavy" in loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.01, object_mass_kg=5.0))
+    assert "does not squeeze" in loop.command(GraspRequest(Mode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1,
+                                                          clamp_pressure_pa=0.0))
+    assert (loop.fsm.request, loop.fsm.state.phase, loop.fsm._contact_pa, loop.fsm._clamp_pa, loop.fsm._open_pa) == before
+    loop.run_for(0.1)
+    assert loop.fsm.state.clamp_force_n == pytest.approx(force, rel=0.1)

@@ -195,7 +195,8 @@ class GraspStateMachine:
     # ---- commands -----------------------------------------------------------------------------
     def command(self, request: GraspRequest, now: float, controller_fault: str = "") -> str:
         """Accept ``request`` ('' returned) or reject it (the reason returned); nothing moves on a rejection."""
-        reason = self._rejection(request, controller_fault)
+        plan = {}
+        reason = self._rejection(request, controller_fault, plan)
         if reason:
             self.state.command_rejected, self.state.message = True, f"rejected: {reason}"
             self.state.command_id = request.command_id
@@ -205,8 +206,10 @@ class GraspStateMachine:
         self.state.command_id, self.state.mode = request.command_id, request.mode
         self.accepted += 1
         mode = Mode(request.mode)
-        if mode == Mode.OPEN and math.isnan(request.target_tip_spacing_m):
-            request = dataclasses.replace(request, target_tip_spacing_m=self.kinematics.tip_spacing_range_m()[1])
+        if "target_tip_spacing_m" in plan:
+            request = dataclasses.replace(request, target_tip_spacing_m=plan.pop("target_tip_spacing_m"))
+        for name, value in plan.items():        # the pressures worked out while checking
+            setattr(self, name, value)
         if mode == Mode.STOP:
             self._enter(Phase.IDLE, PressureRequest(0.0, Source.VENT), now, "stopped: venting")
         elif mode == Mode.CLAMP:
@@ -222,7 +225,9 @@ class GraspStateMachine:
                 self._enter(Phase.OPENING, self._pressure(self._open_pa), now, "opening")
         return ""
 
-    def _rejection(self, r: GraspRequest, controller_fault: str) -> str:
+    def _rejection(self, r: GraspRequest, controller_fault: str, plan: dict) -> str:
+        """'' or why ``r`` is refused; the pressures an accepted ``r`` needs go into ``plan``
+        (applied only on acceptance: a rejected command changes nothing)."""
         c = self.config
         try:
             mode = Mode(r.mode)
@@ -249,7 +254,7 @@ class GraspStateMachine:
                 return f"OPEN needs a finite, non-negative target_tip_spacing_m (NaN: fully open), got {spacing}"
             if spacing > high:
                 return f"target_tip_spacing_m {spacing * 1e3:.1f} mm is wider than the gripper opens ({high * 1e3:.1f} mm)"
-            self._open_pa = self._open_pressure(spacing, r.open_pressure_pa)
+            plan.update(_open_pa=self._open_pressure(spacing, r.open_pressure_pa), target_tip_spacing_m=spacing)
             return ""
         if not math.isfinite(r.object_diameter_m) or r.object_diameter_m < 0.0:
             return f"object_diameter_m must be finite and >= 0, got {r.object_diameter_m}"
@@ -265,20 +270,20 @@ class GraspStateMachine:
         if needed > high:
             return (f"the object ({r.object_diameter_m * 1e3:.1f} mm plus {c.envelop_margin_m * 1e3:.0f} mm margin) is wider "
                     f"than the gripper opens ({high * 1e3:.1f} mm)")
-        self._contact_pa = self._contact_pressure(r.object_diameter_m)
+        contact = self._contact_pressure(r.object_diameter_m)
         clamp = (r.clamp_pressure_pa if not math.isnan(r.clamp_pressure_pa) else
-                 self.force_law.clamp_pressure_pa(r.object_mass_kg, self._contact_pa, None if math.isnan(mu) else mu))
+                 self.force_law.clamp_pressure_pa(r.object_mass_kg, contact, None if math.isnan(mu) else mu))
         if clamp < c.min_gauge_pa:
             return (f"holding {r.object_mass_kg:.3g} kg needs {clamp / 1e3:.1f} kPa, below the limit "
                     f"{c.min_gauge_pa / 1e3:.0f} kPa: too heavy for this gripper")
-        if clamp >= self._contact_pa:
-            return f"clamp_pressure_pa {clamp:.0f} Pa does not squeeze: contact is at {self._contact_pa:.0f} Pa"
-        self._clamp_pa = clamp
+        if clamp >= contact:
+            return f"clamp_pressure_pa {clamp:.0f} Pa does not squeeze: contact is at {contact:.0f} Pa"
+        plan.update(_contact_pa=contact, _clamp_pa=clamp)
         if mode == Mode.ENVELOP_CLAMP:
             if not math.isnan(r.open_pressure_pa) and self.kinematics.pose(r.open_pressure_pa).tip_spacing_m < needed:
                 return (f"open_pressure_pa {r.open_pressure_pa:.0f} Pa opens the tips to "
                         f"{self.kinematics.pose(r.open_pressure_pa).tip_spacing_m * 1e3:.1f} mm, short of the object plus margin")
-            self._open_pa = self._open_pressure(needed, r.open_pressure_pa)
+            plan["_open_pa"] = self._open_pressure(needed, r.open_pressure_pa)
         return ""
 
     def _open_pressure(self, tip_spacing_m: float, override_pa: float) -> float:
