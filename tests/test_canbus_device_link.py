@@ -158,3 +158,46 @@ def test_fault_injection_rejects_bad_values():
             device.set_fault("corrupt_rate", 2.0)
     finally:
         device.bus.shutdown()
+
+
+def test_command_frames_go_out_on_change_and_else_once_per_frame_period():
+    """RegulatorSetpoint and ValveCommand: a change in the period it happens, otherwise every
+    command_frame_period_s (cyclic for the device's watchdog), never every 2 ms unchanged."""
+    from softgrip_ros.canbus.codec import FrameCodec
+    channel = f"softgrip-test-{uuid.uuid4().hex[:8]}"
+    controller_bus, monitor = can.Bus(interface="virtual", channel=channel), can.Bus(interface="virtual", channel=channel)
+    now = [100.0]
+    link = ControllerLink(controller_bus, PressureController(PressureControlConfig()), SENSORS,
+                          clock=lambda: now[0], command_frame_period_s=0.01)
+    link.controller.active = True
+    codec = FrameCodec(max_counter_delta=15)
+
+    def frames_over(steps):
+        sent = []
+        for _ in range(steps):
+            link.controller.update_sensor("chamber_a", 0.0, now[0])    # a live sensor, so that commands act
+            link.step()
+            now[0] += 0.002
+        while (frame := monitor.recv(timeout=0.05)) is not None:
+            decoded = codec.decode(frame)
+            if decoded and decoded.name in ("RegulatorSetpoint", "ValveCommand"):
+                sent.append(decoded)
+        return sent
+
+    try:
+        steady = frames_over(51)               # t = 0 ... 0.1 s unchanged: at 0, then every 10 ms (11 times)
+        assert sum(f.name == "ValveCommand" for f in steady) == 11
+        assert sum(f.name == "RegulatorSetpoint" for f in steady) == 11
+        link.command(20e3, Source.SUPPLY, math.nan)
+        changed = frames_over(1)
+        # both changed (regulator to supply, valve to supply): sent at once, not at the next 10 ms
+        assert sorted(f.name for f in changed) == ["RegulatorSetpoint", "ValveCommand"]
+        for frame in changed:
+            assert frame.signals != [f for f in steady if f.name == frame.name][-1].signals
+        assert [f for f in changed if f.name == "ValveCommand"][0].signals["Channel0"] == int(Valve.SUPPLY)
+        with pytest.raises(ValueError, match="command_frame_period_s"):
+            ControllerLink(monitor, PressureController(PressureControlConfig()), SENSORS, command_frame_period_s=0.5)
+    finally:
+        link.close()
+        controller_bus.shutdown()
+        monitor.shutdown()

@@ -165,7 +165,9 @@ def test_tip_slope_matches_finite_differences(kin):
                    (plus.left_tip_z_m - minus.left_tip_z_m) / (2 * h),
                    (plus.left_tip_angle_rad - minus.left_tip_angle_rad) / (2 * h)]
         assert row == pytest.approx(numeric, rel=1e-5, abs=1e-14)
+        assert kin.tip_slope_at(float(p)) == pytest.approx(row, rel=1e-12, abs=1e-18)   # the scalar path agrees
     assert np.all(kin.tip_slope(np.array([kin.contact_pressure_pa - 1e3])) == 0.0)
+    assert kin.tip_slope_at(kin.contact_pressure_pa - 1e3) == (0.0, 0.0, 0.0)
 
 
 def test_negative_pressure_closes_down_to_tip_contact():

@@ -115,6 +115,26 @@ def test_bad_parameters_are_refused_with_a_reason(nodes):
     assert controller.controller.config.max_gauge_pa == 40e3
 
 
+def test_estimate_is_subscribed_only_while_use_estimate(nodes):
+    """pressure/estimate is the busiest topic: the controller listens to it only when it regulates on it."""
+    from rclpy.parameter import Parameter
+
+    controller, _, _ = nodes
+
+    def listening():
+        return [s.topic_name for s in controller.subscriptions].count("/pressure/estimate")
+
+    assert listening() == 0
+    assert controller.set_parameters([Parameter("use_estimate", value=True)])[0].successful
+    assert listening() == 1
+    assert controller.set_parameters([Parameter("use_estimate", value=True)])[0].successful
+    assert listening() == 1
+    assert controller.set_parameters([Parameter("use_estimate", value=False)])[0].successful
+    assert listening() == 0
+    result = controller.set_parameters([Parameter("command_frame_period", value=0.05)])[0]
+    assert not result.successful and "deactivate" in result.reason
+
+
 def test_lifecycle_deactivate_vents_and_activate_resumes(nodes):
     from softgrip_ros.model.pneumatics import Valve
 

@@ -3,7 +3,9 @@
 Reception runs on a python-can Notifier thread: sensor and regulator frames are decoded
 (invalid ones are counted and dropped by the codec) and fed to the control core. The
 owner calls :meth:`ControllerLink.step` once per control period; it runs the core and
-sends RegulatorSetpoint, ValveCommand and, at 10 Hz, ControllerHeartbeat.
+sends RegulatorSetpoint and ValveCommand in that period when their content changed, and else
+every ``command_frame_period_s`` (they are cyclic frames: the device's watchdog expects them),
+and ControllerHeartbeat at 10 Hz. Unchanged frames every 2 ms would only load the bus and the CPU.
 """
 from __future__ import annotations
 
@@ -37,7 +39,7 @@ class ControllerLink:
 
     def __init__(self, bus: can.BusABC, controller: PressureController, sensors: list,
                  codec: FrameCodec | None = None, bus_silent_timeout_s: float = 0.25, on_sensor=None,
-                 clock=time.monotonic):
+                 clock=time.monotonic, command_frame_period_s: float = 0.01):
         self.bus = bus
         self.controller = controller
         self.codec = codec or FrameCodec()
@@ -56,6 +58,10 @@ class ControllerLink:
         self.regulator_actual_gauge_pa = math.nan
         self.last_frame_time = -math.inf
         self._last_heartbeat = -math.inf
+        if not 0.0 <= command_frame_period_s <= 0.1:
+            raise ValueError(f"command_frame_period_s must lie in [0, 0.1] s, got {command_frame_period_s}")
+        self.command_frame_period_s = command_frame_period_s
+        self._last_command_frames = {}      # message -> (signals, time sent)
         self._notifier = can.Notifier(bus, [self._on_frame], timeout=0.05)
 
     @property
@@ -106,7 +112,7 @@ class ControllerLink:
             output = self.controller.step(now)
         if now - self.last_frame_time > self.bus_silent_timeout_s:
             output = dataclasses.replace(output, fault_flags=output.fault_flags | Fault.BUS_SILENT)
-        self._send_output(output)
+        self._send_output(output, now)
         if now - self._last_heartbeat >= HEARTBEAT_PERIOD_S:
             self._last_heartbeat = now
             self._send("ControllerHeartbeat", {"ControllerState": CONTROLLER_STATE.get(output.mode, 1)})
@@ -120,13 +126,17 @@ class ControllerLink:
             self._send("RegulatorSetpoint", {"SetpointGaugePressure": 0.0, "Enable": 0, "Source": int(Source.VENT)})
             self._send("ValveCommand", {f"Channel{i}": int(Valve.VENT) for i in range(4)})
 
-    def _send_output(self, output: ControlOutput) -> None:
+    def _send_output(self, output: ControlOutput, now: float) -> None:
         low, high = self.codec.signal_range("RegulatorSetpoint", "SetpointGaugePressure")
-        self._send("RegulatorSetpoint", {
-            "SetpointGaugePressure": min(max(output.regulator_setpoint_gauge_pa, low), high),
-            "Enable": int(output.regulator_enabled), "Source": int(output.regulator_source)})
         valves = list(output.valves) + [Valve.CLOSED] * (4 - len(output.valves))
-        self._send("ValveCommand", {f"Channel{i}": int(v) for i, v in enumerate(valves)})
+        for message, signals in (
+                ("RegulatorSetpoint", {"SetpointGaugePressure": min(max(output.regulator_setpoint_gauge_pa, low), high),
+                                       "Enable": int(output.regulator_enabled), "Source": int(output.regulator_source)}),
+                ("ValveCommand", {f"Channel{i}": int(v) for i, v in enumerate(valves)})):
+            last = self._last_command_frames.get(message)
+            if last is None or last[0] != signals or now - last[1] >= self.command_frame_period_s - 1e-9:
+                self._last_command_frames[message] = (signals, now)
+                self._send(message, signals)
 
     def _send(self, message: str, signals: dict) -> None:
         try:

@@ -46,6 +46,13 @@ def _sinc_slope_array(x):
     return np.where(small, series, (safe * np.cos(safe) - np.sin(safe)) / (safe * safe))
 
 
+def _sinc_slope_scalar(x: float) -> float:
+    if abs(x) < 1e-3:
+        x2 = x * x
+        return x * (-1.0 / 3.0 + x2 / 30.0 - x2 * x2 / 840.0)
+    return (x * math.cos(x) - math.sin(x)) / (x * x)
+
+
 def _ratio_scalar(sin_x: float, x: float) -> float:
     """sin(x)/x given sin(x): exact to rounding for any x != 0, however small."""
     return sin_x / x if x != 0.0 else 1.0
@@ -68,8 +75,9 @@ def _sincos_array(x):
     return sin_x, np.cos(x)
 
 
-_SCALAR_OPS = types.SimpleNamespace(sincos=_sincos_scalar, ratio=_ratio_scalar)
-_ARRAY_OPS = types.SimpleNamespace(sincos=_sincos_array, ratio=_ratio_array)
+_SCALAR_OPS = types.SimpleNamespace(sincos=_sincos_scalar, ratio=_ratio_scalar, sin=math.sin,
+                                    sinc_slope=_sinc_slope_scalar)
+_ARRAY_OPS = types.SimpleNamespace(sincos=_sincos_array, ratio=_ratio_array, sin=np.sin, sinc_slope=_sinc_slope_array)
 BATCH_CHUNK = 8192  # keeps a batch's temporaries in cache; 100k at once runs ~2x slower
 
 
@@ -242,23 +250,35 @@ class GripperKinematics:
         p_kin = np.maximum(p, self.contact_pressure_pa)
         slopes = np.asarray(self.bending.angle_slopes(p_kin))
         theta = self.bending.angle_columns(p_kin)
-        _, tip, ends = self._chain(theta, [0.0] * CHAMBER_COUNT, _ARRAY_OPS)
+        dx, dz = self._tip_position_slope(theta, [slopes[:, i] for i in range(CHAMBER_COUNT)], _ARRAY_OPS)
+        blocked = p < self.contact_pressure_pa
+        return np.where(blocked[:, None], 0.0, np.column_stack([dx, dz, -slopes.sum(axis=1)]))
+
+    def tip_slope_at(self, pressure_pa: float) -> tuple[float, float, float]:
+        """:meth:`tip_slope` for one pressure, in pure Python floats (the nodes' fast path)."""
+        p = _checked_scalar(pressure_pa)
+        self._check_range(p, p)
+        if p < self.contact_pressure_pa:
+            return 0.0, 0.0, 0.0
+        slopes = self.bending.angle_slopes(p)
+        dx, dz = self._tip_position_slope(self.bending.angles(p), slopes, _SCALAR_OPS)
+        return dx, dz, -sum(slopes)
+
+    def _tip_position_slope(self, theta, slopes, ops):
+        _, tip, ends = self._chain(theta, [0.0] * CHAMBER_COUNT, ops)
         seg = self.geometry.segment_length_m
-        dx = np.zeros_like(p)
-        dz = np.zeros_like(p)
-        for i, (end_x, end_z, th, sin_heading, cos_heading) in enumerate(ends):
+        dx = dz = 0.0
+        for (end_x, end_z, th, sin_heading, cos_heading), slope in zip(ends, slopes):
             # own chord: seg * sinc(th/2) along the heading phi - th/2
-            chord = seg * _ratio_array(np.sin(0.5 * th), 0.5 * th)
-            dchord = 0.5 * seg * _sinc_slope_array(0.5 * th)
+            chord = seg * ops.ratio(ops.sin(0.5 * th), 0.5 * th)
+            dchord = 0.5 * seg * ops.sinc_slope(0.5 * th)
             own_x = dchord * sin_heading - 0.5 * chord * cos_heading
             own_z = dchord * cos_heading + 0.5 * chord * sin_heading
             # everything after turns by -dtheta about the end: d(v) = (-v_z, v_x)
             rot_x, rot_z = -(tip[1] - end_z), tip[0] - end_x
-            dx += (own_x + rot_x) * slopes[:, i]
-            dz += (own_z + rot_z) * slopes[:, i]
-        dangle = -slopes.sum(axis=1)
-        blocked = p < self.contact_pressure_pa
-        return np.where(blocked[:, None], 0.0, np.column_stack([dx, dz, dangle]))
+            dx = dx + (own_x + rot_x) * slope
+            dz = dz + (own_z + rot_z) * slope
+        return dx, dz
 
     def backbone(self, pressure_pa: float, points_per_segment: int = 8) -> np.ndarray:
         """The left finger's backbone as a polyline, shape (K, 2) in (x, z); mirror x for the right."""

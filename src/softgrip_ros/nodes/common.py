@@ -11,9 +11,16 @@ import can
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy._rclpy_pybind11 import RCLError
+from rclpy.time import Time
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 
 P_ATM_PA = 101_325.0
+
+
+def stamp_msg(seconds: float):
+    """A builtin_interfaces Time for ``seconds`` of ROS time, to the nearest nanosecond (so that a
+    stamp read back as sec + 1e-9 nanosec and written again is unchanged)."""
+    return Time(nanoseconds=round(seconds * 1e9)).to_msg()
 
 
 def open_bus(interface: str, channel: str, bitrate: int) -> can.BusABC:

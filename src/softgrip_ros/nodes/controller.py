@@ -5,6 +5,14 @@ with ``can.interface`` virtual (the default) also the simulated device, on the c
 virtual channel. Parameters come from config/softgrip.yaml in the package share unless a
 ``--params-file`` is given; ``--ros-args -r __ns:=/softgrip`` puts everything in a namespace.
 SIGINT or SIGTERM: the grasp manager stops, the pressure controller vents, exit 0.
+
+The busy links between these nodes are direct calls, not DDS: each sensor reading to the
+estimator, each controller status to the estimator and the grasp manager, each estimate to
+the kinematics and the grasp manager. rclpy has no intra-process transport, and each message
+the executor takes costs a few hundred microseconds of Python: at 700 readings, 200 estimates
+and 50 statuses a second, that saturated a core (docs/benchmarks.md, bench_e2e). The topics
+are still published for every other subscriber; grasp commands and pressure commands (a few a
+second) still go through DDS.
 """
 from __future__ import annotations
 
@@ -42,9 +50,14 @@ def make_nodes(context=None, overrides: dict | None = None) -> list:
         if interface == "virtual":
             nodes.insert(0, SimDeviceNode(context=context, parameter_overrides=[
                 Parameter("can.interface", value=interface), Parameter("can.channel", value=channel)]))
-        for name, node_class in (("estimator", EstimatorNode), ("kinematics", KinematicsNode),
-                                 ("grasp_manager", GraspManagerNode)):
-            nodes.append(node_class(context=context, parameter_overrides=overrides.get(name, [])))
+        estimator = EstimatorNode(in_process=True, context=context, parameter_overrides=overrides.get("estimator", []))
+        kinematics = KinematicsNode(in_process=True, context=context, parameter_overrides=overrides.get("kinematics", []))
+        grasp_manager = GraspManagerNode(in_process=True, context=context,
+                                         parameter_overrides=overrides.get("grasp_manager", []))
+        nodes += [estimator, kinematics, grasp_manager]
+        controller.sensor_listeners.append(estimator.on_sensor_sample)
+        controller.status_listeners += [estimator.on_status, grasp_manager.on_status]
+        estimator.estimate_listeners += [kinematics.on_estimate, grasp_manager.on_estimate]
     except Exception:
         close_all(nodes)
         raise

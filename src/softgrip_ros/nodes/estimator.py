@@ -11,6 +11,8 @@ Parameters follow robot_localization where they fit. The filters live in softgri
 """
 from __future__ import annotations
 
+import threading
+
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from rclpy.time import Time
@@ -20,12 +22,12 @@ from std_msgs.msg import Header
 from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 from softgrip_ros.estimation.estimator import EstimatorConfig, Health, PressureEstimator, SensorConfig
 from softgrip_ros.model.pneumatics import Valve
-from softgrip_ros.nodes.common import P_ATM_PA, publish, run_node
+from softgrip_ros.nodes.common import P_ATM_PA, publish, run_node, stamp_msg
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
 _DEFAULTS = EstimatorConfig()
 SPECS = [
-    ParamSpec("frequency", 500.0, "largest pressure/estimate rate (predictions while silent: at most 50 Hz)", "Hz", 1.0, 2000.0),
+    ParamSpec("frequency", 200.0, "largest pressure/estimate rate (predictions while silent: at most 50 Hz)", "Hz", 1.0, 2000.0),
     ParamSpec("sensor_timeout", _DEFAULTS.sensor_timeout_s, "a sensor silent this long is dropped from fusion", "s", 0.001, 10.0),
     ParamSpec("filter_type", _DEFAULTS.filter_type, "the filter", choices=("kf", "ekf", "ukf")),
     ParamSpec("sensors.names", ["chamber_a", "chamber_b"], "sensors fused: topics pressure/sensor/<name>"),
@@ -58,8 +60,19 @@ def _seconds(stamp) -> float:
 
 
 class EstimatorNode(Node):
-    def __init__(self, **kwargs):
+    """in_process: the readings and the controller status come by direct calls to
+    :meth:`on_sensor_sample` and :meth:`on_status` from the composed controller's pressure
+    controller, instead of through their topics (see nodes.controller).
+    ``estimate_listeners``: in-process consumers of each published estimate,
+    f(stamp_s, gauge_pa, variance_pa2); called outside the estimator's lock, which is never held
+    while calling out (so that no two nodes' locks can wait on each other).
+    """
+
+    def __init__(self, in_process: bool = False, **kwargs):
         super().__init__("estimator", **kwargs)
+        self._lock = threading.Lock()      # the in-process path calls in from the controller's CAN thread
+        self.estimate_listeners = []
+        self.closed = False
         specs = {s.name: s for s in SPECS}
         self.values = declare(self, SPECS)
         self.estimator = PressureEstimator(config_from(self.values))
@@ -69,60 +82,80 @@ class EstimatorNode(Node):
         self.last_publish_s = -float("inf")
         self.estimate_pub = self.create_publisher(FluidPressure, "pressure/estimate", 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        for name in self.values["sensors.names"]:
+        for name in [] if in_process else self.values["sensors.names"]:
             self.create_subscription(FluidPressure, f"pressure/sensor/{name}",
-                                     lambda msg, name=name: self._on_sensor(name, msg), 50)
-        self.create_subscription(ControllerStatus, "controller/status", self._on_status, 10)
+                                     lambda msg, name=name: self.on_sensor_sample(
+                                         name, msg.fluid_pressure - P_ATM_PA, _seconds(msg.header.stamp)), 50)
+        if not in_process:
+            self.create_subscription(ControllerStatus, "controller/status", self.on_status, 10)
         self.create_subscription(PressureCommand, "pressure/command", self._on_command, 10)
         self.create_timer(max(self.period_s, 1.0 / PREDICTION_RATE_LIMIT_HZ), self._on_timer)
         self.create_timer(0.5, self._publish_diagnostics)
 
     def close(self) -> None:
-        """Nothing to vent: the estimator only listens."""
+        """Nothing to vent: the estimator only listens. Later in-process samples are ignored."""
+        with self._lock:
+            self.closed = True
 
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
-    def _on_sensor(self, name: str, msg: FluidPressure) -> None:
-        stamp = _seconds(msg.header.stamp)
-        if self.estimator.add_measurement(name, msg.fluid_pressure - P_ATM_PA, stamp) and \
-                stamp - self.last_publish_s >= 0.9 * self.period_s:
-            self._publish(self.estimator.estimate())
+    def on_sensor_sample(self, name: str, gauge_pa: float, stamp_s: float) -> None:
+        """One reading of sensor ``name`` taken at ``stamp_s``; publishes the estimate when one is due."""
+        with self._lock:
+            due = (not self.closed and self.estimator.add_measurement(name, gauge_pa, stamp_s)
+                   and stamp_s - self.last_publish_s >= 0.9 * self.period_s)
+            estimate = self._take_estimate() if due else None
+        self._publish(estimate)
 
-    def _on_status(self, msg: ControllerStatus) -> None:
+    def on_status(self, msg: ControllerStatus) -> None:
+        """The process model's inputs: the regulator command and the valve state."""
         if not msg.valve_states:
             return
         try:
-            self.estimator.set_inputs(msg.regulator_command_gauge_pressure_pa, msg.regulator_enabled,
-                                      msg.valve_states[0], _seconds(msg.header.stamp))
+            with self._lock:
+                self.estimator.set_inputs(msg.regulator_command_gauge_pressure_pa, msg.regulator_enabled,
+                                          msg.valve_states[0], _seconds(msg.header.stamp))
         except ValueError as error:     # a NaN command or an unknown valve value: keep the last inputs
             self.get_logger().warn(f"controller/status ignored: {error}", throttle_duration_sec=5.0)
 
     def _on_command(self, msg: PressureCommand) -> None:
         valve = {PressureCommand.VENT: Valve.VENT, PressureCommand.HOLD: Valve.CLOSED}.get(msg.source)
         if valve is not None:
-            inputs = self.estimator.inputs
-            self.estimator.set_inputs(inputs.regulator_setpoint_gauge_pa, inputs.regulator_enabled, valve,
-                                      _seconds(msg.header.stamp) or self._now())
+            with self._lock:
+                inputs = self.estimator.inputs
+                self.estimator.set_inputs(inputs.regulator_setpoint_gauge_pa, inputs.regulator_enabled, valve,
+                                          _seconds(msg.header.stamp) or self._now())
 
     def _on_timer(self) -> None:
         """While no fused sample has been published for two timer periods, publish the prediction."""
         now = self._now()
-        if self.estimator.initialised and now - self.last_publish_s >= 2.0 / PREDICTION_RATE_LIMIT_HZ:
-            self.estimator.predict_to(now)    # committed: a sample older than this would be dropped as late anyway
-            self._publish(self.estimator.estimate())
+        with self._lock:
+            estimate = None
+            if self.estimator.initialised and now - self.last_publish_s >= 2.0 / PREDICTION_RATE_LIMIT_HZ:
+                self.estimator.predict_to(now)    # committed: a sample older than this would be dropped as late anyway
+                estimate = self._take_estimate()
+        self._publish(estimate)
+
+    def _take_estimate(self):
+        """The current estimate, marked as published (call with the lock held)."""
+        estimate = self.estimator.estimate()
+        if estimate is not None:
+            self.last_publish_s = estimate.stamp_s
+        return estimate
 
     def _publish(self, estimate) -> None:
         if estimate is None:
             return
-        self.last_publish_s = estimate.stamp_s
-        stamp = Time(nanoseconds=int(estimate.stamp_s * 1e9)).to_msg()
-        publish(self, self.estimate_pub, FluidPressure(header=Header(stamp=stamp, frame_id="softgrip_chamber"),
-                                                fluid_pressure=estimate.gauge_pa + P_ATM_PA,
-                                                variance=estimate.variance_pa2))
+        publish(self, self.estimate_pub, FluidPressure(header=Header(stamp=stamp_msg(estimate.stamp_s), frame_id="softgrip_chamber"),
+                                                       fluid_pressure=estimate.gauge_pa + P_ATM_PA,
+                                                       variance=estimate.variance_pa2))
+        for listener in self.estimate_listeners:
+            listener(estimate.stamp_s, estimate.gauge_pa, estimate.variance_pa2)
 
     def _publish_diagnostics(self) -> None:
-        report = self.estimator.report(self._now())
+        with self._lock:
+            report = self.estimator.report(self._now())
         status = DiagnosticStatus(name="softgrip: estimator", hardware_id="pressure", level=LEVELS[report.health],
                                   message=report.message,
                                   values=[KeyValue(key=k, value=str(v)) for k, v in report.values.items()])

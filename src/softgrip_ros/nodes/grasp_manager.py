@@ -9,6 +9,7 @@ softgrip_ros.control.grasp_fsm; the clamp force law is softgrip_ros.model.grasp.
 from __future__ import annotations
 
 import math
+import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -63,8 +64,14 @@ def _request_from(msg: GraspCommand) -> GraspRequest:
 
 
 class GraspManagerNode(Node):
-    def __init__(self, **kwargs):
+    """in_process: the estimate and the controller status come by direct calls to
+    :meth:`on_estimate` and :meth:`on_status` from the composed controller's nodes, instead of
+    through their topics (see nodes.controller). Every entry point holds ``_lock``, because those
+    calls come from the controller's threads."""
+
+    def __init__(self, in_process: bool = False, **kwargs):
         super().__init__("grasp_manager", **kwargs)
+        self._lock = threading.RLock()
         specs = {s.name: s for s in SPECS}
         v = self.values = declare(self, SPECS)
         self.add_on_set_parameters_callback(
@@ -87,8 +94,10 @@ class GraspManagerNode(Node):
         self.command_pub = self.create_publisher(PressureCommand, "pressure/command", 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(GraspCommand, "grasp_command", self._on_command, 10)
-        self.create_subscription(FluidPressure, "pressure/estimate", self._on_estimate, 10)
-        self.create_subscription(ControllerStatus, "controller/status", self._on_status, 10)
+        if not in_process:
+            self.create_subscription(FluidPressure, "pressure/estimate", lambda msg: self.on_estimate(
+                None, msg.fluid_pressure - P_ATM_PA, msg.variance), 10)
+            self.create_subscription(ControllerStatus, "controller/status", self.on_status, 10)
         self.create_timer(1.0 / v["state_rate_hz"], self._on_timer)
         self.create_timer(1.0, self._publish_diagnostics)
         self.action_server = ActionServer(self, Grasp, "grasp", execute_callback=self._execute,
@@ -110,25 +119,30 @@ class GraspManagerNode(Node):
 
     def submit(self, request: GraspRequest) -> str:
         """Apply a command from the topic or the action; '' or the rejection reason."""
-        now = self._now()
-        reason = self.fsm.command(request, now, self._controller_fault(now))
+        with self._lock:
+            now = self._now()
+            reason = self.fsm.command(request, now, self._controller_fault(now))
+            self._after_change(now)
         if reason:
             self.get_logger().warn(f"grasp command {request.command_id!r} rejected: {reason}")
-        self._after_change(now)
         return reason
 
     def _on_command(self, msg: GraspCommand) -> None:
         self.submit(_request_from(msg))
 
-    def _on_estimate(self, msg: FluidPressure) -> None:
-        self.feedback.on_estimate(msg.fluid_pressure - P_ATM_PA, math.sqrt(max(msg.variance, 0.0)), self._now())
-        self._tick()
+    def on_estimate(self, _stamp_s, gauge_pa: float, variance_pa2: float) -> None:
+        """The pressure estimate (gauge Pa, Pa^2); the state machine steps on each."""
+        with self._lock:
+            self.feedback.on_estimate(gauge_pa, math.sqrt(max(variance_pa2, 0.0)), self._now())
+            self._tick()
 
-    def _on_status(self, msg: ControllerStatus) -> None:
-        self.feedback.on_status(msg.fault_flags, msg.measured_gauge_pressure_pa, self._now())
+    def on_status(self, msg: ControllerStatus) -> None:
+        with self._lock:
+            self.feedback.on_status(msg.fault_flags, msg.measured_gauge_pressure_pa, self._now())
 
     def _on_timer(self) -> None:
-        self._tick(force_state=True)
+        with self._lock:
+            self._tick(force_state=True)
 
     def _tick(self, force_state: bool = False) -> None:
         now = self._now()
@@ -172,7 +186,8 @@ class GraspManagerNode(Node):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id="softgrip_base")
 
     def _publish_diagnostics(self) -> None:
-        s = self.fsm.state
+        with self._lock:
+            s = self.fsm.state
         level = DiagnosticStatus.ERROR if s.phase == Phase.FAULT else DiagnosticStatus.OK
         status = DiagnosticStatus(name="softgrip: grasp manager", hardware_id="gripper", level=level, message=s.message,
                                   values=[KeyValue(key="phase", value=s.phase.name),
@@ -202,7 +217,8 @@ class GraspManagerNode(Node):
                 return self._result(held, self.fsm.state.message)
             goal_handle.publish_feedback(Grasp.Feedback(state=self.state_message()))
             waiter = Future()
-            self.waiters.append(waiter)
+            with self._lock:
+                self.waiters.append(waiter)
             await waiter
 
     def _result(self, held: bool, message: str) -> Grasp.Result:

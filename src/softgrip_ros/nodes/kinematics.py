@@ -13,6 +13,7 @@ pressure lies in its validated range.
 from __future__ import annotations
 
 import math
+import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PoseWithCovarianceStamped
@@ -22,7 +23,7 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from softgrip_ros.model.calibration import FidelityChoice
-from softgrip_ros.nodes.common import P_ATM_PA, publish, run_node
+from softgrip_ros.nodes.common import P_ATM_PA, publish, run_node, stamp_msg
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
 SPECS = [
@@ -35,8 +36,13 @@ SPECS = [
 
 
 class KinematicsNode(Node):
-    def __init__(self, **kwargs):
+    """in_process: the estimates come by direct calls to :meth:`on_estimate` from the composed
+    controller's estimator, instead of through pressure/estimate (see nodes.controller)."""
+
+    def __init__(self, in_process: bool = False, **kwargs):
         super().__init__("kinematics", **kwargs)
+        self._lock = threading.Lock()      # the in-process path calls in from the controller's CAN thread
+        self.closed = False
         specs = {s.name: s for s in SPECS}
         self.values = declare(self, SPECS)
         self.add_on_set_parameters_callback(
@@ -49,31 +55,36 @@ class KinematicsNode(Node):
         self.right_pub = self.create_publisher(PoseWithCovarianceStamped, "tip_pose/right", 10)
         self.marker_pub = self.create_publisher(MarkerArray, "finger_markers", 1)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(FluidPressure, "pressure/estimate", self._on_estimate, 10)
+        if not in_process:
+            self.create_subscription(FluidPressure, "pressure/estimate", lambda msg: self.on_estimate(
+                msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, msg.fluid_pressure - P_ATM_PA, msg.variance), 10)
         self.create_timer(1.0 / self.values["marker_rate_hz"], self._publish_markers)
         self.create_timer(1.0, self._publish_diagnostics)
 
     def close(self) -> None:
-        """Nothing to vent: the kinematics only listens."""
+        """Nothing to vent: the kinematics only listens. Later in-process estimates are ignored."""
+        with self._lock:
+            self.closed = True
 
-    def _on_estimate(self, msg: FluidPressure) -> None:
-        stamp_s = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        if stamp_s - self.last_publish_s < 0.9 * self.period_s or not math.isfinite(msg.fluid_pressure):
-            return
-        model = self.fidelity.model_for(msg.fluid_pressure - P_ATM_PA)
-        pressure = min(max(msg.fluid_pressure - P_ATM_PA, model.MODEL_MIN_PRESSURE_PA), model.max_pressure_pa)
-        pose = model.pose(pressure)
-        slope = model.tip_slope([pressure])[0]          # d(x, z, angle)/dp of the left tip
-        self.last = (pressure, msg.variance, model, pose)
-        self.last_publish_s = stamp_s
-        header = Header(stamp=msg.header.stamp, frame_id=self.values["frame_id"])
+    def on_estimate(self, stamp_s: float, gauge_pa: float, variance_pa2: float) -> None:
+        """Publish both tip poses for the estimate at ``stamp_s``, unless one went out less than a period ago."""
+        with self._lock:
+            if self.closed or stamp_s - self.last_publish_s < 0.9 * self.period_s or not math.isfinite(gauge_pa):
+                return
+            model = self.fidelity.model_for(gauge_pa)
+            pressure = min(max(gauge_pa, model.MODEL_MIN_PRESSURE_PA), model.max_pressure_pa)
+            pose = model.pose(pressure)
+            slope = model.tip_slope_at(pressure)           # d(x, z, angle)/dp of the left tip
+            self.last = (pressure, variance_pa2, model, pose)
+            self.last_publish_s = stamp_s
+        header = Header(stamp=stamp_msg(stamp_s), frame_id=self.values["frame_id"])
         for sign, publisher in ((1.0, self.left_pub), (-1.0, self.right_pub)):
             x, z, angle = pose.left_tip_x_m * sign, pose.left_tip_z_m, pose.left_tip_angle_rad * sign
             jacobian = (sign * slope[0], 0.0, slope[1], 0.0, sign * slope[2], 0.0)     # over x y z rx ry rz
             message = PoseWithCovarianceStamped(header=header)
             message.pose.pose.position.x, message.pose.pose.position.z = x, z
             message.pose.pose.orientation.y, message.pose.pose.orientation.w = math.sin(0.5 * angle), math.cos(0.5 * angle)
-            message.pose.covariance = [a * b * msg.variance for a in jacobian for b in jacobian]
+            message.pose.covariance = [a * b * variance_pa2 for a in jacobian for b in jacobian]
             publish(self, publisher, message)
 
     def _publish_markers(self) -> None:

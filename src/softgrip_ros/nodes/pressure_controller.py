@@ -29,6 +29,8 @@ SPECS = CAN_SPECS + [
     ParamSpec("autostart", True, "configure and activate on start-up"),
     ParamSpec("control_rate_hz", 500.0, "control loop rate", "Hz", 10.0, 1000.0),
     ParamSpec("status_rate_hz", 50.0, "controller/status publish rate", "Hz", 1.0, 200.0),
+    ParamSpec("command_frame_period", 0.01, "RegulatorSetpoint and ValveCommand re-sent this often when unchanged "
+              "(a change goes out in its control period); 0 = every period", "s", 0.0, 0.1),
     ParamSpec("max_gauge_pressure_pa", _DEFAULTS.max_gauge_pa, "hard upper limit of the setpoint", "Pa", 1e3, 100e3),
     ParamSpec("min_gauge_pressure_pa", _DEFAULTS.min_gauge_pa, "hard lower limit of the setpoint", "Pa", -100e3, -1e3),
     ParamSpec("overpressure_margin_pa", _DEFAULTS.overpressure_margin_pa, "measured excess beyond a limit that vents", "Pa", 100.0, 50e3),
@@ -67,8 +69,11 @@ class PressureControllerNode(LifecycleNode):
         self.status_pub = self.create_publisher(ControllerStatus, "controller/status", 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.sensor_pubs = {}
+        self.sensor_listeners = []       # in-process consumers of each reading: f(name, gauge_pa, stamp_s)
+        self.status_listeners = []       # in-process consumers of each controller/status: f(ControllerStatus)
         self.create_subscription(PressureCommand, "pressure/command", self._on_command, 10)
-        self.create_subscription(FluidPressure, "pressure/estimate", self._on_estimate, 10)
+        self.estimate_subscription = None
+        self._subscribe_estimate(self.values["use_estimate"])
         self.create_service(Trigger, "~/vent", self._on_vent)
         self.bus = self.link = self.loop = None
         self.last_output = None
@@ -85,7 +90,7 @@ class PressureControllerNode(LifecycleNode):
     def _on_set(self, parameters):
         def extra(params):
             changed = {p.name: p.value for p in params}
-            if any(n.startswith(("can.", "sensors.", "control_rate_hz")) for n in changed) and self.link is not None:
+            if any(n.startswith(("can.", "sensors.", "control_rate_hz", "command_frame_period")) for n in changed) and self.link is not None:
                 return "CAN, sensor and rate parameters apply at configure: deactivate and clean up first"
             if any(n in LIVE for n in changed):
                 try:
@@ -93,9 +98,19 @@ class PressureControllerNode(LifecycleNode):
                 except ValueError as error:
                     return str(error)
                 self.controller.config = config
+            if "use_estimate" in changed:
+                self._subscribe_estimate(changed["use_estimate"])
             self.values.update(changed)
             return ""
         return check_all(self.specs, parameters, extra)
+
+    def _subscribe_estimate(self, wanted: bool) -> None:
+        """pressure/estimate only while use_estimate: at the estimator's rate it is the busiest topic."""
+        if wanted and self.estimate_subscription is None:
+            self.estimate_subscription = self.create_subscription(FluidPressure, "pressure/estimate", self._on_estimate, 10)
+        elif not wanted and self.estimate_subscription is not None:
+            self.destroy_subscription(self.estimate_subscription)
+            self.estimate_subscription = None
 
     # ---- lifecycle ------------------------------------------------------------------------------
     def on_configure(self, state) -> TransitionCallbackReturn:
@@ -110,7 +125,8 @@ class PressureControllerNode(LifecycleNode):
             self.codec = FrameCodec(frame_ids=overrides)
             self.bus = open_bus(self.values["can.interface"], self.values["can.channel"], self.values["can.bitrate"])
             self.link = ControllerLink(self.bus, self.controller, [SensorBinding(n, m) for n, m in zip(names, messages)],
-                                       codec=self.codec, on_sensor=self._publish_sensor)
+                                       codec=self.codec, on_sensor=self._publish_sensor,
+                                       command_frame_period_s=self.values["command_frame_period"])
         except (ValueError, can.CanError, OSError, ImportError) as error:
             self.get_logger().error(f"configure failed: {error}")
             self._close_bus()
@@ -190,9 +206,13 @@ class PressureControllerNode(LifecycleNode):
 
     def _publish_sensor(self, name: str, gauge_pa: float, _stamp: float):
         publisher = self.sensor_pubs.get(name)
-        if publisher is not None:
-            publish(self, publisher, FluidPressure(header=self._header(name), fluid_pressure=gauge_pa + P_ATM_PA,
-                                            variance=self.noise_variance[name]))
+        if publisher is None:
+            return
+        now = self.get_clock().now()
+        publish(self, publisher, FluidPressure(header=Header(stamp=now.to_msg(), frame_id=name),
+                                               fluid_pressure=gauge_pa + P_ATM_PA, variance=self.noise_variance[name]))
+        for listener in self.sensor_listeners:
+            listener(name, gauge_pa, now.nanoseconds * 1e-9)
 
     def _header(self, frame_id="softgrip_base"):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id=frame_id)
@@ -201,7 +221,7 @@ class PressureControllerNode(LifecycleNode):
         out, link = self.last_output, self.link
         if out is None or link is None:
             return
-        publish(self, self.status_pub, ControllerStatus(
+        status = ControllerStatus(
             header=self._header(), mode=int(out.mode), setpoint_gauge_pressure_pa=out.setpoint_gauge_pa,
             measured_gauge_pressure_pa=self.controller.measured(link.clock()),
             estimated_gauge_pressure_pa=self.controller.estimate_gauge_pa(link.clock()),
@@ -209,7 +229,10 @@ class PressureControllerNode(LifecycleNode):
             regulator_command_gauge_pressure_pa=out.regulator_setpoint_gauge_pa, regulator_enabled=out.regulator_enabled,
             valve_states=[int(v) for v in out.valves], frames_rx=link.frames_rx, frames_tx=link.frames_tx,
             frames_bad=link.frames_bad, last_sensor_frame_age_s=link.last_sensor_age_s(),
-            fault_flags=int(out.fault_flags), message="; ".join(m for m in (out.message, self.last_note) if m)))
+            fault_flags=int(out.fault_flags), message="; ".join(m for m in (out.message, self.last_note) if m))
+        publish(self, self.status_pub, status)
+        for listener in self.status_listeners:
+            listener(status)
 
     def _publish_diagnostics(self):
         out, link = self.last_output, self.link
