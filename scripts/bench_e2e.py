@@ -45,11 +45,11 @@ import rclpy  # noqa: E402
 from geometry_msgs.msg import PoseWithCovarianceStamped  # noqa: E402
 from rclpy.node import Node  # noqa: E402
 
-from demo_grasp import command, stamp_s, wait_phase  # noqa: E402
+from demo_grasp import command, wait_phase  # noqa: E402
 from softgrip_interfaces.msg import GraspCommand, GripperState  # noqa: E402
 from softgrip_ros.benchmarking import figure_rows, machine_line, update_section  # noqa: E402
 from softgrip_ros.canbus.codec import FrameCodec  # noqa: E402
-from softgrip_ros.nodes.common import spinning  # noqa: E402
+from softgrip_ros.nodes.common import spinning, stamp_seconds  # noqa: E402
 from softgrip_ros.processes import installed_executable, stop_process  # noqa: E402
 
 TARGETS = {"cmd_to_valve_frame_ms_p99": (10.0, True), "sensor_to_tip_pose_ms_p99": (5.0, True),
@@ -154,7 +154,7 @@ def measure(idle_s: float, grasp_s: float, window_s: float) -> tuple[dict, dict]
     def on_pose(msg, info):
         received_s = info["received_timestamp"] * 1e-9
         clock_offsets.append(time.time() - received_s)
-        stamp = stamp_s(msg)
+        stamp = stamp_seconds(msg.header.stamp)
         index = bisect.bisect_right(watch.sensor_times, stamp) - 1
         if index >= 0:
             pose_latencies.append((received_s - watch.sensor_times[index], received_s - stamp))

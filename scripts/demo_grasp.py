@@ -23,7 +23,7 @@ from rclpy.node import Node  # noqa: E402
 from sensor_msgs.msg import FluidPressure  # noqa: E402
 
 from softgrip_interfaces.msg import GraspCommand, GripperState  # noqa: E402
-from softgrip_ros.nodes.common import P_ATM_PA, spinning  # noqa: E402
+from softgrip_ros.nodes.common import P_ATM_PA, spinning, stamp_seconds  # noqa: E402
 from softgrip_ros.processes import installed_executable, stop_process  # noqa: E402
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -37,10 +37,6 @@ def command(mode, command_id, **fields):
                   friction_coefficient=math.nan, open_pressure_pa=math.nan, clamp_pressure_pa=math.nan)
     values.update(fields)
     return GraspCommand(mode=mode, command_id=command_id, **values)
-
-
-def stamp_s(msg) -> float:
-    return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
 
 
 def wait_phase(states, phase, timeout):
@@ -58,7 +54,7 @@ def plot(path, states, samples, start):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    t = [stamp_s(s) - start for s in states]
+    t = [stamp_seconds(s.header.stamp) - start for s in states]
     estimate = [s.estimated_gauge_pressure_pa / 1e3 for s in states]
     sigma = [s.estimated_gauge_pressure_std_pa / 1e3 if math.isfinite(s.estimated_gauge_pressure_std_pa) else 0.0
              for s in states]
@@ -103,7 +99,7 @@ def main(argv=None) -> int:
     states, samples = [], []
     node.create_subscription(GripperState, "grasp_state", states.append, 200)
     node.create_subscription(FluidPressure, "pressure/sensor/chamber_b",
-                             lambda m: samples.append((stamp_s(m), m.fluid_pressure - P_ATM_PA)), 500)
+                             lambda m: samples.append((stamp_seconds(m.header.stamp), m.fluid_pressure - P_ATM_PA)), 500)
     publisher = node.create_publisher(GraspCommand, "grasp_command", 10)
     status = 1
     try:

@@ -17,6 +17,11 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, Si
 P_ATM_PA = 101_325.0
 
 
+def stamp_seconds(stamp) -> float:
+    """A builtin_interfaces Time as seconds of ROS time (the inverse of :func:`stamp_msg`)."""
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
 def stamp_msg(seconds: float):
     """A builtin_interfaces Time for ``seconds`` of ROS time, to the nearest nanosecond (so that a
     stamp read back as sec + 1e-9 nanosec and written again is unchanged)."""

@@ -15,14 +15,13 @@ import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
-from rclpy.time import Time
 from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Header
 
 from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 from softgrip_ros.estimation.estimator import EstimatorConfig, Health, PressureEstimator, SensorConfig
 from softgrip_ros.model.pneumatics import Valve
-from softgrip_ros.nodes.common import P_ATM_PA, publish, run_node, stamp_msg
+from softgrip_ros.nodes.common import P_ATM_PA, publish, run_node, stamp_msg, stamp_seconds
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
 _DEFAULTS = EstimatorConfig()
@@ -55,10 +54,6 @@ def config_from(values: dict) -> EstimatorConfig:
                            nis_window=values["nis_window"], max_consecutive_rejections=values["max_consecutive_rejections"])
 
 
-def _seconds(stamp) -> float:
-    return Time.from_msg(stamp).nanoseconds * 1e-9
-
-
 class EstimatorNode(Node):
     """in_process: the readings and the controller status come by direct calls to
     :meth:`on_sensor_sample` and :meth:`on_status` from the composed controller's pressure
@@ -85,7 +80,7 @@ class EstimatorNode(Node):
         for name in [] if in_process else self.values["sensors.names"]:
             self.create_subscription(FluidPressure, f"pressure/sensor/{name}",
                                      lambda msg, name=name: self.on_sensor_sample(
-                                         name, msg.fluid_pressure - P_ATM_PA, _seconds(msg.header.stamp)), 50)
+                                         name, msg.fluid_pressure - P_ATM_PA, stamp_seconds(msg.header.stamp)), 50)
         if not in_process:
             self.create_subscription(ControllerStatus, "controller/status", self.on_status, 10)
         self.create_subscription(PressureCommand, "pressure/command", self._on_command, 10)
@@ -115,7 +110,7 @@ class EstimatorNode(Node):
         try:
             with self._lock:
                 self.estimator.set_inputs(msg.regulator_command_gauge_pressure_pa, msg.regulator_enabled,
-                                          msg.valve_states[0], _seconds(msg.header.stamp))
+                                          msg.valve_states[0], stamp_seconds(msg.header.stamp))
         except ValueError as error:     # a NaN command or an unknown valve value: keep the last inputs
             self.get_logger().warn(f"controller/status ignored: {error}", throttle_duration_sec=5.0)
 
@@ -125,7 +120,7 @@ class EstimatorNode(Node):
             with self._lock:
                 inputs = self.estimator.inputs
                 self.estimator.set_inputs(inputs.regulator_setpoint_gauge_pa, inputs.regulator_enabled, valve,
-                                          _seconds(msg.header.stamp) or self._now())
+                                          stamp_seconds(msg.header.stamp) or self._now())
 
     def _on_timer(self) -> None:
         """While no fused sample has been published for two timer periods, publish the prediction."""

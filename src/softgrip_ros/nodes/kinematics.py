@@ -23,7 +23,7 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from softgrip_ros.model.calibration import FidelityChoice
-from softgrip_ros.nodes.common import P_ATM_PA, publish, run_node, stamp_msg
+from softgrip_ros.nodes.common import P_ATM_PA, publish, run_node, stamp_msg, stamp_seconds
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
 SPECS = [
@@ -57,7 +57,7 @@ class KinematicsNode(Node):
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         if not in_process:
             self.create_subscription(FluidPressure, "pressure/estimate", lambda msg: self.on_estimate(
-                msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9, msg.fluid_pressure - P_ATM_PA, msg.variance), 10)
+                stamp_seconds(msg.header.stamp), msg.fluid_pressure - P_ATM_PA, msg.variance), 10)
         self.create_timer(1.0 / self.values["marker_rate_hz"], self._publish_markers)
         self.create_timer(1.0, self._publish_diagnostics)
 

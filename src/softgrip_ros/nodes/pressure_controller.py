@@ -8,7 +8,6 @@ service ~/vent. The control law and safety rules are in softgrip_ros.control.pre
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import can
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
