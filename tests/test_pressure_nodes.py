@@ -99,6 +99,32 @@ def test_dropout_gives_hold_and_a_diagnostic_error_then_recovers(nodes):
              message="recovery")
 
 
+def test_a_failing_in_process_consumer_is_reported_and_control_goes_on(nodes):
+    """In the composed controller the estimator, kinematics and grasp manager run inside the reading
+    and status callbacks: one that raises must neither stop the loop nor go unseen."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from softgrip_interfaces.msg import ControllerStatus
+
+    controller, _, client = nodes
+    statuses, diagnostics = [], []
+    client.create_subscription(ControllerStatus, "controller/status", statuses.append, 10)
+    client.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, 10)
+
+    def broken(*_):
+        raise RuntimeError("consumer bug")
+
+    after = []
+    controller.sensor_listeners += [broken, lambda *args: after.append(args)]
+    controller.status_listeners.append(broken)
+    wait_for(lambda: any(s.level == DiagnosticStatus.WARN and "RuntimeError: consumer bug" in s.message
+                         for d in diagnostics for s in d.status if s.name.endswith("pressure controller")),
+             timeout=3.0, message="a diagnostic WARN naming the error")
+    seen = len(statuses)
+    wait_for(lambda: len(statuses) > seen + 5, message="the loop still publishing")
+    assert controller.link.listener_errors > 0 and controller.loop.errors > 0
+    assert after                                    # a listener after the broken one still gets every reading
+
+
 def test_bad_parameters_are_refused_with_a_reason(nodes):
     from rclpy.parameter import Parameter
 

@@ -35,6 +35,7 @@ class PeriodicThread:
         self.work_s = collections.deque(maxlen=history)
         self.ticks = 0
         self.errors = 0
+        self.last_error = ""
         self._stop = threading.Event()
         self._thread = None
 
@@ -75,5 +76,6 @@ class PeriodicThread:
             if self.on_output is not None:
                 try:
                     self.on_output(output)
-                except Exception:               # publishing must never stop the loop
+                except Exception as error:      # publishing must never stop the loop
                     self.errors += 1
+                    self.last_error = f"{type(error).__name__}: {error}"

@@ -55,6 +55,7 @@ class ControllerLink:
         self.frames_tx = 0
         self.send_errors = 0
         self.listener_errors = 0
+        self.last_listener_error = ""
         self.regulator_actual_gauge_pa = math.nan
         self.last_frame_time = -math.inf
         self._last_heartbeat = -math.inf
@@ -94,8 +95,9 @@ class ControllerLink:
         if self.on_sensor is not None and decoded.signals["SensorStatus"] == 0:
             try:
                 self.on_sensor(sensor_name, decoded.signals["GaugePressure"], now)
-            except Exception:            # a failing listener must not kill reception (the Notifier thread)
+            except Exception as error:   # a failing listener must not kill reception (the Notifier thread)
                 self.listener_errors += 1
+                self.last_listener_error = f"{type(error).__name__}: {error}"
 
     # ---- the control period ---------------------------------------------------------------------
     def command(self, target_gauge_pa: float, source: Source, max_rate_pa_per_s: float) -> str:

@@ -45,6 +45,19 @@ def publish(node, publisher, message) -> None:
             raise
 
 
+def notify(listeners, *args) -> None:
+    """Call every in-process listener with ``args``; one that raises does not starve the ones after it.
+    The first error is raised once all have run, for the caller to count and report."""
+    first = None
+    for listener in listeners:
+        try:
+            listener(*args)
+        except Exception as error:
+            first = first or error
+    if first is not None:
+        raise first
+
+
 def run_node(node_factory, args=None, executor_factory=None) -> int:
     """rclpy.init, build the node(s), spin until SIGINT/SIGTERM, then ``close()`` each (the pressure
     controller vents) in reverse order of creation, and exit 0.

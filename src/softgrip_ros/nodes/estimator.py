@@ -21,7 +21,7 @@ from std_msgs.msg import Header
 from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 from softgrip_ros.estimation.estimator import EstimatorConfig, Health, PressureEstimator, SensorConfig
 from softgrip_ros.model.pneumatics import Valve
-from softgrip_ros.nodes.common import P_ATM_PA, publish, run_node, stamp_msg, stamp_seconds
+from softgrip_ros.nodes.common import P_ATM_PA, notify, publish, run_node, stamp_msg, stamp_seconds
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
 _DEFAULTS = EstimatorConfig()
@@ -145,8 +145,7 @@ class EstimatorNode(Node):
         publish(self, self.estimate_pub, FluidPressure(header=Header(stamp=stamp_msg(estimate.stamp_s), frame_id="softgrip_chamber"),
                                                        fluid_pressure=estimate.gauge_pa + P_ATM_PA,
                                                        variance=estimate.variance_pa2))
-        for listener in self.estimate_listeners:
-            listener(estimate.stamp_s, estimate.gauge_pa, estimate.variance_pa2)
+        notify(self.estimate_listeners, estimate.stamp_s, estimate.gauge_pa, estimate.variance_pa2)
 
     def _publish_diagnostics(self) -> None:
         with self._lock:

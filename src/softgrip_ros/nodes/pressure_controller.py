@@ -20,7 +20,7 @@ from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 from softgrip_ros.canbus.codec import FrameCodec
 from softgrip_ros.canbus.controller_link import make_control_loop, ControllerLink, SensorBinding
 from softgrip_ros.control.pressure import PressureControlConfig, PressureController, Severity, severity
-from softgrip_ros.nodes.common import P_ATM_PA, open_bus, publish, run_node
+from softgrip_ros.nodes.common import P_ATM_PA, notify, open_bus, publish, run_node
 from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, check_all, declare
 
 _DEFAULTS = PressureControlConfig()
@@ -210,8 +210,7 @@ class PressureControllerNode(LifecycleNode):
         now = self.get_clock().now()
         publish(self, publisher, FluidPressure(header=Header(stamp=now.to_msg(), frame_id=name),
                                                fluid_pressure=gauge_pa + P_ATM_PA, variance=self.noise_variance[name]))
-        for listener in self.sensor_listeners:
-            listener(name, gauge_pa, now.nanoseconds * 1e-9)
+        notify(self.sensor_listeners, name, gauge_pa, now.nanoseconds * 1e-9)
 
     def _header(self, frame_id="softgrip_base"):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id=frame_id)
@@ -230,8 +229,7 @@ class PressureControllerNode(LifecycleNode):
             frames_bad=link.frames_bad, last_sensor_frame_age_s=link.last_sensor_age_s(),
             fault_flags=int(out.fault_flags), message="; ".join(m for m in (out.message, self.last_note) if m))
         publish(self, self.status_pub, status)
-        for listener in self.status_listeners:
-            listener(status)
+        notify(self.status_listeners, status)
 
     def _publish_diagnostics(self):
         out, link = self.last_output, self.link
@@ -242,10 +240,20 @@ class PressureControllerNode(LifecycleNode):
             faults = out.fault_flags
             status.level = LEVELS[severity(out)]
             status.message = out.message or ("ok" if not faults else f"faults: {faults!r}")
+            loop = self.loop
+            status_errors = loop.errors if loop is not None else 0
             status.values = [KeyValue(key=k, value=str(v)) for k, v in (
                 ("mode", out.mode.name), ("fault_flags", int(faults)), ("frames_rx", link.frames_rx),
                 ("frames_tx", link.frames_tx), ("frames_bad", link.frames_bad),
-                ("rejected", dict(link.codec.rejected)), ("last_sensor_age_s", f"{link.last_sensor_age_s():.4f}"))]
+                ("rejected", dict(link.codec.rejected)), ("last_sensor_age_s", f"{link.last_sensor_age_s():.4f}"),
+                ("sensor_listener_errors", link.listener_errors), ("status_publish_errors", status_errors))]
+            # a consumer of the readings or the status that raises (in the composed controller: the
+            # estimator, kinematics, grasp manager) is caught so that control goes on; it must still be seen
+            errors = [e for n, e in ((link.listener_errors, link.last_listener_error),
+                                     (status_errors, loop.last_error if loop is not None else "")) if n]
+            if errors:
+                status.level = max(status.level, DiagnosticStatus.WARN)
+                status.message = f"{status.message}; consumer error: {errors[-1]}"
         publish(self, self.diagnostics_pub, DiagnosticArray(header=self._header(), status=[status]))
 
 
