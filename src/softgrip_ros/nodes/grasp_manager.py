@@ -198,27 +198,29 @@ class GraspManagerNode(Node):
     # ---- the Grasp action -----------------------------------------------------------------------
     async def _execute(self, goal_handle):
         request = _request_from(goal_handle.request.command)
-        reason = self.submit(request)
+        with self._lock:       # the generation is the one this goal's command started
+            reason = self.submit(request)
+            generation = self.fsm.accepted
         if reason:
             goal_handle.abort()
             return self._result(False, f"rejected: {reason}")
-        generation = self.fsm.accepted
         while True:
-            if goal_handle.is_cancel_requested:
-                self.submit(GraspRequest(Mode.STOP, command_id=request.command_id))
-                goal_handle.canceled()
-                return self._result(False, "canceled: venting")
-            if self.fsm.accepted != generation:
-                goal_handle.abort()
-                return self._result(False, f"superseded by command {self.fsm.state.command_id!r}")
-            if self.fsm.done(request.mode):
-                held = self.fsm.state.phase == Phase.HOLDING
-                (goal_handle.succeed if self.fsm.state.phase != Phase.FAULT else goal_handle.abort)()
-                return self._result(held, self.fsm.state.message)
-            goal_handle.publish_feedback(Grasp.Feedback(state=self.state_message()))
-            waiter = Future()
-            with self._lock:
+            with self._lock:   # check and register the waiter in one step, so that no change slips between
+                if goal_handle.is_cancel_requested:
+                    self.submit(GraspRequest(Mode.STOP, command_id=request.command_id))
+                    goal_handle.canceled()
+                    return self._result(False, "canceled: venting")
+                if self.fsm.accepted != generation:
+                    goal_handle.abort()
+                    return self._result(False, f"superseded by command {self.fsm.state.command_id!r}")
+                if self.fsm.done(request.mode):
+                    held = self.fsm.state.phase == Phase.HOLDING
+                    (goal_handle.succeed if self.fsm.state.phase != Phase.FAULT else goal_handle.abort)()
+                    return self._result(held, self.fsm.state.message)
+                feedback = Grasp.Feedback(state=self.state_message())
+                waiter = Future()
                 self.waiters.append(waiter)
+            goal_handle.publish_feedback(feedback)
             await waiter
 
     def _result(self, held: bool, message: str) -> Grasp.Result:
