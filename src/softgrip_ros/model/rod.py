@@ -84,18 +84,11 @@ class RodSolution:
     contact_points_m: np.ndarray      # (M, 2) surface points in contact
     contact_forces_n: np.ndarray      # (M,) normal force at each, on the finger
     contact_force_n: float            # magnitude of their sum
+    segment_angles_rad: np.ndarray    # (5,) theta_i, each segment's elements summed
     converged: bool
     message: str
     iterations: int
     max_penetration_m: float
-
-    @property
-    def segment_angles_rad(self) -> np.ndarray:
-        """theta_i, summed over each segment's elements."""
-        per_segment = self.curvatures_per_m.reshape(CHAMBER_COUNT, -1)
-        return per_segment.sum(axis=1) * self._element_length_m
-
-    _element_length_m: float = 0.0
 
 
 class RodFinger:
@@ -117,7 +110,6 @@ class RodFinger:
         self.geometry, self.calibration = geometry, calibration
         self.material = material or YeohMaterial()
         self.law = make_bending_law(bending, geometry, self.material, calibration)
-        self.model = "l2"
         g = geometry
         self.element_length_m = g.segment_length_m / elements_per_segment
         self.elements_per_segment = elements_per_segment
@@ -174,6 +166,10 @@ class RodFinger:
                headings[-1])
         return nodes, headings, normals, surface, tip, theta, direction, chord
 
+    def _tip_centre_of_mass(self, nodes, headings):
+        """The middle of the rigid tip piece, where its weight acts."""
+        return nodes[-1] + 0.5 * self.geometry.tip_length_m * np.array([math.sin(headings[-1]), math.cos(headings[-1])])
+
     def _jacobians(self, kappa, shape):
         """d(nodes)/d(kappa), d(surface)/d(kappa), d(tip centre of mass)/d(kappa): (K, 2, N) and (2, N)."""
         nodes, headings, normals, surface, tip, theta, direction, chord = shape
@@ -192,7 +188,7 @@ class RodFinger:
         d_nodes = np.where(later[..., None], own[None, :, :] + np.stack([-rel[..., 1], rel[..., 0]], axis=-1), 0.0)
         d_normals = np.where(later[..., None], np.stack([np.sin(headings), np.cos(headings)], axis=-1)[:, None, :], 0.0)
         d_surface = d_nodes + self.surface_offsets_m[:, None, None] * d_normals
-        tip_com = nodes[-1] + 0.5 * self.geometry.tip_length_m * np.array([math.sin(headings[-1]), math.cos(headings[-1])])
+        tip_com = self._tip_centre_of_mass(nodes, headings)
         rel_tip = tip_com[None, :] - ends
         d_tip_com = (own + np.column_stack([-rel_tip[:, 1], rel_tip[:, 0]])).T   # (2, N)
         return (d_nodes * ds).transpose(0, 2, 1), (d_surface * ds).transpose(0, 2, 1), d_tip_com * ds
@@ -206,7 +202,7 @@ class RodFinger:
         energy = 0.5 * ei * ds * float(strain @ strain)
         gradient = ei * ds * strain
         if gravity is not None:
-            tip_com = nodes[-1] + 0.5 * self.geometry.tip_length_m * np.array([math.sin(headings[-1]), math.cos(headings[-1])])
+            tip_com = self._tip_centre_of_mass(nodes, headings)
             energy -= float(self.node_masses_kg @ (nodes @ gravity)) + self.tip_mass_kg * float(tip_com @ gravity)
             d_nodes, _, d_tip_com = self._jacobians(kappa, shape)
             gradient = gradient - np.einsum("j,jcn,c->n", self.node_masses_kg, d_nodes, gravity) \
@@ -301,9 +297,8 @@ class RodFinger:
             total = float(np.linalg.norm(forces @ normals))
         else:
             total = float(forces.sum())
-        solution = RodSolution(pressure_pa=float(pressure_pa), curvatures_per_m=kappa, nodes_m=nodes, surface_m=surface,
-                               tip=tip, contact_points_m=points, contact_forces_n=forces, contact_force_n=total,
-                               converged=bool(converged), message=message, iterations=iterations,
-                               max_penetration_m=penetration)
-        solution._element_length_m = self.element_length_m
-        return solution
+        return RodSolution(pressure_pa=float(pressure_pa), curvatures_per_m=kappa, nodes_m=nodes, surface_m=surface,
+                           tip=tip, contact_points_m=points, contact_forces_n=forces, contact_force_n=total,
+                           segment_angles_rad=kappa.reshape(CHAMBER_COUNT, -1).sum(axis=1) * self.element_length_m,
+                           converged=bool(converged), message=message, iterations=iterations,
+                           max_penetration_m=penetration)
