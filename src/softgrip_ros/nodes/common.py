@@ -9,7 +9,7 @@ import threading
 
 import can
 import rclpy
-from rclpy.exceptions import ParameterException
+from rclpy.exceptions import InvalidHandle, ParameterException
 from rclpy._rclpy_pybind11 import RCLError
 from rclpy.time import Time
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
@@ -91,13 +91,26 @@ def run_node(node_factory, args=None, executor_factory=None) -> int:
         if rclpy.ok():
             raise
     finally:
-        close_all(nodes)
+        # the executor first: a callback still running in its pool while its node is destroyed
+        # fails ("destruction was requested") in a task whose exception nobody retrieves
         executor.shutdown(timeout_sec=1.0)
         pool = getattr(executor, "_executor", None)   # Jazzy's shutdown() leaves its thread pool running
         if pool is not None:
             pool.shutdown(wait=True)
+        _read_errors_of_unfinished_callbacks(executor)
+        close_all(nodes)
         rclpy.try_shutdown()
     return 0
+
+
+def _read_errors_of_unfinished_callbacks(executor) -> None:
+    """A callback that was running in the executor's pool when SIGINT/SIGTERM shut ROS down fails
+    on a handle the shutdown destroyed; its task's error would otherwise be printed as "exception
+    never retrieved". Those are read and dropped here; any other error is reported."""
+    for future in list(getattr(executor, "_futures", [])):
+        error = future.exception() if future.done() else None
+        if error is not None and not isinstance(error, (InvalidHandle, RCLError)):
+            print(f"{sys.argv[0]}: a callback failed during shutdown: {type(error).__name__}: {error}", file=sys.stderr)
 
 
 def close_all(nodes) -> None:

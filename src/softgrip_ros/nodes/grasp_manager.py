@@ -72,6 +72,7 @@ class GraspManagerNode(Node):
     def __init__(self, in_process: bool = False, **kwargs):
         super().__init__("grasp_manager", **kwargs)
         self._lock = threading.RLock()
+        self.closed = False
         specs = {s.name: s for s in SPECS}
         v = self.values = declare(self, SPECS)
         self.add_on_set_parameters_callback(
@@ -105,9 +106,12 @@ class GraspManagerNode(Node):
                                           cancel_callback=lambda _: CancelResponse.ACCEPT)
 
     def close(self) -> None:
-        """Stop whatever runs: the pressure controller vents on its own shutdown too."""
+        """Stop whatever runs (the pressure controller vents on its own shutdown too); later
+        in-process calls are ignored, as this node is destroyed before the ones that call it."""
         if self.context.ok() and self.fsm.state.phase != Phase.IDLE:
             self.submit(GraspRequest(Mode.STOP, command_id="shutdown"))
+        with self._lock:
+            self.closed = True
         self.action_server.destroy()
 
     # ---- inputs ---------------------------------------------------------------------------------
@@ -133,12 +137,15 @@ class GraspManagerNode(Node):
     def on_estimate(self, _stamp_s, gauge_pa: float, variance_pa2: float) -> None:
         """The pressure estimate (gauge Pa, Pa^2); the state machine steps on each."""
         with self._lock:
+            if self.closed:
+                return
             self.feedback.on_estimate(gauge_pa, math.sqrt(max(variance_pa2, 0.0)), self._now())
             self._tick()
 
     def on_status(self, msg: ControllerStatus) -> None:
         with self._lock:
-            self.feedback.on_status(msg.fault_flags, msg.measured_gauge_pressure_pa, self._now())
+            if not self.closed:
+                self.feedback.on_status(msg.fault_flags, msg.measured_gauge_pressure_pa, self._now())
 
     def _on_timer(self) -> None:
         with self._lock:
