@@ -26,7 +26,7 @@ setup(
     maintainer_email="softgrip@example.com",
     description="ROS 2 driver suite for a two-finger pneumatic soft gripper.",
     license="Apache-2.0",
-    extras_require={"test": ["pytest", "hypothesis"]},
+    extras_require={"test": ["pytest", "hypothesis"], "reference": ["pyelastica==1.0.0"]},
     entry_points={
         "console_scripts": [
             "pressure_controller = softgrip_ros.nodes.pressure_controller:main",

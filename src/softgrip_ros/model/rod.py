@@ -125,6 +125,7 @@ class RodFinger:
         masses = np.full(n + 1, density * self.element_length_m)
         masses[0] = masses[-1] = 0.5 * density * self.element_length_m
         self.node_masses_kg = masses
+        self.finger_width_m, self.linear_density_kg_per_m = finger_width_m, density
         self.tip_mass_kg = density * g.tip_length_m
         offsets = [g.chamber_face_offset_m(i) for i in range(CHAMBER_COUNT)]
         self.surface_offsets_m = np.array([offsets[min(k // elements_per_segment, CHAMBER_COUNT - 1)]
