@@ -78,8 +78,15 @@ def test_envelop_clamp_40mm_then_release_over_topics(suite):
     assert len(held) >= 30 and all(s.phase == S.HOLDING for s in held)     # >= 10 Hz (20 Hz configured)
     assert max(abs(s.estimated_gauge_pressure_pa - target) for s in held) < 3e3
     assert all(s.clamp_force_n > 0.0 for s in held)
+    # the clamp is a contact scene: the grasp reports L2, and kinematics poses the fingers on the object
+    assert all(s.model_fidelity == S.FIDELITY_L2 for s in held)
+    kinematics = nodes["kinematics"]
+    on_object = wait_for(lambda: kinematics.last and kinematics.last[1].model == "l2" and kinematics.last[1],
+                         message="kinematics on L2")
+    assert on_object.contact_force_n > 0.0 and "cylinder" in on_object.message
     publisher.publish(grasp(GraspCommand.RELEASE, command_id="rel"))
     wait_for(lambda: states[-1].phase == S.IDLE and states[-1].command_id == "rel", timeout=5.0, message="IDLE after RELEASE")
+    wait_for(lambda: kinematics.last[1].model in ("l0", "l1"), message="kinematics back on free bending")
 
 
 def test_pinch_a_sheet_by_action_with_feedback_and_result(suite):

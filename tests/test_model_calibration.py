@@ -51,16 +51,3 @@ def test_each_type_meets_its_own_alpha():
 def test_saturation_fit_rejects_impossible_growth():
     with pytest.raises(RuntimeError, match="did not converge"):
         calibration.fit_saturation(0.5, 0.6)  # growth rising again cannot come from a limit
-
-
-def test_fidelity_choice_fixed_and_auto():
-    from softgrip_ros.model.calibration import FidelityChoice
-    fixed = FidelityChoice("l1")
-    assert fixed.model_for(10e3).model == fixed.model_for(55e3).model == "l1"
-    auto = FidelityChoice("auto")
-    validated = auto.models["l0"].calibration.validated_max_pressure_pa
-    assert auto.model_for(20e3).model == "l0"                        # free bending, validated range
-    assert auto.model_for(validated + 1e3).model == "l1"             # beyond the validated range
-    assert auto.model_for(-20e3).model == "l1"                       # past tip contact
-    with pytest.raises(ValueError, match="fidelity must be one of"):
-        FidelityChoice("l2")

@@ -97,3 +97,22 @@ def test_bad_input_is_refused_with_a_reason(kwargs, message):
         Circle(0.0, 0.1, -1.0)
     with pytest.raises(ValueError, match="finger_width_m"):
         RodFinger(KIN.geometry, KIN.calibration, finger_width_m=5.0)
+
+
+def test_the_onset_of_contact_is_continuous_and_converges():
+    """Stability where methods fail: at the pressure where the closing finger first touches the
+    cylinder the active set changes. Just before it there is no force; just after, a small one;
+    both solves converge (or would say so), and the force starts from zero, without a jump."""
+    from scipy.optimize import brentq
+
+    def clearance(pressure):
+        return ROD._gaps(OBJECT_40MM, ROD._shape(ROD.free_curvatures(pressure))[3]).min()
+
+    onset = brentq(clearance, 0.0, 30e3, xtol=1.0)              # free shape touches the object here
+    before = ROD.solve(onset + 50.0, obstacle=OBJECT_40MM, from_pressure_pa=30e3, steps=6)
+    after = ROD.solve(onset - 50.0, obstacle=OBJECT_40MM, from_pressure_pa=30e3, steps=6)
+    deeper = ROD.solve(onset - 2e3, obstacle=OBJECT_40MM, from_pressure_pa=30e3, steps=6)
+    assert before.converged and after.converged and deeper.converged, (before.message, after.message)
+    assert before.contact_force_n == 0.0
+    assert 0.0 < after.contact_force_n < 0.05 * deeper.contact_force_n
+    assert after.max_penetration_m < 1e-9

@@ -14,8 +14,8 @@ class GraspLoop:
     """1 kHz plant, 500 Hz controller on a 300 Pa sensor, FSM updated at 100 Hz on the true pressure
     plus 100 Pa noise (the estimator's accuracy). ``valve_stuck`` keeps the valves closed."""
 
-    def __init__(self, kinematics, config=None, valve_stuck=False, seed=0):
-        self.fsm = GraspStateMachine(kinematics, config)
+    def __init__(self, kinematics, config=None, valve_stuck=False, seed=0, scene_model=None):
+        self.fsm = GraspStateMachine(kinematics, config, scene_model=scene_model)
         self.plant = PneumaticPlant()
         self.state = self.plant.initial_state()
         self.controller = PressureController()

@@ -6,7 +6,7 @@ both sides agree on what "all fields intact" means.
 import math
 
 from softgrip_interfaces.action import Grasp
-from softgrip_interfaces.msg import ControllerStatus, GraspCommand, GripperState, PressureCommand
+from softgrip_interfaces.msg import ControllerStatus, GraspCommand, GraspScene, GripperState, PressureCommand
 from std_msgs.msg import Header
 from builtin_interfaces.msg import Time
 
@@ -62,12 +62,18 @@ def grasp_feedback() -> Grasp.Feedback:
     return Grasp.Feedback(state=gripper_state())
 
 
+def grasp_scene() -> GraspScene:
+    return GraspScene(header=_header("softgrip_base"), kind=GraspScene.CYLINDER, object_diameter_m=0.04,
+                      object_center_z_m=0.0981, opening_gauge_pressure_pa=17e3)
+
+
 # topic name -> (message type, factory)
 SAMPLES = {
     "roundtrip/grasp_command": (GraspCommand, grasp_command),
     "roundtrip/gripper_state": (GripperState, gripper_state),
     "roundtrip/pressure_command": (PressureCommand, pressure_command),
     "roundtrip/controller_status": (ControllerStatus, controller_status),
+    "roundtrip/grasp_scene": (GraspScene, grasp_scene),
     "roundtrip/grasp_goal": (Grasp.Goal, grasp_goal),
     "roundtrip/grasp_result": (Grasp.Result, grasp_result),
     "roundtrip/grasp_feedback": (Grasp.Feedback, grasp_feedback),

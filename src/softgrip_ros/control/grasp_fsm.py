@@ -29,7 +29,9 @@ import math
 
 from softgrip_ros.checks import require_positive
 from softgrip_ros.control.pressure import ERROR_FAULTS, Fault, Source
+from softgrip_ros.model.fidelity import FREE, Scene, cylinder_scene
 from softgrip_ros.model.grasp import ClampForceLaw
+from softgrip_ros.model.rod import Sheet
 
 
 HALTING_FAULTS = ERROR_FAULTS | Fault.REGULATOR | Fault.BUS_ERROR
@@ -173,10 +175,16 @@ TERMINAL = {Mode.ENVELOP_CLAMP: (Phase.HOLDING,), Mode.PINCH: (Phase.HOLDING,), 
 
 class GraspStateMachine:
     """Feed it commands (:meth:`command`) and estimates (:meth:`update`); read :attr:`state` and
-    :attr:`request`. ``kinematics`` is a :class:`~softgrip_ros.model.kinematics.GripperKinematics`."""
+    :attr:`request`. ``kinematics`` is a :class:`~softgrip_ros.model.kinematics.GripperKinematics`.
+    ``scene_model`` (a :class:`~softgrip_ros.model.fidelity.SceneModel`, optional): :meth:`scene`
+    then names the object being clamped, and the state's ``model_fidelity`` is the model its
+    selector picks for that scene (the kinematics node's choice, with the same settings)."""
 
-    def __init__(self, kinematics, config: GraspConfig | None = None, force_law: ClampForceLaw | None = None):
+    def __init__(self, kinematics, config: GraspConfig | None = None, force_law: ClampForceLaw | None = None,
+                 scene_model=None):
         self.kinematics = kinematics
+        self.scene_model = scene_model
+        self._scenes = {}
         self.config = config or GraspConfig()
         self.force_law = force_law or ClampForceLaw()
         self.state = GraspState(model_fidelity=kinematics.model)
@@ -372,10 +380,25 @@ class GraspStateMachine:
             self._settled_since = now
         return now - self._settled_since >= self.config.settle_s
 
+    def scene(self) -> Scene:
+        """What the fingers meet: the commanded object while CLAMPING or HOLDING it (a cylinder
+        level with the tip chambers at the opening pressure, or for PINCH a sheet), else free bending."""
+        r = self._request
+        if (self.scene_model is None or r is None or self.state.phase not in (Phase.CLAMPING, Phase.HOLDING)
+                or not math.isfinite(r.object_diameter_m)):
+            return FREE
+        key = (Mode(r.mode), r.object_diameter_m, self._open_pa)
+        if key not in self._scenes:
+            self._scenes = {key: Scene(Sheet(r.object_diameter_m), 0.0) if key[0] == Mode.PINCH
+                            else cylinder_scene(self.scene_model.rod, r.object_diameter_m, self._open_pa)}
+        return self._scenes[key]
+
     def _model(self, estimate: float) -> None:
         s = self.state
         if not math.isfinite(estimate):
             return
+        if self.scene_model is not None:
+            s.model_fidelity = self.scene_model.selector.choose(estimate, self.scene()).model
         k = self.kinematics
         pose = k.pose(min(max(estimate, k.MODEL_MIN_PRESSURE_PA), k.MODEL_MAX_PRESSURE_PA))
         s.included_angle_rad, s.tip_spacing_m, s.root_spacing_m = (pose.included_angle_rad, pose.tip_spacing_m,

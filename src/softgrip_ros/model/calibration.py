@@ -175,28 +175,3 @@ def build_kinematics(model: str = "l0", cavity_type: str = "type_II", max_pressu
     return GripperKinematics(load_geometry(cavity_type, geometry_path),
                              load_calibration(cavity_type, calibration_path),
                              model=model, max_pressure_pa=max_pressure_pa)
-
-
-
-class FidelityChoice:
-    """The bending law for a pressure: ``l0`` or ``l1`` always, or ``auto``.
-
-    auto (provisional, until a benchmark writes validated error bounds): L0 inside its validated
-    range (free bending between tip contact and validated_max_pressure_pa), L1 outside it.
-    """
-
-    CHOICES = ("l0", "l1", "auto")
-
-    def __init__(self, fidelity: str, cavity_type: str = "type_II", max_pressure_pa: float = 50e3):
-        if fidelity not in self.CHOICES:
-            raise ValueError(f"fidelity must be one of {list(self.CHOICES)}, got {fidelity!r}")
-        self.fidelity = fidelity
-        self.models = {name: build_kinematics(name, cavity_type, max_pressure_pa) for name in ("l0", "l1")
-                       if fidelity in (name, "auto")}
-
-    def model_for(self, pressure_pa: float) -> GripperKinematics:
-        if self.fidelity != "auto":
-            return self.models[self.fidelity]
-        l0 = self.models["l0"]
-        inside = l0.contact_pressure_pa < pressure_pa <= l0.calibration.validated_max_pressure_pa
-        return l0 if inside else self.models["l1"]

@@ -145,6 +145,15 @@ class RodFinger:
         theta = np.asarray(self.law.angles(float(pressure_pa)), dtype=float)
         return (theta / self.geometry.segment_length_m)[self.element_segment]
 
+    def chamber_face_point_m(self, pressure_pa: float, chamber_index: int) -> np.ndarray:
+        """(x, z) of the chamber-side surface at the middle of chamber ``chamber_index``'s face, in
+        free bending at ``pressure_pa`` (the nearest node)."""
+        if not 0 <= chamber_index < CHAMBER_COUNT:
+            raise ValueError(f"chamber_index must lie in [0, {CHAMBER_COUNT - 1}], got {chamber_index}")
+        node = chamber_index * self.elements_per_segment + int(round(
+            0.5 * self.geometry.chamber_length_m / self.element_length_m))
+        return self._shape(self.free_curvatures(pressure_pa))[3][node]
+
     # ---- geometry of a shape -----------------------------------------------------------------
     def _shape(self, kappa: np.ndarray):
         """Nodes, headings, surface points and the tip for element curvatures ``kappa``."""

@@ -57,6 +57,7 @@ def make_nodes(context=None, overrides: dict | None = None) -> list:
         nodes += [estimator, kinematics, grasp_manager]
         controller.sensor_listeners.append(estimator.on_sensor_sample)
         controller.status_listeners += [estimator.on_status, grasp_manager.on_status]
+        grasp_manager.scene_listeners.append(kinematics.on_scene)
         estimator.estimate_listeners += [kinematics.on_estimate, grasp_manager.on_estimate]
     except Exception:
         close_all(nodes)

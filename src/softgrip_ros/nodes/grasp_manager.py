@@ -14,24 +14,31 @@ import threading
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile
 from rclpy.task import Future
 from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Header
 
 from softgrip_interfaces.action import Grasp
-from softgrip_interfaces.msg import ControllerStatus, GraspCommand, GripperState, PressureCommand
+from softgrip_interfaces.msg import ControllerStatus, GraspCommand, GraspScene, GripperState, PressureCommand
 from softgrip_ros.control.grasp_fsm import (ControllerFeedback, GraspConfig, GraspRequest, GraspStateMachine, Mode,
                                             Phase)
 from softgrip_ros.control.pressure import Source
 from softgrip_ros.model.calibration import build_kinematics
+from softgrip_ros.model.fidelity import CHOICES as FIDELITY_CHOICES
+from softgrip_ros.model.fidelity import FREE, SceneModel
 from softgrip_ros.model.grasp import ClampForceLaw
-from softgrip_ros.nodes.common import P_ATM_PA, publish, run_node
+from softgrip_ros.nodes.common import P_ATM_PA, notify, publish, run_node
+from softgrip_ros.nodes.kinematics import scene_message
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
 _G, _F = GraspConfig(), ClampForceLaw()
 SPECS = [
     ParamSpec("cavity_type", "type_II", "finger type of config/gripper_geometry.yaml", choices=("type_I", "type_II", "type_III")),
-    ParamSpec("fidelity", "l0", "bending law of the grasp model", choices=("l0", "l1")),
+    ParamSpec("fidelity", "l0", "bending law of the grasp model (opening pressures, D2)", choices=("l0", "l1")),
+    ParamSpec("scene_fidelity", "auto", "model reported in grasp_state for the scene: as the kinematics node's fidelity",
+              choices=FIDELITY_CHOICES),
+    ParamSpec("tolerance_m", 1e-3, "as the kinematics node's tolerance_m", "m", 1e-6, 0.1),
     ParamSpec("state_rate_hz", 20.0, "grasp_state publish rate (and on every change)", "Hz", 10.0, 200.0),
     ParamSpec("command_refresh_s", 0.5, "pressure/command re-sent this often", "s", 0.05, 10.0),
     ParamSpec("estimate_timeout", 0.1, "an estimate older than this is not used (controller/status instead)", "s", 0.01, 5.0),
@@ -86,7 +93,12 @@ class GraspManagerNode(Node):
             hold_error_time_s=v["hold_error_time"])
         force_law = ClampForceLaw(v["clamp_stiffness_n_per_pa"], v["friction_coefficient"], v["safety_factor"])
         kinematics = build_kinematics(v["fidelity"], v["cavity_type"], max_pressure_pa=v["max_gauge_pressure_pa"])
-        self.fsm = GraspStateMachine(kinematics, config, force_law)
+        scene_model = SceneModel(v["scene_fidelity"], v["tolerance_m"], v["cavity_type"])
+        self.fsm = GraspStateMachine(kinematics, config, force_law, scene_model)
+        self.scene = FREE
+        self.scene_listeners = []            # in-process: kinematics.on_scene
+        self.scene_pub = self.create_publisher(GraspScene, "grasp_scene", QoSProfile(
+            depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
         self.feedback = ControllerFeedback(v["estimate_timeout"], v["status_timeout"])
         self.sent = (None, -math.inf)
         self.published_changes = -1
@@ -164,6 +176,7 @@ class GraspManagerNode(Node):
         if force_state or self.fsm.changes != self.published_changes:
             self.published_changes = self.fsm.changes
             self._publish_state()
+            self._share_scene()
             for waiter in self.waiters:
                 waiter.set_result(True)
             self.waiters.clear()
@@ -185,6 +198,15 @@ class GraspManagerNode(Node):
             included_angle_rad=s.included_angle_rad, tip_spacing_m=s.tip_spacing_m, root_spacing_m=s.root_spacing_m,
             clamp_force_n=s.clamp_force_n, model_fidelity=s.model_fidelity,
             pressure_in_validated_range=s.in_validated_range, message=s.message)
+
+    def _share_scene(self) -> None:
+        scene = self.fsm.scene()
+        if scene != self.scene:
+            self.scene = scene
+            message = scene_message(scene)
+            message.header = self._header()
+            publish(self, self.scene_pub, message)
+            notify(self.scene_listeners, scene)
 
     def _publish_state(self) -> None:
         publish(self, self.state_pub, self.state_message())

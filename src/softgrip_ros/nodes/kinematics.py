@@ -5,10 +5,14 @@ In: pressure/estimate. Out: tip_pose/left and tip_pose/right (PoseWithCovariance
 to the tip's tangent about y), after each estimate (at most ``publish_rate_hz``). Their
 covariance is the pressure variance pushed through the model's tip derivative,
 J var J' with J = d(x, z, tip angle)/dp. finger_markers (MarkerArray line strips of both
-backbones) only while someone subscribes. /diagnostics: the model in use and whether the
-pressure lies in its validated range.
+backbones) only while someone subscribes. /diagnostics: the model in use, its error bound and
+whether the pressure lies in its validated range.
 
-``fidelity``: l0, l1, or auto (softgrip_ros.model.calibration.FidelityChoice).
+``fidelity``: l0, l1, l2, or auto: the cheapest model whose error bound for the scene meets
+``tolerance_m`` (softgrip_ros.model.fidelity). The scene comes from the grasp manager on
+``grasp_scene`` (or by direct calls in the composed controller): free bending, or an object
+clamped or pinched. L2 solves (milliseconds) run on a worker thread, only when the pressure moved
+by more than ``resolve_pressure_pa``; the poses use the latest solve meanwhile.
 """
 from __future__ import annotations
 
@@ -18,18 +22,26 @@ import threading
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PoseWithCovarianceStamped
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile
 from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from softgrip_ros.model.calibration import FidelityChoice
+from softgrip_interfaces.msg import GraspScene
+from softgrip_ros.model.fidelity import CHOICES, FREE, Scene, SceneModel
+from softgrip_ros.model.rod import Circle, Sheet
 from softgrip_ros.nodes.common import P_ATM_PA, publish, run_node, stamp_msg, stamp_seconds
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
 SPECS = [
     ParamSpec("publish_rate_hz", 200.0, "largest tip_pose rate (one per estimate up to this)", "Hz", 1.0, 2000.0),
     ParamSpec("marker_rate_hz", 10.0, "finger_markers rate while subscribed", "Hz", 0.5, 60.0),
-    ParamSpec("fidelity", "l0", "bending law: l0, l1, or auto (l0 in the validated range, else l1)", choices=FidelityChoice.CHOICES),
+    ParamSpec("fidelity", "auto", "model: l0, l1, l2, or auto (the cheapest whose error bound meets tolerance_m)",
+              choices=CHOICES),
+    ParamSpec("tolerance_m", 1e-3, "tip-position error auto must stay within (bounds: config/model_error_bounds.yaml)",
+              "m", 1e-6, 0.1),
+    ParamSpec("resolve_pressure_pa", 200.0, "an L2 solve runs again once the pressure moved by more than this", "Pa",
+              0.0, 5000.0),
     ParamSpec("cavity_type", "type_II", "finger type of config/gripper_geometry.yaml", choices=("type_I", "type_II", "type_III")),
     ParamSpec("frame_id", "softgrip_base", "frame of the tip poses and markers"),
 ]
@@ -47,10 +59,16 @@ class KinematicsNode(Node):
         self.values = declare(self, SPECS)
         self.add_on_set_parameters_callback(
             lambda params: check_all(specs, params, lambda _: "kinematics parameters apply at start-up: restart the node"))
-        self.fidelity = FidelityChoice(self.values["fidelity"], self.values["cavity_type"])
+        self.model = SceneModel(self.values["fidelity"], self.values["tolerance_m"], self.values["cavity_type"],
+                                resolve_pressure_pa=self.values["resolve_pressure_pa"])
+        self.scene = FREE
+        self._solve_wanted = threading.Condition(self._lock)
+        self._solve_request = None           # (pressure, scene), the latest wins
+        self._solver = threading.Thread(target=self._solve_loop, name="kinematics-l2", daemon=True)
+        self._solver.start()
         self.period_s = 1.0 / self.values["publish_rate_hz"]
         self.last_publish_s = -math.inf
-        self.last = None                     # (pressure, variance, model name, pose)
+        self.last = None                     # (variance, Evaluation)
         self.left_pub = self.create_publisher(PoseWithCovarianceStamped, "tip_pose/left", 10)
         self.right_pub = self.create_publisher(PoseWithCovarianceStamped, "tip_pose/right", 10)
         self.marker_pub = self.create_publisher(MarkerArray, "finger_markers", 1)
@@ -58,6 +76,8 @@ class KinematicsNode(Node):
         if not in_process:
             self.create_subscription(FluidPressure, "pressure/estimate", lambda msg: self.on_estimate(
                 stamp_seconds(msg.header.stamp), msg.fluid_pressure - P_ATM_PA, msg.variance), 10)
+            latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            self.create_subscription(GraspScene, "grasp_scene", self._on_scene_message, latched)
         self.create_timer(1.0 / self.values["marker_rate_hz"], self._publish_markers)
         self.create_timer(1.0, self._publish_diagnostics)
 
@@ -65,21 +85,51 @@ class KinematicsNode(Node):
         """Nothing to vent: the kinematics only listens. Later in-process estimates are ignored."""
         with self._lock:
             self.closed = True
+            self._solve_wanted.notify_all()
+        self._solver.join(timeout=2.0)
+
+    def on_scene(self, scene: Scene) -> None:
+        """What the fingers meet from now on (the grasp manager's call)."""
+        with self._lock:
+            self.scene = scene
+
+    def _on_scene_message(self, msg) -> None:
+        try:
+            scene = scene_from_message(msg)
+        except ValueError as error:
+            self.get_logger().error(f"grasp_scene refused, kept {self.scene.describe()}: {error}")
+            return
+        self.on_scene(scene)
+
+    def _solve_loop(self) -> None:
+        while True:
+            with self._lock:
+                while self._solve_request is None and not self.closed:
+                    self._solve_wanted.wait()
+                if self.closed:
+                    return
+                pressure, scene = self._solve_request
+                self._solve_request = None
+            try:
+                self.model.solve_rod(pressure, scene)
+            except Exception as error:        # noqa: BLE001 - a failed solve must not end the worker
+                self.get_logger().error(f"L2 solve at {pressure:.0f} Pa failed: {error!r}")
 
     def on_estimate(self, stamp_s: float, gauge_pa: float, variance_pa2: float) -> None:
         """Publish both tip poses for the estimate at ``stamp_s``, unless one went out less than a period ago."""
         with self._lock:
             if self.closed or stamp_s - self.last_publish_s < 0.9 * self.period_s or not math.isfinite(gauge_pa):
                 return
-            model = self.fidelity.model_for(gauge_pa)
-            pressure = min(max(gauge_pa, model.MODEL_MIN_PRESSURE_PA), model.max_pressure_pa)
-            pose = model.pose(pressure)
-            slope = model.tip_slope_at(pressure)           # d(x, z, angle)/dp of the left tip
-            self.last = (pressure, variance_pa2, model, pose)
+            evaluation = self.model.evaluate(gauge_pa, self.scene, solve=False)
+            if self.model.needs_solve(evaluation.pressure_pa, self.scene):
+                self._solve_request = (evaluation.pressure_pa, self.scene)
+                self._solve_wanted.notify()
+            self.last = (variance_pa2, evaluation)
             self.last_publish_s = stamp_s
+        (x_left, z, angle_left), slope = evaluation.tip, evaluation.tip_slope    # slope: d(x, z, angle)/dp
         header = Header(stamp=stamp_msg(stamp_s), frame_id=self.values["frame_id"])
         for sign, publisher in ((1.0, self.left_pub), (-1.0, self.right_pub)):
-            x, z, angle = pose.left_tip_x_m * sign, pose.left_tip_z_m, pose.left_tip_angle_rad * sign
+            x, angle = x_left * sign, angle_left * sign
             jacobian = (sign * slope[0], 0.0, slope[1], 0.0, sign * slope[2], 0.0)     # over x y z rx ry rz
             message = PoseWithCovarianceStamped(header=header)
             message.pose.pose.position.x, message.pose.pose.position.z = x, z
@@ -90,8 +140,7 @@ class KinematicsNode(Node):
     def _publish_markers(self) -> None:
         if self.last is None or self.marker_pub.get_subscription_count() == 0:
             return                                          # model no more than a scene needs
-        pressure, _, model, _ = self.last
-        backbone = model.backbone(pressure)
+        backbone = self.last[1].backbone()
         header = Header(stamp=self.get_clock().now().to_msg(), frame_id=self.values["frame_id"])
         markers = MarkerArray()
         for marker_id, sign in enumerate((1.0, -1.0)):
@@ -108,13 +157,43 @@ class KinematicsNode(Node):
         if self.last is None:
             status.level, status.message = DiagnosticStatus.WARN, "no pressure estimate yet"
         else:
-            pressure, variance, model, pose = self.last
-            status.level = DiagnosticStatus.OK if pose.in_validated_range else DiagnosticStatus.WARN
-            status.message = f"{model.model} at {pressure:.0f} Pa" + ("" if pose.in_validated_range else ": outside the validated range")
-            status.values = [KeyValue(key="model_fidelity", value=model.model),
-                             KeyValue(key="pressure_in_validated_range", value=str(bool(pose.in_validated_range))),
-                             KeyValue(key="tip_spacing_m", value=f"{pose.tip_spacing_m:.5f}")]
+            e = self.last[1]
+            good = e.in_validated_range and e.meets_tolerance
+            status.level = DiagnosticStatus.OK if good else DiagnosticStatus.WARN
+            status.message = (f"{e.model} at {e.pressure_pa:.0f} Pa, {e.message}"
+                              + ("" if e.in_validated_range else "; outside the validated range")
+                              + ("" if e.meets_tolerance else f"; error bound {1e3 * e.bound_m:.2f} mm exceeds the tolerance"))
+            status.values = [KeyValue(key="model_fidelity", value=e.model),
+                             KeyValue(key="scene_class", value=e.scene_class),
+                             KeyValue(key="error_bound_m", value=f"{e.bound_m:.3g}"),
+                             KeyValue(key="pressure_in_validated_range", value=str(bool(e.in_validated_range))),
+                             KeyValue(key="contact_force_n", value=f"{e.contact_force_n:.3f}"),
+                             KeyValue(key="l2_solves", value=str(self.model.solves))]
         publish(self, self.diagnostics_pub, DiagnosticArray(header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
+
+
+def scene_message(scene: Scene) -> GraspScene:
+    message = GraspScene(kind=GraspScene.FREE, opening_gauge_pressure_pa=float(scene.opening_gauge_pa))
+    if isinstance(scene.obstacle, Circle):
+        message.kind, message.object_diameter_m = GraspScene.CYLINDER, 2.0 * scene.obstacle.radius_m
+        message.object_center_z_m = scene.obstacle.center_z_m
+    elif isinstance(scene.obstacle, Sheet):
+        message.kind, message.object_diameter_m = GraspScene.SHEET, scene.obstacle.thickness_m
+    return message
+
+
+def scene_from_message(message) -> Scene:
+    """The Scene of a GraspScene; ValueError (with the reason) for an unknown kind or a bad number."""
+    opening = float(message.opening_gauge_pressure_pa)
+    if not math.isfinite(opening):
+        raise ValueError(f"opening_gauge_pressure_pa must be finite, got {opening}")
+    if message.kind == GraspScene.FREE:
+        return FREE
+    if message.kind == GraspScene.CYLINDER:
+        return Scene(Circle(0.0, float(message.object_center_z_m), 0.5 * float(message.object_diameter_m)), opening)
+    if message.kind == GraspScene.SHEET:
+        return Scene(Sheet(float(message.object_diameter_m)), opening)
+    raise ValueError(f"unknown scene kind {message.kind}")
 
 
 def main(args=None) -> int:

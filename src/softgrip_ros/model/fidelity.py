@@ -1,0 +1,212 @@
+"""Model no more than a scene needs: pick L0, L1 or L2 for a pressure and a scene, and evaluate it.
+
+A :class:`Scene` is free bending or a contact with an object (a :class:`~softgrip_ros.model.rod.Circle`
+seen end-on, or a :class:`~softgrip_ros.model.rod.Sheet`). With the pressure it falls in one of
+three scene classes:
+
+    free         free bending inside the validated range (tip contact < p <= 46 kPa)
+    free_beyond  free bending outside it (above 46 kPa, where the linear law runs away)
+    contact      an object between the fingers (L0 and L1 ignore it and pass through it)
+
+``config/model_error_bounds.yaml`` (written by ``scripts/bench_speed_accuracy.py``) holds, per
+model, the largest tip-position error against the PyElastica reference seen in each scene class
+and the median cost of one pose. ``auto`` picks the cheapest model whose bound meets
+``tolerance_m``; when none does, the one with the smallest bound, and says so.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import pathlib
+
+import yaml
+
+from softgrip_ros.model.calibration import build_kinematics
+from softgrip_ros.model.geometry import CHAMBER_COUNT
+from softgrip_ros.model.rod import Circle, RodFinger, Sheet
+
+BOUNDS_FILE = "model_error_bounds.yaml"
+MODELS = ("l0", "l1", "l2")
+SCENE_CLASSES = ("free", "free_beyond", "contact")
+CHOICES = MODELS + ("auto",)
+
+
+@dataclasses.dataclass(frozen=True)
+class Scene:
+    """What the fingers meet. ``opening_gauge_pa``: the free-bending pressure the fingers were
+    opened to around the object (where the L2 solve starts; it must clear the object)."""
+
+    obstacle: Circle | Sheet | None = None
+    opening_gauge_pa: float = 0.0
+
+    @property
+    def contact(self) -> bool:
+        return self.obstacle is not None
+
+    def describe(self) -> str:
+        if isinstance(self.obstacle, Circle):
+            return f"a {2e3 * self.obstacle.radius_m:.1f} mm cylinder at z = {1e3 * self.obstacle.center_z_m:.1f} mm"
+        if isinstance(self.obstacle, Sheet):
+            return f"a {1e3 * self.obstacle.thickness_m:.2f} mm sheet"
+        return "free bending"
+
+
+FREE = Scene()
+
+
+def cylinder_scene(rod: RodFinger, diameter_m: float, opening_gauge_pa: float) -> Scene:
+    """A cylinder of ``diameter_m`` on the centre line, level with the middle of the tip chambers
+    at the opening pressure (where D2, which the grasp opens to clear it, is measured)."""
+    if not (math.isfinite(diameter_m) and diameter_m > 0 and math.isfinite(opening_gauge_pa)):
+        raise ValueError(f"a cylinder scene needs a positive diameter and a finite opening pressure, "
+                         f"got {diameter_m} m at {opening_gauge_pa} Pa")
+    z_m = float(rod.chamber_face_point_m(opening_gauge_pa, CHAMBER_COUNT - 1)[1])
+    return Scene(Circle(0.0, z_m, 0.5 * diameter_m), opening_gauge_pa)
+
+
+@dataclasses.dataclass(frozen=True)
+class ErrorBounds:
+    """Per model: the tip error bound (m) in each scene class, and the median cost of a pose (s)."""
+
+    tip_error_bound_m: dict      # {model: {scene class: m}}
+    median_cost_s: dict          # {model: s}
+    source: str = ""
+
+    @classmethod
+    def load(cls, path=None) -> "ErrorBounds":
+        if path is None:
+            from softgrip_ros.config_paths import config_file
+            path = config_file(BOUNDS_FILE)
+        with pathlib.Path(path).open() as handle:
+            doc = yaml.safe_load(handle) or {}
+        try:
+            models = doc["models"]
+            bounds = {m: {c: float(models[m]["tip_error_bound_m"][c]) for c in SCENE_CLASSES} for m in MODELS}
+            costs = {m: float(models[m]["median_cost_s"]) for m in MODELS}
+        except (KeyError, TypeError, ValueError) as error:
+            raise ValueError(f"{path}: not a model error-bound table ({error!r}); "
+                             "regenerate it with scripts/bench_speed_accuracy.py") from None
+        return cls(bounds, costs, str(path))
+
+
+@dataclasses.dataclass(frozen=True)
+class Choice:
+    model: str
+    scene_class: str
+    bound_m: float
+    meets_tolerance: bool
+
+
+class ModelSelector:
+    """``fidelity``: l0, l1, l2 (always that one) or auto (the cheapest that meets ``tolerance_m``)."""
+
+    def __init__(self, fidelity: str, tolerance_m: float, bounds: ErrorBounds, validated_range_pa: tuple):
+        if fidelity not in CHOICES:
+            raise ValueError(f"fidelity must be one of {list(CHOICES)}, got {fidelity!r}")
+        if not (math.isfinite(tolerance_m) and tolerance_m > 0):
+            raise ValueError(f"tolerance_m must be a positive length, got {tolerance_m}")
+        self.fidelity, self.tolerance_m, self.bounds = fidelity, tolerance_m, bounds
+        self.validated_range_pa = validated_range_pa
+
+    def scene_class(self, pressure_pa: float, scene: Scene) -> str:
+        if scene.contact:
+            return "contact"
+        low, high = self.validated_range_pa
+        return "free" if low < pressure_pa <= high else "free_beyond"
+
+    def choose(self, pressure_pa: float, scene: Scene = FREE) -> Choice:
+        scene_class = self.scene_class(pressure_pa, scene)
+        bound = {m: self.bounds.tip_error_bound_m[m][scene_class] for m in MODELS}
+        if self.fidelity != "auto":
+            model = self.fidelity
+        else:
+            meeting = [m for m in MODELS if bound[m] <= self.tolerance_m]
+            model = (min(meeting, key=self.bounds.median_cost_s.get) if meeting else min(MODELS, key=bound.get))
+        return Choice(model, scene_class, bound[model], bound[model] <= self.tolerance_m)
+
+
+@dataclasses.dataclass
+class Evaluation:
+    """One pose of the left finger (the right one mirrors it) by the chosen model."""
+
+    model: str
+    scene_class: str
+    pressure_pa: float
+    tip: tuple                    # (x, z, tangent angle from +z)
+    tip_slope: tuple              # d tip / dp (per Pa)
+    backbone: object              # () -> [(x, z), ...] for markers, computed only when asked for
+    in_validated_range: bool
+    contact_force_n: float        # L2 only (0 otherwise)
+    bound_m: float
+    meets_tolerance: bool
+    message: str
+
+
+class SceneModel:
+    """Evaluate the chosen model. An L2 solve costs milliseconds, so it runs again only when the
+    pressure moved by more than ``resolve_pressure_pa`` or the scene changed; a failed solve falls
+    back to L1 (which ignores the object) and says so."""
+
+    def __init__(self, fidelity: str = "auto", tolerance_m: float = 1e-3, cavity_type: str = "type_II",
+                 max_pressure_pa: float = 60e3, bounds: ErrorBounds | None = None, resolve_pressure_pa: float = 200.0):
+        self.free = {m: build_kinematics(m, cavity_type, max_pressure_pa) for m in ("l0", "l1")}
+        l1 = self.free["l1"]
+        self.rod = RodFinger(l1.geometry, l1.calibration)
+        self.selector = ModelSelector(fidelity, tolerance_m, bounds or ErrorBounds.load(),
+                                      (l1.contact_pressure_pa, l1.calibration.validated_max_pressure_pa))
+        if not (math.isfinite(resolve_pressure_pa) and resolve_pressure_pa >= 0):
+            raise ValueError(f"resolve_pressure_pa must be >= 0, got {resolve_pressure_pa}")
+        self.resolve_pressure_pa = resolve_pressure_pa
+        self.solves = 0
+        self._rod_cache = None           # (scene, pressure, solution, previous (pressure, tip))
+
+    def evaluate(self, gauge_pa: float, scene: Scene = FREE, solve: bool = True) -> Evaluation:
+        """The chosen model's pose at ``gauge_pa``. solve=False never runs an L2 solve: it uses the
+        last one for this scene (whatever its pressure; see :meth:`needs_solve`), or L1 until there is one."""
+        if not math.isfinite(gauge_pa):
+            raise ValueError(f"gauge pressure must be finite, got {gauge_pa}")
+        choice = self.selector.choose(gauge_pa, scene)
+        free = self.free["l0" if choice.model == "l0" else "l1"]
+        pressure = min(max(gauge_pa, free.MODEL_MIN_PRESSURE_PA), free.max_pressure_pa)
+        low, high = self.selector.validated_range_pa
+        validated = low <= pressure <= high
+        message = scene.describe()
+        if choice.model == "l2":
+            if solve and self.needs_solve(pressure, scene):
+                self.solve_rod(pressure, scene)
+            cache = self._rod_cache
+            if cache is not None and cache[0] == scene and cache[2].converged:
+                solution, slope = cache[2], cache[3]
+                return Evaluation("l2", choice.scene_class, pressure, tuple(float(v) for v in solution.tip), slope,
+                                  lambda nodes=solution.nodes_m: [tuple(map(float, p)) for p in nodes], validated,
+                                  solution.contact_force_n, choice.bound_m, choice.meets_tolerance,
+                                  message + (f" (l2 at {cache[1]:.0f} Pa)" if cache[1] != pressure else ""))
+            reason = (f"l2 failed ({cache[2].message})" if cache is not None and cache[0] == scene else "l2 pending")
+            message = f"{reason}; l1 used, which ignores {scene.describe()}"
+            bound = self.selector.bounds.tip_error_bound_m["l1"][choice.scene_class]
+            choice = dataclasses.replace(choice, model="l1", bound_m=bound, meets_tolerance=bound <= self.selector.tolerance_m)
+        pose = free.pose(pressure)
+        tip = (float(pose.left_tip_x_m), float(pose.left_tip_z_m), float(pose.left_tip_angle_rad))
+        return Evaluation(choice.model, choice.scene_class, pressure, tip, tuple(free.tip_slope_at(pressure)),
+                          lambda: [tuple(p) for p in free.backbone(pressure)], bool(pose.in_validated_range), 0.0,
+                          choice.bound_m, choice.meets_tolerance, message)
+
+    def needs_solve(self, gauge_pa: float, scene: Scene) -> bool:
+        """Whether L2 is chosen here and its last solve is for another scene or too far in pressure."""
+        if self.selector.choose(gauge_pa, scene).model != "l2":
+            return False
+        cache = self._rod_cache
+        return cache is None or cache[0] != scene or abs(gauge_pa - cache[1]) > self.resolve_pressure_pa
+
+    def solve_rod(self, gauge_pa: float, scene: Scene):
+        """Solve L2 at ``gauge_pa`` (milliseconds) and keep it; callable from a worker thread. The tip
+        slope comes from the previous solve of the scene when it is near, else from L1."""
+        solution = self.rod.solve(gauge_pa, obstacle=scene.obstacle, from_pressure_pa=scene.opening_gauge_pa, steps=4)
+        previous = self._rod_cache
+        slope = tuple(self.free["l1"].tip_slope_at(gauge_pa))
+        if previous is not None and previous[0] == scene and previous[2].converged and solution.converged \
+                and 0.0 < abs(gauge_pa - previous[1]) <= 10 * max(self.resolve_pressure_pa, 100.0):
+            slope = tuple((a - b) / (gauge_pa - previous[1]) for a, b in zip(solution.tip, previous[2].tip))
+        self._rod_cache = (scene, gauge_pa, solution, slope)      # one assignment: readers see old or new
+        self.solves += 1
+        return solution

@@ -1,0 +1,120 @@
+"""Model no more than a scene needs: auto picks the cheapest model whose error bound meets the
+tolerance, and the chosen model's error against the PyElastica reference really is within it."""
+import math
+
+import pytest
+
+from softgrip_ros.control.grasp_fsm import GraspConfig, GraspRequest, Mode, Phase
+from softgrip_ros.model.calibration import build_kinematics
+from softgrip_ros.model.fidelity import FREE, ErrorBounds, ModelSelector, Scene, SceneModel, cylinder_scene
+from softgrip_ros.model.reference import ReferenceFinger
+from softgrip_ros.model.rod import Circle, Sheet
+from tests.helpers.grasp_loop import GraspLoop
+
+MODEL = SceneModel("auto", 1e-3)
+BOUNDS = MODEL.selector.bounds
+CLAMP_40MM = cylinder_scene(MODEL.rod, 0.040, 30e3)
+LOOSE_M, TIGHT_M = 25e-3, 0.1e-3     # L0 lies 23 mm from the L1-driven reference at 45 kPa
+
+
+def selector(fidelity="auto", tolerance_m=1e-3):
+    return ModelSelector(fidelity, tolerance_m, BOUNDS, MODEL.selector.validated_range_pa)
+
+
+def test_the_shipped_bounds_order_the_models_as_the_benchmark_measured():
+    """config/model_error_bounds.yaml (scripts/bench_speed_accuracy.py): L0 is cheapest and least
+    accurate in free bending, L1 and L2 agree with the reference there, only L2 handles contact."""
+    b, cost = BOUNDS.tip_error_bound_m, BOUNDS.median_cost_s
+    assert cost["l0"] < cost["l1"] < cost["l2"]
+    assert b["l1"]["free"] < TIGHT_M < b["l0"]["free"] < LOOSE_M
+    assert b["l2"]["contact"] < 1e-3 < min(b["l0"]["contact"], b["l1"]["contact"])
+    assert b["l0"]["free_beyond"] > b["l0"]["free"]                 # the linear law runs away beyond 46 kPa
+
+
+def test_auto_picks_l0_loose_l1_tight_and_l2_in_contact():
+    assert selector(tolerance_m=LOOSE_M).choose(20e3).model == "l0"
+    assert selector(tolerance_m=TIGHT_M).choose(20e3).model == "l1"
+    assert selector().choose(-10e3, CLAMP_40MM).model == "l2"
+    assert selector().choose(-10e3, CLAMP_40MM).scene_class == "contact"
+    beyond = selector(tolerance_m=LOOSE_M).choose(55e3)
+    assert beyond.scene_class == "free_beyond" and beyond.model == ("l0" if BOUNDS.tip_error_bound_m["l0"]["free_beyond"] <= LOOSE_M else "l1")
+    fixed = selector("l0").choose(-10e3, CLAMP_40MM)
+    assert fixed.model == "l0" and not fixed.meets_tolerance     # a fixed model is kept, and flagged
+    impossible = selector(tolerance_m=1e-6).choose(-10e3, CLAMP_40MM)
+    assert impossible.model == "l2" and not impossible.meets_tolerance
+
+
+@pytest.mark.parametrize("tolerance_m, pressure_pa, scene, expected", [
+    (LOOSE_M, 30e3, FREE, "l0"), (TIGHT_M, 30e3, FREE, "l1"), (1e-3, -10e3, CLAMP_40MM, "l2")])
+def test_the_chosen_model_is_within_the_tolerance_of_the_reference(tolerance_m, pressure_pa, scene, expected):
+    model = SceneModel("auto", tolerance_m)
+    evaluation = model.evaluate(pressure_pa, scene)
+    assert evaluation.model == expected and evaluation.meets_tolerance
+    reference = ReferenceFinger(model.rod).solve(pressure_pa, obstacle=scene.obstacle,
+                                                 from_pressure_pa=scene.opening_gauge_pa if scene.contact else 0.0)
+    assert reference.at_rest
+    error = math.hypot(evaluation.tip[0] - reference.tip[0], evaluation.tip[1] - reference.tip[1])
+    assert error <= tolerance_m
+
+
+def test_l2_runs_again_only_when_the_pressure_moved_and_reports_its_force():
+    model = SceneModel("auto", 1e-3, resolve_pressure_pa=200.0)
+    first = model.evaluate(-10e3, CLAMP_40MM)
+    assert first.model == "l2" and first.contact_force_n > 0 and model.solves == 1
+    model.evaluate(-10.1e3, CLAMP_40MM)
+    assert model.solves == 1                                     # within 200 Pa: the last solve
+    moved = model.evaluate(-11e3, CLAMP_40MM)
+    assert model.solves == 2 and moved.contact_force_n > first.contact_force_n
+    assert moved.tip_slope[0] != 0.0                             # from the two solves, not L1's
+
+
+def test_without_a_solve_it_says_l2_is_pending_and_uses_l1():
+    model = SceneModel("auto", 1e-3)
+    assert model.needs_solve(-10e3, CLAMP_40MM) and not model.needs_solve(20e3, FREE)
+    pending = model.evaluate(-10e3, CLAMP_40MM, solve=False)
+    assert pending.model == "l1" and "pending" in pending.message and not pending.meets_tolerance
+    model.solve_rod(-10e3, CLAMP_40MM)
+    assert model.evaluate(-10.05e3, CLAMP_40MM, solve=False).model == "l2"
+
+
+def test_a_failed_l2_solve_falls_back_to_l1_and_says_why():
+    overlapping = Scene(Circle(0.0, 0.10, 0.02), opening_gauge_pa=0.0)     # the object sits in the start shape
+    evaluation = SceneModel("auto", 1e-3).evaluate(-10e3, overlapping)
+    assert evaluation.model == "l1" and "overlaps" in evaluation.message and "l1 used" in evaluation.message
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(ValueError, match="fidelity must be one of"):
+        SceneModel("l3")
+    with pytest.raises(ValueError, match="tolerance_m"):
+        SceneModel("auto", 0.0)
+    with pytest.raises(ValueError, match="finite"):
+        MODEL.evaluate(math.nan)
+    with pytest.raises(ValueError, match="positive diameter"):
+        cylinder_scene(MODEL.rod, -0.01, 20e3)
+
+
+def test_a_malformed_bounds_table_is_refused(tmp_path):
+    path = tmp_path / "bounds.yaml"
+    path.write_text("models: {l0: {median_cost_s: 1e-5}}\n")
+    with pytest.raises(ValueError, match="bench_speed_accuracy"):
+        ErrorBounds.load(path)
+
+
+def test_the_grasp_reports_the_model_of_its_scene():
+    """ENVELOP_CLAMP 40 mm: free bending (L0 or L1) while opening, L2 on the cylinder while clamping
+    and holding; PINCH: L2 on a sheet."""
+    kinematics = build_kinematics("l0")
+    loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.2), scene_model=SceneModel("auto", 1e-3))
+    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2, command_id="g"))
+    loop.run_until(lambda s: s.phase == Phase.ENVELOPED, 5.0)
+    assert loop.fsm.scene() == FREE and loop.fsm.state.model_fidelity in ("l0", "l1")
+    loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
+    scene = loop.fsm.scene()
+    assert isinstance(scene.obstacle, Circle) and scene.obstacle.radius_m == pytest.approx(0.02)
+    assert loop.fsm.state.model_fidelity == "l2"
+    loop.command(GraspRequest(Mode.STOP, command_id="s"))
+    loop.run_until(lambda s: s.phase == Phase.IDLE, 2.0)
+    loop.command(GraspRequest(Mode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.01, command_id="p"))
+    loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
+    assert loop.fsm.scene() == Scene(Sheet(1e-4), 0.0) and loop.fsm.state.model_fidelity == "l2"
