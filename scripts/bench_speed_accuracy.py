@@ -268,11 +268,11 @@ def charts(result: dict) -> None:
     for scene_class, marker in markers.items():
         left.plot([], [], marker, color="grey", label=scene_class.replace("_", " "))
     left.axhline(TOLERANCE_M * 1e3, ls="--", color="grey", lw=1)
-    left.text(0.5, TOLERANCE_M * 1e3 * 1.15, "auto's default tolerance", color="grey", fontsize=8)
+    left.text(2e3, TOLERANCE_M * 1e3 * 1.15, "auto's default tolerance", color="grey", fontsize=8)
     left.set(xscale="log", yscale="log", xlabel="compute time per pose [us] (median)", ylabel="tip error against the reference [mm]",
              title="Kinematics: accuracy against cost")
     left.grid(True, which="both", alpha=0.3)
-    left.legend(fontsize=7, loc="upper left")
+    left.legend(fontsize=7, loc="center", framealpha=0.9)
     free = [p for p in kin["points"] if p["scene_class"] != "contact"]
     pressures = [p["pressure_pa"] / 1e3 for p in free]
     for model in MODELS:
