@@ -6,7 +6,8 @@ import pytest
 
 from softgrip_ros.control.grasp_fsm import GraspConfig, GraspRequest, Mode, Phase
 from softgrip_ros.model.calibration import build_kinematics
-from softgrip_ros.model.fidelity import FREE, ErrorBounds, ModelSelector, Scene, SceneModel, cylinder_scene
+from softgrip_ros.model.fidelity import (FREE, ErrorBounds, ModelSelector, RodSolverProcess, Scene, SceneModel,
+                                         cylinder_scene)
 from softgrip_ros.model.reference import ReferenceFinger
 from softgrip_ros.model.rod import Circle, Sheet
 from tests.helpers.grasp_loop import GraspLoop
@@ -66,6 +67,31 @@ def test_l2_runs_again_only_when_the_pressure_moved_and_reports_its_force():
     moved = model.evaluate(-11e3, CLAMP_40MM)
     assert model.solves == 2 and moved.contact_force_n > first.contact_force_n
     assert moved.tip_slope[0] != 0.0                             # from the two solves, not L1's
+
+
+def test_with_a_clock_l2_solves_at_most_once_per_interval_except_for_a_new_scene():
+    """The clamp sweeps tens of kPa in a fraction of a second: the solves are rate-capped."""
+    model = SceneModel("auto", 1e-3, resolve_pressure_pa=200.0, min_solve_interval_s=0.1)
+    model.evaluate(-5e3, CLAMP_40MM, now_s=0.0)
+    model.evaluate(-8e3, CLAMP_40MM, now_s=0.05)                # moved 3 kPa, but only 50 ms later
+    assert model.solves == 1
+    assert model.evaluate(-8e3, CLAMP_40MM, now_s=0.1).contact_force_n > 0 and model.solves == 2
+    sheet = Scene(Sheet(1e-4), 2e3)
+    model.evaluate(-8e3, sheet, now_s=0.11)                     # a new scene solves at once
+    assert model.solves == 3
+    with pytest.raises(ValueError, match="min_solve_interval_s"):
+        SceneModel("auto", 1e-3, min_solve_interval_s=-1.0)
+
+
+def test_l2_in_a_process_of_its_own_gives_the_same_solution():
+    solver = RodSolverProcess("type_II")
+    try:
+        apart = SceneModel("auto", 1e-3, rod_solver=solver).evaluate(-10e3, CLAMP_40MM)
+    finally:
+        solver.close()
+    here = SceneModel("auto", 1e-3).evaluate(-10e3, CLAMP_40MM)
+    assert apart.model == here.model == "l2"
+    assert apart.tip == here.tip and apart.contact_force_n == here.contact_force_n
 
 
 def test_without_a_solve_it_says_l2_is_pending_and_uses_l1():

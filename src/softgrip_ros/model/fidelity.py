@@ -17,7 +17,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import multiprocessing
 import pathlib
+import typing
+from concurrent.futures import ProcessPoolExecutor
 
 import yaml
 
@@ -89,6 +92,42 @@ class ErrorBounds:
         return cls(bounds, costs, str(path))
 
 
+ROD_CONTINUATION_STEPS = 4
+
+
+class RodSolverProcess:
+    """L2 solves in a child process of their own. A solve is milliseconds of pure-Python CPU; in a
+    thread of the composed controller it holds the GIL that the 500 Hz pressure loop and the CAN
+    threads need, and they stall behind it (the demo's clamp overshot past the vacuum limit in 3
+    of 14 runs that way, 0 of 14 before L2 ran there). Call it as SceneModel's ``rod_solver``;
+    :meth:`close` it when done. The child is spawned (never forked from a threaded process)."""
+
+    def __init__(self, cavity_type: str = "type_II"):
+        self._executor = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
+                                             initializer=_start_rod_worker, initargs=(cavity_type,))
+        self._executor.submit(int)          # start the child now (about a second), not at the first solve
+
+    def __call__(self, pressure_pa: float, obstacle, from_pressure_pa: float):
+        return self._executor.submit(_solve_in_rod_worker, pressure_pa, obstacle, from_pressure_pa).result()
+
+    def close(self) -> None:
+        self._executor.shutdown(wait=True, cancel_futures=True)
+
+
+_WORKER_ROD: RodFinger | None = None
+
+
+def _start_rod_worker(cavity_type: str) -> None:
+    global _WORKER_ROD
+    l1 = build_kinematics("l1", cavity_type)
+    _WORKER_ROD = RodFinger(l1.geometry, l1.calibration)
+
+
+def _solve_in_rod_worker(pressure_pa, obstacle, from_pressure_pa):
+    return _WORKER_ROD.solve(pressure_pa, obstacle=obstacle, from_pressure_pa=from_pressure_pa,
+                             steps=ROD_CONTINUATION_STEPS)
+
+
 @dataclasses.dataclass(frozen=True)
 class Choice:
     model: str
@@ -115,14 +154,21 @@ class ModelSelector:
         return "free" if low < pressure_pa <= high else "free_beyond"
 
     def choose(self, pressure_pa: float, scene: Scene = FREE) -> Choice:
-        scene_class = self.scene_class(pressure_pa, scene)
+        return self.choose_for_class(self.scene_class(pressure_pa, scene))
+
+    def choose_for_class(self, scene_class: str) -> Choice:
         bound = {m: self.bounds.tip_error_bound_m[m][scene_class] for m in MODELS}
         if self.fidelity != "auto":
             model = self.fidelity
         else:
             meeting = [m for m in MODELS if bound[m] <= self.tolerance_m]
             model = (min(meeting, key=self.bounds.median_cost_s.get) if meeting else min(MODELS, key=bound.get))
-        return Choice(model, scene_class, bound[model], bound[model] <= self.tolerance_m)
+        return self.choice(model, scene_class)
+
+    def choice(self, model: str, scene_class: str) -> Choice:
+        """``model`` in ``scene_class``, with its bound and whether that meets the tolerance."""
+        bound = self.bounds.tip_error_bound_m[model][scene_class]
+        return Choice(model, scene_class, bound, bound <= self.tolerance_m)
 
 
 @dataclasses.dataclass
@@ -142,13 +188,27 @@ class Evaluation:
     message: str
 
 
+class _RodSolve(typing.NamedTuple):
+    scene: Scene
+    pressure_pa: float
+    solution: object              # RodSolution
+    tip_slope: tuple
+    time_s: float                 # when it was asked for (NaN: no clock given)
+
+
 class SceneModel:
-    """Evaluate the chosen model. An L2 solve costs milliseconds, so it runs again only when the
-    pressure moved by more than ``resolve_pressure_pa`` or the scene changed; a failed solve falls
-    back to L1 (which ignores the object) and says so."""
+    """Evaluate the chosen model. An L2 solve costs milliseconds of CPU, so for the same scene it
+    runs again only when the pressure moved by more than ``resolve_pressure_pa`` and, when the
+    caller gives times, at most once per ``min_solve_interval_s`` (during a clamp the pressure
+    sweeps tens of kPa in a fraction of a second: without the cap the solves take a whole core
+    from the pressure loop and the simulated device). A new scene solves at once. A failed solve
+    falls back to L1 (which ignores the object) and says so."""
 
     def __init__(self, fidelity: str = "auto", tolerance_m: float = 1e-3, cavity_type: str = "type_II",
-                 max_pressure_pa: float = 60e3, bounds: ErrorBounds | None = None, resolve_pressure_pa: float = 200.0):
+                 max_pressure_pa: float = 60e3, bounds: ErrorBounds | None = None, resolve_pressure_pa: float = 200.0,
+                 min_solve_interval_s: float = 0.1, rod_solver=None):
+        """rod_solver(pressure_pa, obstacle, from_pressure_pa) -> RodSolution; default: ``self.rod``
+        in the calling thread (see :class:`RodSolverProcess` for a process of its own)."""
         self.free = {m: build_kinematics(m, cavity_type, max_pressure_pa) for m in ("l0", "l1")}
         l1 = self.free["l1"]
         self.rod = RodFinger(l1.geometry, l1.calibration)
@@ -156,13 +216,18 @@ class SceneModel:
                                       (l1.contact_pressure_pa, l1.calibration.validated_max_pressure_pa))
         if not (math.isfinite(resolve_pressure_pa) and resolve_pressure_pa >= 0):
             raise ValueError(f"resolve_pressure_pa must be >= 0, got {resolve_pressure_pa}")
-        self.resolve_pressure_pa = resolve_pressure_pa
+        if not (math.isfinite(min_solve_interval_s) and min_solve_interval_s >= 0):
+            raise ValueError(f"min_solve_interval_s must be >= 0, got {min_solve_interval_s}")
+        self.resolve_pressure_pa, self.min_solve_interval_s = resolve_pressure_pa, min_solve_interval_s
         self.solves = 0
-        self._rod_cache = None           # (scene, pressure, solution, previous (pressure, tip))
+        self._rod: _RodSolve | None = None
+        self._rod_solver = rod_solver or (lambda pressure, obstacle, opening: self.rod.solve(
+            pressure, obstacle=obstacle, from_pressure_pa=opening, steps=ROD_CONTINUATION_STEPS))
 
-    def evaluate(self, gauge_pa: float, scene: Scene = FREE, solve: bool = True) -> Evaluation:
-        """The chosen model's pose at ``gauge_pa``. solve=False never runs an L2 solve: it uses the
-        last one for this scene (whatever its pressure; see :meth:`needs_solve`), or L1 until there is one."""
+    def evaluate(self, gauge_pa: float, scene: Scene = FREE, solve: bool = True, now_s: float | None = None) -> Evaluation:
+        """The chosen model's pose at ``gauge_pa`` (at time ``now_s``, s, for the solve-rate cap).
+        solve=False never runs an L2 solve: it uses the last one for this scene (whatever its
+        pressure; see :meth:`needs_solve`), or L1 until there is one."""
         if not math.isfinite(gauge_pa):
             raise ValueError(f"gauge pressure must be finite, got {gauge_pa}")
         choice = self.selector.choose(gauge_pa, scene)
@@ -172,41 +237,44 @@ class SceneModel:
         validated = low <= pressure <= high
         message = scene.describe()
         if choice.model == "l2":
-            if solve and self.needs_solve(pressure, scene):
-                self.solve_rod(pressure, scene)
-            cache = self._rod_cache
-            if cache is not None and cache[0] == scene and cache[2].converged:
-                solution, slope = cache[2], cache[3]
-                return Evaluation("l2", choice.scene_class, pressure, tuple(float(v) for v in solution.tip), slope,
+            if solve and self.needs_solve(pressure, scene, now_s):
+                self.solve_rod(pressure, scene, now_s)
+            last = self._rod
+            if last is not None and last.scene == scene and last.solution.converged:
+                solution = last.solution
+                return Evaluation("l2", choice.scene_class, pressure, tuple(float(v) for v in solution.tip), last.tip_slope,
                                   lambda nodes=solution.nodes_m: [tuple(map(float, p)) for p in nodes], validated,
                                   solution.contact_force_n, choice.bound_m, choice.meets_tolerance,
-                                  message + (f" (l2 at {cache[1]:.0f} Pa)" if cache[1] != pressure else ""))
-            reason = (f"l2 failed ({cache[2].message})" if cache is not None and cache[0] == scene else "l2 pending")
+                                  message + (f" (l2 at {last.pressure_pa:.0f} Pa)" if last.pressure_pa != pressure else ""))
+            reason = f"l2 failed ({last.solution.message})" if last is not None and last.scene == scene else "l2 pending"
             message = f"{reason}; l1 used, which ignores {scene.describe()}"
-            bound = self.selector.bounds.tip_error_bound_m["l1"][choice.scene_class]
-            choice = dataclasses.replace(choice, model="l1", bound_m=bound, meets_tolerance=bound <= self.selector.tolerance_m)
+            choice = self.selector.choice("l1", choice.scene_class)
         pose = free.pose(pressure)
         tip = (float(pose.left_tip_x_m), float(pose.left_tip_z_m), float(pose.left_tip_angle_rad))
         return Evaluation(choice.model, choice.scene_class, pressure, tip, tuple(free.tip_slope_at(pressure)),
                           lambda: [tuple(p) for p in free.backbone(pressure)], bool(pose.in_validated_range), 0.0,
                           choice.bound_m, choice.meets_tolerance, message)
 
-    def needs_solve(self, gauge_pa: float, scene: Scene) -> bool:
-        """Whether L2 is chosen here and its last solve is for another scene or too far in pressure."""
+    def needs_solve(self, gauge_pa: float, scene: Scene, now_s: float | None = None) -> bool:
+        """Whether L2 is chosen here and its last solve is for another scene, or too far in pressure
+        and (given ``now_s``) at least ``min_solve_interval_s`` old."""
         if self.selector.choose(gauge_pa, scene).model != "l2":
             return False
-        cache = self._rod_cache
-        return cache is None or cache[0] != scene or abs(gauge_pa - cache[1]) > self.resolve_pressure_pa
+        last = self._rod
+        if last is None or last.scene != scene:
+            return True
+        recent = now_s is not None and now_s - last.time_s < self.min_solve_interval_s
+        return abs(gauge_pa - last.pressure_pa) > self.resolve_pressure_pa and not recent
 
-    def solve_rod(self, gauge_pa: float, scene: Scene):
+    def solve_rod(self, gauge_pa: float, scene: Scene, now_s: float | None = None):
         """Solve L2 at ``gauge_pa`` (milliseconds) and keep it; callable from a worker thread. The tip
         slope comes from the previous solve of the scene when it is near, else from L1."""
-        solution = self.rod.solve(gauge_pa, obstacle=scene.obstacle, from_pressure_pa=scene.opening_gauge_pa, steps=4)
-        previous = self._rod_cache
+        solution = self._rod_solver(gauge_pa, scene.obstacle, scene.opening_gauge_pa)
+        previous = self._rod
         slope = tuple(self.free["l1"].tip_slope_at(gauge_pa))
-        if previous is not None and previous[0] == scene and previous[2].converged and solution.converged \
-                and 0.0 < abs(gauge_pa - previous[1]) <= 10 * max(self.resolve_pressure_pa, 100.0):
-            slope = tuple((a - b) / (gauge_pa - previous[1]) for a, b in zip(solution.tip, previous[2].tip))
-        self._rod_cache = (scene, gauge_pa, solution, slope)      # one assignment: readers see old or new
+        if previous is not None and previous.scene == scene and previous.solution.converged and solution.converged \
+                and 0.0 < abs(gauge_pa - previous.pressure_pa) <= 10 * max(self.resolve_pressure_pa, 100.0):
+            slope = tuple((a - b) / (gauge_pa - previous.pressure_pa) for a, b in zip(solution.tip, previous.solution.tip))
+        self._rod = _RodSolve(scene, gauge_pa, solution, slope, math.nan if now_s is None else now_s)   # one assignment
         self.solves += 1
         return solution

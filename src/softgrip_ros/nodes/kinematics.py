@@ -11,8 +11,10 @@ whether the pressure lies in its validated range.
 ``fidelity``: l0, l1, l2, or auto: the cheapest model whose error bound for the scene meets
 ``tolerance_m`` (softgrip_ros.model.fidelity). The scene comes from the grasp manager on
 ``grasp_scene`` (or by direct calls in the composed controller): free bending, or an object
-clamped or pinched. L2 solves (milliseconds) run on a worker thread, only when the pressure moved
-by more than ``resolve_pressure_pa``; the poses use the latest solve meanwhile.
+clamped or pinched. L2 solves (milliseconds) run in a child process, handed over by a worker
+thread, only when the pressure moved
+by more than ``resolve_pressure_pa`` and at most once per ``min_solve_interval``; the poses use the
+latest solve meanwhile.
 """
 from __future__ import annotations
 
@@ -28,7 +30,7 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from softgrip_interfaces.msg import GraspScene
-from softgrip_ros.model.fidelity import CHOICES, FREE, Scene, SceneModel
+from softgrip_ros.model.fidelity import CHOICES, FREE, RodSolverProcess, Scene, SceneModel
 from softgrip_ros.model.rod import Circle, Sheet
 from softgrip_ros.nodes.common import P_ATM_PA, publish, run_node, stamp_msg, stamp_seconds
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
@@ -42,6 +44,8 @@ SPECS = [
               "m", 1e-6, 0.1),
     ParamSpec("resolve_pressure_pa", 200.0, "an L2 solve runs again once the pressure moved by more than this", "Pa",
               0.0, 5000.0),
+    ParamSpec("min_solve_interval", 0.1, "... and at most once per this (its CPU would starve the pressure loop)", "s",
+              0.0, 10.0),
     ParamSpec("cavity_type", "type_II", "finger type of config/gripper_geometry.yaml", choices=("type_I", "type_II", "type_III")),
     ParamSpec("frame_id", "softgrip_base", "frame of the tip poses and markers"),
 ]
@@ -59,11 +63,14 @@ class KinematicsNode(Node):
         self.values = declare(self, SPECS)
         self.add_on_set_parameters_callback(
             lambda params: check_all(specs, params, lambda _: "kinematics parameters apply at start-up: restart the node"))
+        # L2 runs in a process of its own: in this one it would starve the controller's threads of the GIL
+        self.rod_solver = RodSolverProcess(self.values["cavity_type"]) if self.values["fidelity"] in ("l2", "auto") else None
         self.model = SceneModel(self.values["fidelity"], self.values["tolerance_m"], self.values["cavity_type"],
-                                resolve_pressure_pa=self.values["resolve_pressure_pa"])
+                                resolve_pressure_pa=self.values["resolve_pressure_pa"],
+                                min_solve_interval_s=self.values["min_solve_interval"], rod_solver=self.rod_solver)
         self.scene = FREE
         self._solve_wanted = threading.Condition(self._lock)
-        self._solve_request = None           # (pressure, scene), the latest wins
+        self._solve_request = None           # (pressure, scene, stamp), the latest wins
         self._solver = threading.Thread(target=self._solve_loop, name="kinematics-l2", daemon=True)
         self._solver.start()
         self.period_s = 1.0 / self.values["publish_rate_hz"]
@@ -87,6 +94,8 @@ class KinematicsNode(Node):
             self.closed = True
             self._solve_wanted.notify_all()
         self._solver.join(timeout=2.0)
+        if self.rod_solver is not None:
+            self.rod_solver.close()
 
     def on_scene(self, scene: Scene) -> None:
         """What the fingers meet from now on (the grasp manager's call)."""
@@ -108,10 +117,10 @@ class KinematicsNode(Node):
                     self._solve_wanted.wait()
                 if self.closed:
                     return
-                pressure, scene = self._solve_request
+                pressure, scene, stamp_s = self._solve_request
                 self._solve_request = None
             try:
-                self.model.solve_rod(pressure, scene)
+                self.model.solve_rod(pressure, scene, stamp_s)
             except Exception as error:        # noqa: BLE001 - a failed solve must not end the worker
                 self.get_logger().error(f"L2 solve at {pressure:.0f} Pa failed: {error!r}")
 
@@ -121,8 +130,8 @@ class KinematicsNode(Node):
             if self.closed or stamp_s - self.last_publish_s < 0.9 * self.period_s or not math.isfinite(gauge_pa):
                 return
             evaluation = self.model.evaluate(gauge_pa, self.scene, solve=False)
-            if self.model.needs_solve(evaluation.pressure_pa, self.scene):
-                self._solve_request = (evaluation.pressure_pa, self.scene)
+            if self.model.needs_solve(evaluation.pressure_pa, self.scene, stamp_s):
+                self._solve_request = (evaluation.pressure_pa, self.scene, stamp_s)
                 self._solve_wanted.notify()
             self.last = (variance_pa2, evaluation)
             self.last_publish_s = stamp_s
