@@ -11,6 +11,7 @@ import dataclasses
 
 import can
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Header
@@ -106,7 +107,11 @@ class PressureControllerNode(LifecycleNode):
     def _subscribe_estimate(self, wanted: bool) -> None:
         """pressure/estimate only while use_estimate: at the estimator's rate it is the busiest topic."""
         if wanted and self.estimate_subscription is None:
-            self.estimate_subscription = self.create_subscription(FluidPressure, "pressure/estimate", self._on_estimate, 10)
+            # no QoS event handlers: destroying a subscription while the executor waits on its handler
+            # raises InvalidHandle in the spin thread (rclpy Jazzy); plain subscriptions are guarded
+            self.estimate_subscription = self.create_subscription(
+                FluidPressure, "pressure/estimate", self._on_estimate, 10,
+                event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
         elif not wanted and self.estimate_subscription is not None:
             self.destroy_subscription(self.estimate_subscription)
             self.estimate_subscription = None
