@@ -36,6 +36,13 @@ command -v cmake >/dev/null || die "cmake not found (apt-get install cmake): it 
 command -v cc >/dev/null || command -v gcc >/dev/null || die "no C compiler found (apt-get install gcc g++): it builds the interface package."
 
 hash_of() { cat "$@" | sha256sum | cut -d' ' -f1; }
+# Some machines' pip config names local wheel mirrors that may be absent: drop that noise only.
+quiet_pip() { "$venv/bin/python" -m pip "$@" 2> >(grep -v "is ignored: it is neither a file nor a directory" >&2); }
+# install_pinned REQUIREMENTS_FILE: every version from constraints.txt, then a consistency check
+install_pinned() {
+  quiet_pip install --quiet --disable-pip-version-check -r "$1" -c requirements/constraints.txt
+  "$venv/bin/python" -m pip check >/dev/null || die "pip check found inconsistent dependencies: $("$venv/bin/python" -m pip check)"
+}
 
 # ---- 1. virtual environment with pinned dependencies
 requirements_hash="$py_version-$(hash_of requirements/requirements.txt requirements/constraints.txt)"
@@ -49,12 +56,8 @@ else
   fi
   [ -x "$venv/bin/python" ] || { say "creating $venv with $("$python_bin" --version)"; "$python_bin" -m venv "$venv"; }
   say "installing pinned dependencies (first run: about a minute)"
-  # Some machines' pip config names local wheel mirrors that may be absent: drop that noise only.
-  quiet_pip() { "$venv/bin/python" -m pip "$@" 2> >(grep -v "is ignored: it is neither a file nor a directory" >&2); }
   quiet_pip install --quiet --disable-pip-version-check --upgrade "pip>=23"
-  quiet_pip install --quiet --disable-pip-version-check \
-      -r requirements/requirements.txt -c requirements/constraints.txt
-  "$venv/bin/python" -m pip check >/dev/null || die "pip check found inconsistent dependencies: $("$venv/bin/python" -m pip check)"
+  install_pinned requirements/requirements.txt
   echo "$requirements_hash" > "$stamp"
 fi
 
@@ -66,10 +69,7 @@ if [ "$with_reference" = 1 ]; then
     say "reference extra up to date"
   else
     say "installing the reference extra (PyElastica)"
-    "$venv/bin/python" -m pip install --quiet --disable-pip-version-check \
-        -r requirements/reference.txt -c requirements/constraints.txt \
-        2> >(grep -v "is ignored: it is neither a file nor a directory" >&2)
-    "$venv/bin/python" -m pip check >/dev/null || die "pip check found inconsistent dependencies: $("$venv/bin/python" -m pip check)"
+    install_pinned requirements/reference.txt
     echo "$reference_hash" > "$reference_stamp"
   fi
 fi
