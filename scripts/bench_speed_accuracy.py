@@ -31,7 +31,7 @@ import yaml
 from scipy.integrate import solve_ivp
 from tqdm import tqdm
 
-from softgrip_ros.benchmarking import machine_line, median_seconds
+from softgrip_ros.benchmarking import machine_line, median_seconds, update_section
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.fidelity import FREE, MODELS, SCENE_CLASSES, ErrorBounds, Scene, SceneModel, cylinder_scene
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PlantState, PneumaticParameters, PneumaticPlant, Valve
@@ -316,7 +316,8 @@ def _finish(plt, fig, ax, path) -> None:
     plt.close(fig)
 
 
-def report(result: dict, command: str) -> str:
+def target_rows(result: dict) -> list:
+    """The issue's targets as markdown table rows (header included)."""
     kin, bounds, auto = result["kinematics"], result["bounds"], result["auto"]
     finger = result["finger_length_m"]
     free = [p for p in kin["points"] if p["scene_class"] == "free"]
@@ -341,13 +342,18 @@ def report(result: dict, command: str) -> str:
         ("auto's largest error at the benchmark points", f"{1e3 * auto['worst_error_m']:.3f} mm",
          f"<= tolerance {1e3 * auto['tolerance_m']:.1f} mm", auto["worst_error_m"] <= auto["tolerance_m"]),
     ]
+    return ["| target | measured | wanted | |", "|---|---|---|---|"] + [
+        f"| {name} | {value} | {want} | {'meets' if ok else '**misses**'} |" for name, value, want, ok in targets]
+
+
+def report(result: dict, command: str) -> str:
+    kin, bounds, auto = result["kinematics"], result["bounds"], result["auto"]
     lines = ["# Speed against accuracy", "",
              f"Command: `{command}` ({machine_line()}). Figures vary by 10-30 % between runs on this shared machine; "
              "ratios are taken within one run. The reference is a dynamic Cosserat rod in PyElastica "
              f"({result['reference']}), driven by the same segment moments and run to rest with damping "
              "(`softgrip_ros.model.reference`; what it captures that L0-L2 do not is in its docstring).", "",
-             "## Targets", "", "| target | measured | wanted | |", "|---|---|---|---|"]
-    lines += [f"| {name} | {value} | {want} | {'meets' if ok else '**misses**'} |" for name, value, want, ok in targets]
+             "## Targets", ""] + target_rows(result)
     lines += ["", "## Kinematics", "", "![kinematics](speed_accuracy_kinematics.png)", "",
               "Tip error against the reference (mm) and the median cost of one pose (us). Free bending uses the same "
               "L1 law in the reference, so L1 and L2 there differ from it only by the rod's axial stretch, shear and "
@@ -436,6 +442,10 @@ def main(argv=None) -> int:
     write_bounds(table, l1.geometry.total_length_m, reference)
     charts(result)
     DOC.write_text(report(result, "python scripts/bench_speed_accuracy.py") + "\n")
+    update_section("bench_speed_accuracy", "## Speed against accuracy (`scripts/bench_speed_accuracy.py`)\n\n"
+                   f"Command: `python scripts/bench_speed_accuracy.py` ({machine_line()}; needs `scripts/setup.sh "
+                   "--with-reference`). The issue's targets; every point, chart and the error bounds are in "
+                   "[speed_vs_accuracy.md](speed_vs_accuracy.md).\n\n" + "\n".join(target_rows(result)))
     print(DOC.read_text().split("## Kinematics")[0])
     print(f"done in {time.perf_counter() - started:.0f} s; wrote {DOC.relative_to(ROOT)}, {BOUNDS.relative_to(ROOT)} "
           f"and {', '.join(str(c.relative_to(ROOT)) for c in CHARTS.values())}", file=sys.stderr)
