@@ -26,15 +26,17 @@ def test_sensor_frame_round_trip(pressure, status):
 
 @settings(max_examples=100, deadline=None)
 @given(setpoint=st.floats(-101_325, 600_000), enable=st.integers(0, 1), source=st.integers(0, 3),
-       valves=st.lists(st.integers(0, 3), min_size=4, max_size=4))
-def test_command_frames_round_trip(setpoint, enable, source, valves):
+       valves=st.lists(st.integers(0, 3), min_size=4, max_size=4), lifetime_ms=st.integers(0, 255))
+def test_command_frames_round_trip(setpoint, enable, source, valves, lifetime_ms):
     tx, rx = FrameCodec(), FrameCodec()
     decoded = rx.decode(tx.encode("RegulatorSetpoint", {"SetpointGaugePressure": setpoint, "Enable": enable,
                                                          "Source": source}))
     assert decoded.signals["SetpointGaugePressure"] == pytest.approx(setpoint, abs=0.05 + 1e-9)
     assert (decoded.signals["Enable"], decoded.signals["Source"]) == (enable, source)
-    decoded = rx.decode(tx.encode("ValveCommand", {f"Channel{i}": v for i, v in enumerate(valves)}))
+    decoded = rx.decode(tx.encode("ValveCommand", {**{f"Channel{i}": v for i, v in enumerate(valves)},
+                                                   "OpenLifetime": lifetime_ms / 1000.0}))
     assert [decoded.signals[f"Channel{i}"] for i in range(4)] == valves
+    assert decoded.signals["OpenLifetime"] == pytest.approx(lifetime_ms / 1000.0, abs=1e-9)   # whole ms
 
 
 @settings(max_examples=500, deadline=None)

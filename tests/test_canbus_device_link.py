@@ -147,6 +147,47 @@ def test_device_watchdog_closes_valves_without_commands(rig):
     assert abs(device.chamber_gauge_pa() - held) < 2e3
 
 
+
+def test_stalled_controller_leaves_the_chamber_held_not_open_to_the_vacuum_pump(rig):
+    """The controller stops stepping mid-evacuation (a GIL hog, a paused VM): the device closes
+    the VACUUM valve when the last frame's OpenLifetime runs out. Without that, the pump's
+    ~300 kPa/s would take the chamber past the -60 kPa limit within the stall."""
+    device, link = rig
+    run(link, device, 0.2)
+    link.command(-50e3, Source.VACUUM, math.nan)
+    run(link, device, 0.03)
+    assert device.valves() == (Valve.VACUUM,)
+    stalled_at = device.chamber_gauge_pa()
+    time.sleep(0.4)                                                   # no steps, no frames
+    assert device.valves() == (Valve.CLOSED,)
+    # bound: at most the lifetime (25 ms) at the pump's fastest rate (~330 kPa/s) = 8.3 kPa
+    assert stalled_at - device.chamber_gauge_pa() < 9e3
+    held = device.chamber_gauge_pa()
+    time.sleep(0.1)
+    assert abs(device.chamber_gauge_pa() - held) < 100.0              # held: nothing flows
+    _, pressures, outputs = run(link, device, 1.0)                    # resumed: regulation carries on
+    assert abs(pressures[-100:].mean() + 50e3) < 700.0 and pressures.min() > -55e3
+
+
+def test_vent_does_not_expire(rig):
+    device, link = rig
+    link.command(20e3, Source.SUPPLY, math.nan)
+    run(link, device, 0.5)
+    link.command(0.0, Source.VENT, math.nan)
+    run(link, device, 0.02)
+    time.sleep(0.2)                                                   # beyond the lifetime, inside the watchdog
+    assert device.valves() == (Valve.VENT,) and abs(device.chamber_gauge_pa()) < 500.0
+
+
+def test_valve_lifetime_must_outlast_two_resend_periods():
+    bus = can.Bus(interface="virtual", channel=f"softgrip-test-{uuid.uuid4().hex[:8]}")
+    try:
+        with pytest.raises(ValueError, match="valve_lifetime_s must lie in"):
+            ControllerLink(bus, PressureController(), SENSORS, command_frame_period_s=0.02, valve_lifetime_s=0.03)
+        with pytest.raises(ValueError, match="valve_lifetime_s must lie in"):
+            ControllerLink(bus, PressureController(), SENSORS, valve_lifetime_s=0.3)   # beyond the DBC's 255 ms
+    finally:
+        bus.shutdown()
 def test_fault_injection_rejects_bad_values():
     device = SimulatedDevice(can.Bus(interface="virtual", channel=f"x-{uuid.uuid4().hex[:6]}"))
     try:

@@ -6,6 +6,11 @@ owner calls :meth:`ControllerLink.step` once per control period; it runs the cor
 sends RegulatorSetpoint and ValveCommand in that period when their content changed, and else
 every ``command_frame_period_s`` (they are cyclic frames: the device's watchdog expects them),
 and ControllerHeartbeat at 10 Hz. Unchanged frames every 2 ms would only load the bus and the CPU.
+
+Every ValveCommand carries ``valve_lifetime_s`` (the DBC's OpenLifetime): the device closes a
+channel left in SUPPLY or VACUUM that long without a newer frame. The link re-sends well within
+it, so in normal running nothing expires; when this process stalls (a GIL hog, a paused VM), the
+chamber is held instead of running on towards the vacuum pump or the boosted regulator.
 """
 from __future__ import annotations
 
@@ -39,7 +44,8 @@ class ControllerLink:
 
     def __init__(self, bus: can.BusABC, controller: PressureController, sensors: list,
                  codec: FrameCodec | None = None, bus_silent_timeout_s: float = 0.25, on_sensor=None,
-                 clock=time.monotonic, command_frame_period_s: float = 0.01):
+                 clock=time.monotonic, command_frame_period_s: float = 0.01, valve_lifetime_s: float = 0.025,
+                 control_period_s: float = 0.002):
         self.bus = bus
         self.controller = controller
         self.codec = codec or FrameCodec()
@@ -62,6 +68,13 @@ class ControllerLink:
         if not 0.0 <= command_frame_period_s <= 0.1:
             raise ValueError(f"command_frame_period_s must lie in [0, 0.1] s, got {command_frame_period_s}")
         self.command_frame_period_s = command_frame_period_s
+        lifetime_max = self.codec.signal_range("ValveCommand", "OpenLifetime")[1]
+        resend_s = max(command_frame_period_s, control_period_s)
+        if not 2.0 * resend_s <= valve_lifetime_s <= lifetime_max:
+            raise ValueError(f"valve_lifetime_s must lie in [{2.0 * resend_s:g}, {lifetime_max:g}] s, twice the "
+                             f"re-send period at least (else the device closes the valves between two frames), "
+                             f"got {valve_lifetime_s:g}")
+        self.valve_lifetime_s = valve_lifetime_s
         self._last_command_frames = {}      # message -> (signals, time sent)
         self._notifier = can.Notifier(bus, [self._on_frame], timeout=0.05)
 
@@ -126,7 +139,7 @@ class ControllerLink:
             self.controller.vent(self.clock())
         for _ in range(repeats):
             self._send("RegulatorSetpoint", {"SetpointGaugePressure": 0.0, "Enable": 0, "Source": int(Source.VENT)})
-            self._send("ValveCommand", {f"Channel{i}": int(Valve.VENT) for i in range(4)})
+            self._send("ValveCommand", self._valve_signals([Valve.VENT] * 4))
 
     def _send_output(self, output: ControlOutput, now: float) -> None:
         low, high = self.codec.signal_range("RegulatorSetpoint", "SetpointGaugePressure")
@@ -134,11 +147,16 @@ class ControllerLink:
         for message, signals in (
                 ("RegulatorSetpoint", {"SetpointGaugePressure": min(max(output.regulator_setpoint_gauge_pa, low), high),
                                        "Enable": int(output.regulator_enabled), "Source": int(output.regulator_source)}),
-                ("ValveCommand", {f"Channel{i}": int(v) for i, v in enumerate(valves)})):
+                ("ValveCommand", self._valve_signals(valves))):
             last = self._last_command_frames.get(message)
             if last is None or last[0] != signals or now - last[1] >= self.command_frame_period_s - 1e-9:
                 self._last_command_frames[message] = (signals, now)
                 self._send(message, signals)
+
+    def _valve_signals(self, valves) -> dict:
+        signals = {f"Channel{i}": int(v) for i, v in enumerate(valves)}
+        signals["OpenLifetime"] = self.valve_lifetime_s
+        return signals
 
     def _send(self, message: str, signals: dict) -> None:
         try:

@@ -6,7 +6,9 @@ with sensor noise, quantisation and bias. Faults can be injected at any time
 (:meth:`SimulatedDevice.set_fault`), which the ``sim_device`` node maps to ROS parameters.
 
 Like a real device it has a watchdog: without a valid ValveCommand for
-``command_watchdog_s`` it closes its valves and drives the regulator to 0.
+``command_watchdog_s`` it closes its valves and drives the regulator to 0. Before that, a
+channel in SUPPLY or VACUUM closes when the OpenLifetime of the last ValveCommand runs out
+(within a plant step: the step is split at that instant).
 """
 from __future__ import annotations
 
@@ -68,6 +70,8 @@ class SimDeviceConfig:
                 raise ValueError(f"sensor {sensor.name}: channel {sensor.channel} does not exist")
 
 
+SOURCE_VALVES = (Valve.SUPPLY, Valve.VACUUM)   # the states that expire with OpenLifetime
+
 FAULTS = {
     "sensor_dropout": "",        # a sensor name, or "all": those sensors fall silent
     "sensor_stuck": "",          # a sensor name, or "all": those sensors repeat their last value
@@ -95,6 +99,7 @@ class SimulatedDevice:
         self._corrupt_rng = random.Random(self.config.seed)
         self._stuck_values: dict = {}
         self._last_valve_command = -math.inf
+        self._valves_open_until = math.inf
         self._loop = PeriodicThread(self._tick, self.config.plant_rate_hz, "softgrip-sim-device")
         self._notifier = None
         self._started_at = 0.0
@@ -169,6 +174,7 @@ class SimulatedDevice:
             elif decoded.name == "ValveCommand":
                 self._last_valve_command = time.monotonic()
                 if not self._faults["valve_stuck"]:
+                    self._valves_open_until = self._last_valve_command + decoded.signals["OpenLifetime"]
                     channels = self.config.plant.channels
                     self._inputs = dataclasses.replace(
                         self._inputs, valves=tuple(Valve(int(decoded.signals[f"Channel{i}"])) for i in range(channels)))
@@ -205,6 +211,15 @@ class SimulatedDevice:
             if now - self._last_valve_command > self.config.command_watchdog_s:
                 inputs = PlantInputs(regulator_enabled=False, valves=(Valve.CLOSED,) * self.config.plant.channels)
             inputs = dataclasses.replace(inputs, regulator_overshoot_pa=self._faults["regulator_overshoot_pa"])
+            open_for = self._valves_open_until - (now - dt)
+            expires = open_for < dt and not self._faults["valve_stuck"]
+            if expires and any(v in SOURCE_VALVES for v in inputs.valves):
+                if open_for > 0.0:
+                    self._state = self.plant.step(self._state, inputs, open_for)
+                    dt -= open_for
+                valves = tuple(Valve.CLOSED if v in SOURCE_VALVES else v for v in inputs.valves)
+                inputs = dataclasses.replace(inputs, valves=valves)
+                self._inputs = dataclasses.replace(self._inputs, valves=valves)
             self._state = self.plant.step(self._state, inputs, dt)
 
     def _send_sensor(self, sensor: SensorSpec) -> None:

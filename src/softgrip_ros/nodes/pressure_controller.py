@@ -31,6 +31,8 @@ SPECS = CAN_SPECS + [
     ParamSpec("status_rate_hz", 50.0, "controller/status publish rate", "Hz", 1.0, 200.0),
     ParamSpec("command_frame_period", 0.01, "RegulatorSetpoint and ValveCommand re-sent this often when unchanged "
               "(a change goes out in its control period); 0 = every period", "s", 0.0, 0.1),
+    ParamSpec("valve_lifetime", 0.025, "the device closes SUPPLY/VACUUM valves this long after the last ValveCommand "
+              "(a stalled controller leaves the chamber held); >= 2 re-send periods", "s", 0.004, 0.255),
     ParamSpec("max_gauge_pressure_pa", _DEFAULTS.max_gauge_pa, "hard upper limit of the setpoint", "Pa", 1e3, 100e3),
     ParamSpec("min_gauge_pressure_pa", _DEFAULTS.min_gauge_pa, "hard lower limit of the setpoint", "Pa", -100e3, -1e3),
     ParamSpec("overpressure_margin_pa", _DEFAULTS.overpressure_margin_pa, "measured excess beyond a limit that vents", "Pa", 100.0, 50e3),
@@ -90,7 +92,7 @@ class PressureControllerNode(LifecycleNode):
     def _on_set(self, parameters):
         def extra(params):
             changed = {p.name: p.value for p in params}
-            if any(n.startswith(("can.", "sensors.", "control_rate_hz", "command_frame_period")) for n in changed) and self.link is not None:
+            if any(n.startswith(("can.", "sensors.", "control_rate_hz", "command_frame_period", "valve_lifetime")) for n in changed) and self.link is not None:
                 return "CAN, sensor and rate parameters apply at configure: deactivate and clean up first"
             if any(n in LIVE for n in changed):
                 try:
@@ -130,7 +132,9 @@ class PressureControllerNode(LifecycleNode):
             self.bus = open_bus(self.values["can.interface"], self.values["can.channel"], self.values["can.bitrate"])
             self.link = ControllerLink(self.bus, self.controller, [SensorBinding(n, m) for n, m in zip(names, messages)],
                                        codec=self.codec, on_sensor=self._publish_sensor,
-                                       command_frame_period_s=self.values["command_frame_period"])
+                                       command_frame_period_s=self.values["command_frame_period"],
+                                       valve_lifetime_s=self.values["valve_lifetime"],
+                                       control_period_s=1.0 / self.values["control_rate_hz"])
         except (ValueError, can.CanError, OSError, ImportError) as error:
             self.get_logger().error(f"configure failed: {error}")
             self._close_bus()
