@@ -140,12 +140,17 @@ class GraspState:
 class ControllerFeedback:
     """What the grasp sees of the pressure controller: the pressure (the estimate while fresher
     than ``estimate_timeout_s``, else the controller's own measurement) and the fault that stops
-    a grasp (the controller's halting faults, or its silence for ``status_timeout_s``)."""
+    a grasp (the controller's halting faults, or its silence for ``status_timeout_s``).
+
+    Before the first status a grasp waits up to ``status_timeout_s`` for it, as for a late one:
+    a command sent while the suite is still starting (the pressure controller not yet active)
+    is not a fault."""
 
     def __init__(self, estimate_timeout_s: float, status_timeout_s: float):
         self.estimate_timeout_s, self.status_timeout_s = estimate_timeout_s, status_timeout_s
         self._estimate = (math.nan, math.nan, -math.inf)        # gauge, std, arrival
         self._status = None                                       # (fault flags, measured gauge, arrival)
+        self._awaited_since = None                                # first non-idle ask before any status
 
     def on_estimate(self, gauge_pa: float, std_pa: float, now: float) -> None:
         self._estimate = (gauge_pa, std_pa, now)
@@ -162,7 +167,13 @@ class ControllerFeedback:
 
     def fault(self, now: float, idle: bool) -> str:
         if self._status is None:
-            return "" if idle else "no controller/status yet"
+            if idle:
+                return ""
+            if self._awaited_since is None:
+                self._awaited_since = now
+            waited = now - self._awaited_since
+            return f"no controller/status in {waited:.1f} s: is the pressure controller up?" \
+                if waited > self.status_timeout_s else ""
         flags, _, stamp = self._status
         if now - stamp > self.status_timeout_s:
             return f"no controller/status for {now - stamp:.1f} s"
