@@ -17,9 +17,16 @@ TARGETS_US = {"l0_single_us": 20.0, "l0_batch_us_per_pressure": 0.2, "l1_single_
 BATCH = 100_000
 NOTES = ("Where the L0 batch stands: a pose needs 7 float64 sines (5 segments, 2 measured chamber faces; the "
          "cosines come from sqrt(1 - sin^2)), and numpy's float64 sin costs about 10 ns per element here, so "
-         "trigonometry alone is ~0.07 us; the rest is ~150 elementwise operations in 8192-element chunks "
-         "(whole 100k arrays run about 2x slower, out of cache) and the saturation's logaddexp. Going below "
-         "0.2 us would need a compiled kernel (numba or C), which the core avoids as a dependency.")
+         "trigonometry alone is ~0.07 us; the rest is ~200 elementwise operations in 8192-element chunks "
+         "(whole 100k arrays run about 2x slower, out of cache) and the saturation's logaddexp.\n\n"
+         "A third of the figure is the kernel, not numpy: one 100k call takes ~3,300 minor page faults (its outputs "
+         "and the chunks' temporaries land in fresh memory, which glibc hands back to the system between chunks) "
+         "and 8-11 ms of system time, ~2.6 us a fault on this VM (getrusage, strace -c). With the allocator told "
+         "to keep freed memory (MALLOC_TOP_PAD_=100000000) the same call makes no faults and ran at 0.23 us per "
+         "pressure against 0.35 us without, in one run on a loaded machine. Arithmetic in place (out= buffers) "
+         "saved only another ~8 %, and writing chunks into preallocated outputs nothing. Not adopted: a "
+         "process-wide allocator setting is not a library's to make, and going clearly below 0.2 us would "
+         "need a compiled kernel (numba or C), which the core avoids as a dependency.")
 
 
 def measure(repeat: int) -> dict:
