@@ -242,3 +242,38 @@ def test_command_frames_go_out_on_change_and_else_once_per_frame_period():
         link.close()
         controller_bus.shutdown()
         monitor.shutdown()
+
+
+def test_readings_are_as_old_as_their_frames_not_their_late_processing():
+    """A backlog (this process starved) must look stale, so that the controller holds rather than
+    regulating on pressures 100 ms old; a timestamp on another time base counts as new."""
+    from softgrip_ros.canbus.codec import FrameCodec
+    from softgrip_ros.canbus.controller_link import frame_age_s
+    channel = f"softgrip-test-{uuid.uuid4().hex[:8]}"
+    sender = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
+    receiver = can.Bus(interface="virtual", channel=channel)
+    link = ControllerLink(receiver, PressureController(PressureControlConfig(sensor_timeout_s=0.05)), SENSORS)
+    codec = FrameCodec()
+    try:
+        def send(gauge_pa, age_s):
+            frame = codec.encode("PressureSensor1", {"GaugePressure": gauge_pa, "SensorStatus": 0})
+            frame.timestamp = time.time() - age_s
+            sender.send(frame)
+
+        send(12e3, 0.2)
+        wait = time.monotonic() + 2.0
+        while link.frames_rx < 1 and time.monotonic() < wait:
+            time.sleep(0.005)
+        assert math.isnan(link.controller.measured(link.clock()))      # 200 ms old: not fresh
+        send(13e3, 0.0)
+        while link.frames_rx < 2 and time.monotonic() < wait:
+            time.sleep(0.005)
+        assert link.controller.measured(link.clock()) == pytest.approx(13e3, abs=1.0)
+        stale = can.Message(timestamp=time.time() - 0.3)
+        assert frame_age_s(stale) == pytest.approx(0.3, abs=0.05)
+        assert frame_age_s(can.Message(timestamp=12.5)) == 0.0                 # an adapter's own clock
+        assert frame_age_s(can.Message(timestamp=time.time() + 0.01)) == 0.0   # never negative
+    finally:
+        link.close()
+        sender.shutdown()
+        receiver.shutdown()

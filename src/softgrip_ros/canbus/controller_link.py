@@ -38,9 +38,25 @@ class SensorBinding:
     message: str
 
 
+FRAME_CLOCK_TRUST_S = 60.0
+
+
+def frame_age_s(frame: can.Message, wall_clock=time.time) -> float:
+    """How long ago ``frame`` was sent or received by the interface, from its timestamp (python-can
+    gives wall-clock seconds: the sender's on the virtual and softgrip_ipc buses, the kernel's on
+    SocketCAN). A reading is as old as its frame, not as its late processing: when this process is
+    starved, a backlog of frames must look stale (the controller then holds) rather than fresh (it
+    would regulate on pressures 100 ms old, and a boost would overshoot). A timestamp more than
+    FRAME_CLOCK_TRUST_S away from this clock is on another time base (some adapters count from
+    their own start): the frame is then taken as new."""
+    age = wall_clock() - frame.timestamp
+    return max(age, 0.0) if abs(age) < FRAME_CLOCK_TRUST_S else 0.0
+
+
 class ControllerLink:
     """Owns the controller's bus traffic. ``on_sensor(name, gauge_pa, stamp)`` is called for every
-    valid sensor frame (from the Notifier thread)."""
+    valid sensor frame (from the Notifier thread); ``stamp`` is when the frame was sent, on ``clock``
+    (see :func:`frame_age_s`)."""
 
     def __init__(self, bus: can.BusABC, controller: PressureController, sensors: list,
                  codec: FrameCodec | None = None, bus_silent_timeout_s: float = 0.25, on_sensor=None,
@@ -87,16 +103,16 @@ class ControllerLink:
 
     # ---- reception --------------------------------------------------------------------------------
     def _on_frame(self, frame: can.Message) -> None:
-        now = self.clock()
+        sent_at = self.clock() - frame_age_s(frame)
         decoded = self.codec.decode(frame)
         if decoded is None:
             return
         with self._lock:
             self.frames_rx += 1
-            self.last_frame_time = now
+            self.last_frame_time = max(self.last_frame_time, sent_at)
             if decoded.name in self.sensors:
                 if decoded.signals["SensorStatus"] == 0:
-                    self.controller.update_sensor(self.sensors[decoded.name], decoded.signals["GaugePressure"], now)
+                    self.controller.update_sensor(self.sensors[decoded.name], decoded.signals["GaugePressure"], sent_at)
                 sensor_name = self.sensors[decoded.name]
             elif decoded.name == "RegulatorStatus":
                 self.regulator_actual_gauge_pa = decoded.signals["ActualGaugePressure"]
@@ -107,7 +123,7 @@ class ControllerLink:
                 return
         if self.on_sensor is not None and decoded.signals["SensorStatus"] == 0:
             try:
-                self.on_sensor(sensor_name, decoded.signals["GaugePressure"], now)
+                self.on_sensor(sensor_name, decoded.signals["GaugePressure"], sent_at)
             except Exception as error:   # a failing listener must not kill reception (the Notifier thread)
                 self.listener_errors += 1
                 self.last_listener_error = f"{type(error).__name__}: {error}"

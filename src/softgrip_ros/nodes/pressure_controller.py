@@ -21,7 +21,7 @@ from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 from softgrip_ros.canbus.codec import FrameCodec
 from softgrip_ros.canbus.controller_link import make_control_loop, ControllerLink, SensorBinding
 from softgrip_ros.control.pressure import PressureControlConfig, PressureController, Severity, severity
-from softgrip_ros.nodes.common import P_ATM_PA, notify, open_bus, publish, run_node
+from softgrip_ros.nodes.common import P_ATM_PA, notify, open_bus, publish, run_node, stamp_msg
 from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, check_all, declare
 
 _DEFAULTS = PressureControlConfig()
@@ -212,14 +212,15 @@ class PressureControllerNode(LifecycleNode):
             response.success, response.message = True, "venting"
         return response
 
-    def _publish_sensor(self, name: str, gauge_pa: float, _stamp: float):
-        publisher = self.sensor_pubs.get(name)
-        if publisher is None:
+    def _publish_sensor(self, name: str, gauge_pa: float, sent_at: float):
+        publisher, link = self.sensor_pubs.get(name), self.link
+        if publisher is None or link is None:
             return
-        now = self.get_clock().now()
-        publish(self, publisher, FluidPressure(header=Header(stamp=now.to_msg(), frame_id=name),
+        # stamped when measured, not when processed (they differ when this process is starved)
+        measured_s = self.get_clock().now().nanoseconds * 1e-9 - max(0.0, link.clock() - sent_at)
+        publish(self, publisher, FluidPressure(header=Header(stamp=stamp_msg(measured_s), frame_id=name),
                                                fluid_pressure=gauge_pa + P_ATM_PA, variance=self.noise_variance[name]))
-        notify(self.sensor_listeners, name, gauge_pa, now.nanoseconds * 1e-9)
+        notify(self.sensor_listeners, name, gauge_pa, measured_s)
 
     def _header(self, frame_id="softgrip_base"):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id=frame_id)
