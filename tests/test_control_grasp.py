@@ -169,8 +169,26 @@ def test_controller_feedback_prefers_a_fresh_estimate_and_reports_silence():
     assert feedback.pressure(0.2)[0] == 9e3 and math.isnan(feedback.pressure(0.2)[1])   # then the measurement
     assert feedback.fault(0.5, idle=False) == ""                     # a clamped setpoint does not stop a grasp
     feedback.on_status(int(Fault.SENSOR_TIMEOUT | Fault.REGULATOR), math.nan, 0.5)
-    assert feedback.fault(0.6, idle=False) == "sensor timeout, regulator"
+    assert feedback.fault(0.6, idle=False) == "regulator"             # the sensor timeout within its grace
+    assert feedback.fault(0.85, idle=False) == "sensor timeout, regulator"
     assert "no controller/status for 1.6 s" in feedback.fault(2.1, idle=False)
+
+
+def test_a_sensor_timeout_stops_a_grasp_only_once_it_lasts():
+    """The controller holds during a sensor timeout and resumes by itself: a grasp rides out a gap
+    shorter than the grace (frames delayed on a loaded machine), and faults on a dropout that lasts."""
+    from softgrip_ros.control.grasp_fsm import ControllerFeedback
+    from softgrip_ros.control.pressure import Fault
+    feedback = ControllerFeedback(estimate_timeout_s=0.1, status_timeout_s=1.0, transient_grace_s=0.3)
+    feedback.on_status(int(Fault.SENSOR_TIMEOUT), math.nan, 0.0)
+    assert feedback.fault(0.29, idle=False) == ""
+    feedback.on_status(0, 1e3, 0.1)                                    # readings back: the clock restarts
+    feedback.on_status(int(Fault.SENSOR_TIMEOUT), math.nan, 0.2)
+    assert feedback.fault(0.45, idle=False) == ""
+    assert feedback.fault(0.51, idle=False) == "sensor timeout"
+    feedback = ControllerFeedback(estimate_timeout_s=0.1, status_timeout_s=1.0, transient_grace_s=0.3)
+    feedback.on_status(int(Fault.OVERPRESSURE | Fault.SENSOR_TIMEOUT), math.nan, 0.0)
+    assert feedback.fault(0.0, idle=False) == "overpressure"           # no grace for the rest
 
 
 def test_a_rejected_command_leaves_a_running_grasp_untouched(kinematics):

@@ -35,6 +35,7 @@ from softgrip_ros.model.rod import Sheet
 
 
 HALTING_FAULTS = ERROR_FAULTS | Fault.REGULATOR | Fault.BUS_ERROR
+TRANSIENT_FAULTS = Fault.SENSOR_TIMEOUT | Fault.BUS_SILENT   # the controller holds, and resumes by itself
 
 
 def fault_text(fault_flags: int) -> str:
@@ -144,19 +145,29 @@ class ControllerFeedback:
 
     Before the first status a grasp waits up to ``status_timeout_s`` for it, as for a late one:
     a command sent while the suite is still starting (the pressure controller not yet active)
-    is not a fault."""
+    is not a fault.
 
-    def __init__(self, estimate_timeout_s: float, status_timeout_s: float):
+    A sensor timeout or a silent bus stops a grasp only once it has lasted ``transient_grace_s``:
+    the controller already holds the valves closed meanwhile and resumes by itself, and a loaded
+    machine can delay frames by tens of milliseconds (a dropout that lasts still faults)."""
+
+    def __init__(self, estimate_timeout_s: float, status_timeout_s: float, transient_grace_s: float = 0.3):
         self.estimate_timeout_s, self.status_timeout_s = estimate_timeout_s, status_timeout_s
+        self.transient_grace_s = transient_grace_s
         self._estimate = (math.nan, math.nan, -math.inf)        # gauge, std, arrival
         self._status = None                                       # (fault flags, measured gauge, arrival)
         self._awaited_since = None                                # first non-idle ask before any status
+        self._transient_since = None                              # since when TRANSIENT_FAULTS are reported
 
     def on_estimate(self, gauge_pa: float, std_pa: float, now: float) -> None:
         self._estimate = (gauge_pa, std_pa, now)
 
     def on_status(self, fault_flags: int, measured_gauge_pa: float, now: float) -> None:
         self._status = (fault_flags, measured_gauge_pa, now)
+        if not fault_flags & TRANSIENT_FAULTS:
+            self._transient_since = None
+        elif self._transient_since is None:
+            self._transient_since = now
 
     def pressure(self, now: float) -> tuple[float, float]:
         """(gauge Pa, std Pa; NaN when unknown)."""
@@ -177,6 +188,8 @@ class ControllerFeedback:
         flags, _, stamp = self._status
         if now - stamp > self.status_timeout_s:
             return f"no controller/status for {now - stamp:.1f} s"
+        if self._transient_since is not None and now - self._transient_since < self.transient_grace_s:
+            flags &= ~TRANSIENT_FAULTS
         return fault_text(flags)
 
 

@@ -43,6 +43,8 @@ SPECS = [
     ParamSpec("command_refresh_s", 0.5, "pressure/command re-sent this often", "s", 0.05, 10.0),
     ParamSpec("estimate_timeout", 0.1, "an estimate older than this is not used (controller/status instead)", "s", 0.01, 5.0),
     ParamSpec("status_timeout", 1.0, "no controller/status this long during a grasp: FAULT", "s", 0.1, 60.0),
+    ParamSpec("sensor_fault_grace", 0.3, "a sensor timeout or silent bus this long during a grasp: FAULT "
+              "(the controller holds meanwhile)", "s", 0.0, 5.0),
     ParamSpec("max_gauge_pressure_pa", _G.max_gauge_pa, "highest pressure a command may ask for", "Pa", 1e3, 100e3),
     ParamSpec("min_gauge_pressure_pa", _G.min_gauge_pa, "lowest pressure a command may ask for", "Pa", -100e3, -1e3),
     ParamSpec("envelop_margin_m", _G.envelop_margin_m, "D2 beyond the object before ENVELOPED", "m", 1e-4, 0.1),
@@ -99,7 +101,7 @@ class GraspManagerNode(Node):
         self.scene_listeners = []            # in-process: kinematics.on_scene
         self.scene_pub = self.create_publisher(GraspScene, "grasp_scene", QoSProfile(
             depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        self.feedback = ControllerFeedback(v["estimate_timeout"], v["status_timeout"])
+        self.feedback = ControllerFeedback(v["estimate_timeout"], v["status_timeout"], v["sensor_fault_grace"])
         self.sent = (None, -math.inf)
         self.published_changes = -1
         self.waiters: list[Future] = []
