@@ -263,3 +263,39 @@ def test_bad_calibration_is_rejected():
         BendingCalibration(gain=0.0)
     with pytest.raises(ValueError, match="saturation_width"):
         BendingCalibration(saturation_width_pa=float("nan"))
+
+
+@pytest.mark.parametrize("model", ["l0", "l1"])
+def test_tip_table_matches_its_model(model):
+    """The tabulated tip (cubic Hermite on a 100 Pa grid) against the model itself: within 0.1 um and
+    1e-6 rad everywhere, blocked below contact, and its slope within 1e-4 of the analytic one (measured 8e-6)."""
+    from softgrip_ros.model.kinematics import TipTable
+    kinematics = build_kinematics(model, max_pressure_pa=60e3)
+    table = TipTable(kinematics)
+    assert table.max_error_m < 1e-7 and table.max_angle_error_rad < 1e-6
+    rng = np.random.default_rng(3)
+    pressures = np.concatenate([rng.uniform(kinematics.contact_pressure_pa, 60e3, 300),
+                                [kinematics.contact_pressure_pa + 1e-3, 60e3, 0.0]])
+    for p in pressures:
+        (x, z, angle), slope = table.tip(p)
+        pose = kinematics.pose(p)
+        assert math.hypot(x - pose.left_tip_x_m, z - pose.left_tip_z_m) < 1e-7
+        assert abs(angle - pose.left_tip_angle_rad) < 1e-6
+        assert np.allclose(slope, kinematics.tip_slope_at(p), rtol=1e-4, atol=1e-12)
+    blocked = table.tip(kinematics.contact_pressure_pa - 5e3)
+    pose = kinematics.pose(kinematics.contact_pressure_pa - 5e3)
+    assert blocked[0] == pytest.approx((pose.left_tip_x_m, pose.left_tip_z_m, pose.left_tip_angle_rad), abs=1e-12)
+    assert blocked[1] == (0.0, 0.0, 0.0)
+
+
+def test_tip_table_refuses_bad_grids_and_pressures():
+    from softgrip_ros.model.kinematics import TipTable
+    kinematics = build_kinematics("l1", max_pressure_pa=50e3)
+    with pytest.raises(ValueError, match="use a finer step"):
+        TipTable(kinematics, step_pa=5e3)                     # ~1e-5 m off mid-cell
+    with pytest.raises(ValueError, match="step_pa"):
+        TipTable(kinematics, step_pa=0.0)
+    table = TipTable(kinematics)
+    for bad in (math.nan, 55e3, -200e3, "x"):
+        with pytest.raises(ValueError):
+            table.tip(bad)

@@ -26,6 +26,7 @@ import yaml
 
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.geometry import CHAMBER_COUNT
+from softgrip_ros.model.kinematics import TipTable
 from softgrip_ros.model.rod import Circle, RodFinger, Sheet
 
 BOUNDS_FILE = "model_error_bounds.yaml"
@@ -210,6 +211,7 @@ class SceneModel:
         """rod_solver(pressure_pa, obstacle, from_pressure_pa) -> RodSolution; default: ``self.rod``
         in the calling thread (see :class:`RodSolverProcess` for a process of its own)."""
         self.free = {m: build_kinematics(m, cavity_type, max_pressure_pa) for m in ("l0", "l1")}
+        self.tips = {m: TipTable(k) for m, k in self.free.items()}     # microseconds a pose, within 0.1 um
         l1 = self.free["l1"]
         self.rod = RodFinger(l1.geometry, l1.calibration)
         self.selector = ModelSelector(fidelity, tolerance_m, bounds or ErrorBounds.load(),
@@ -249,10 +251,10 @@ class SceneModel:
             reason = f"l2 failed ({last.solution.message})" if last is not None and last.scene == scene else "l2 pending"
             message = f"{reason}; l1 used, which ignores {scene.describe()}"
             choice = self.selector.choice("l1", choice.scene_class)
-        pose = free.pose(pressure)
-        tip = (float(pose.left_tip_x_m), float(pose.left_tip_z_m), float(pose.left_tip_angle_rad))
-        return Evaluation(choice.model, choice.scene_class, pressure, tip, tuple(free.tip_slope_at(pressure)),
-                          lambda: [tuple(p) for p in free.backbone(pressure)], bool(pose.in_validated_range), 0.0,
+        tip, slope = self.tips[free.model].tip(pressure)
+        free_validated = free.contact_pressure_pa <= pressure <= free.calibration.validated_max_pressure_pa
+        return Evaluation(choice.model, choice.scene_class, pressure, tip, slope,
+                          lambda: [tuple(p) for p in free.backbone(pressure)], free_validated, 0.0,
                           choice.bound_m, choice.meets_tolerance, message)
 
     def needs_solve(self, gauge_pa: float, scene: Scene, now_s: float | None = None) -> bool:
