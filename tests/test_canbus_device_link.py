@@ -160,8 +160,9 @@ def test_stalled_controller_leaves_the_chamber_held_not_open_to_the_vacuum_pump(
     stalled_at = device.chamber_gauge_pa()
     time.sleep(0.4)                                                   # no steps, no frames
     assert device.valves() == (Valve.CLOSED,)
-    # bound: at most the lifetime (25 ms) at the pump's fastest rate (~330 kPa/s) = 8.3 kPa
-    assert stalled_at - device.chamber_gauge_pa() < 9e3
+    # the lifetime (25 ms) plus a plant tick (1 ms) at the pump's fastest rate (~330 kPa/s) is 8.6 kPa; allowed
+    # 12 kPa, for the device thread running behind on a loaded machine. Without the lifetime: ~45 kPa.
+    assert stalled_at - device.chamber_gauge_pa() < 12e3
     held = device.chamber_gauge_pa()
     time.sleep(0.1)
     assert abs(device.chamber_gauge_pa() - held) < 100.0              # held: nothing flows
@@ -247,8 +248,7 @@ def test_command_frames_go_out_on_change_and_else_once_per_frame_period():
 def test_readings_are_as_old_as_their_frames_not_their_late_processing():
     """A backlog (this process starved) must look stale, so that the controller holds rather than
     regulating on pressures 100 ms old; a timestamp on another time base counts as new."""
-    from softgrip_ros.canbus.codec import FrameCodec
-    from softgrip_ros.canbus.controller_link import frame_age_s
+    from softgrip_ros.canbus.codec import FrameCodec, frame_age_s
     channel = f"softgrip-test-{uuid.uuid4().hex[:8]}"
     sender = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
     receiver = can.Bus(interface="virtual", channel=channel)

@@ -20,6 +20,7 @@ import collections
 import dataclasses
 import pathlib
 import threading
+import time
 
 import can
 import cantools
@@ -187,3 +188,18 @@ class FrameCodec:
         with self._lock:
             self.rejected[reason] += 1
         return None
+
+
+FRAME_CLOCK_TRUST_S = 60.0
+
+
+def frame_age_s(frame: can.Message, wall_clock=time.time) -> float:
+    """How long ago ``frame`` was sent or received by the interface, from its timestamp (python-can
+    gives wall-clock seconds: the sender's on the virtual and softgrip_ipc buses, the kernel's on
+    SocketCAN). A reading is as old as its frame, not as its late processing: when this process is
+    starved, a backlog of frames must look stale (the controller then holds) rather than fresh (it
+    would regulate on pressures 100 ms old, and a boost would overshoot). A timestamp more than
+    FRAME_CLOCK_TRUST_S away from this clock is on another time base (some adapters count from
+    their own start): the frame is then taken as new."""
+    age = wall_clock() - frame.timestamp
+    return max(age, 0.0) if abs(age) < FRAME_CLOCK_TRUST_S else 0.0

@@ -22,7 +22,7 @@ import time
 import can
 import numpy as np
 
-from softgrip_ros.canbus.codec import FrameCodec
+from softgrip_ros.canbus.codec import FrameCodec, frame_age_s
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticParameters, PneumaticPlant, Valve
 from softgrip_ros.realtime import PeriodicThread
 
@@ -172,7 +172,7 @@ class SimulatedDevice:
                     self._inputs, regulator_setpoint_gauge_pa=decoded.signals["SetpointGaugePressure"],
                     regulator_enabled=bool(decoded.signals["Enable"]))
             elif decoded.name == "ValveCommand":
-                self._last_valve_command = time.monotonic()
+                self._last_valve_command = time.monotonic() - frame_age_s(frame)   # from its arrival on the bus
                 if not self._faults["valve_stuck"]:
                     self._valves_open_until = self._last_valve_command + decoded.signals["OpenLifetime"]
                     channels = self.config.plant.channels
