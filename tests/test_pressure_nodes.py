@@ -74,6 +74,35 @@ def test_commands_over_dds_move_the_gripper_and_topics_report_it(nodes):
     wait_for(lambda: abs(device.device.chamber_gauge_pa()) < 1e3, timeout=5.0, message="vented")
 
 
+def test_a_late_copy_of_a_command_cannot_undo_a_newer_one(nodes):
+    """Composed, the grasp manager's commands arrive twice: directly, then by the topic. A command
+    stamped at or before the last one applied is ignored; an unstamped one always applies."""
+    from softgrip_interfaces.msg import PressureCommand
+    from softgrip_ros.nodes.common import stamp_msg
+
+    controller, _, _ = nodes
+    setpoint = lambda: controller.controller._target      # noqa: E731 - the accepted target
+
+    def command(target_pa, stamp_s=None):
+        message = PressureCommand(target_gauge_pressure_pa=target_pa, max_rate_pa_per_s=math.nan,
+                                  source=PressureCommand.SUPPLY)
+        if stamp_s is not None:
+            message.header.stamp = stamp_msg(stamp_s)
+        controller.on_command(message)
+
+    now = controller.get_clock().now().nanoseconds * 1e-9
+    command(10e3, now)
+    command(20e3, now + 0.01)
+    command(10e3, now)                                    # the first one's DDS copy, late
+    assert setpoint() == 20e3
+    command(30e3, now + 0.01)                             # same stamp: a copy
+    assert setpoint() == 20e3
+    command(5e3)                                          # unstamped (a hand-written command)
+    assert setpoint() == 5e3
+    command(15e3, now + 0.02)
+    assert setpoint() == 15e3
+
+
 def test_dropout_gives_hold_and_a_diagnostic_error_then_recovers(nodes):
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
     from rclpy.parameter import Parameter

@@ -10,9 +10,10 @@ The busy links between these nodes are direct calls, not DDS: each sensor readin
 estimator, each controller status to the estimator and the grasp manager, each estimate to
 the kinematics and the grasp manager. rclpy has no intra-process transport, and each message
 the executor takes costs a few hundred microseconds of Python: at 700 readings, 200 estimates
-and 50 statuses a second, that saturated a core (docs/benchmarks.md, bench_e2e). The topics
-are still published for every other subscriber; grasp commands and pressure commands (a few a
-second) still go through DDS.
+and 50 statuses a second, that saturated a core (docs/benchmarks.md, bench_e2e). So is the
+latency-critical one, each pressure command from the grasp manager to the pressure controller
+(its later DDS copy is recognised by its stamp and ignored). The topics are still published for
+every other subscriber; grasp commands still go through DDS.
 """
 from __future__ import annotations
 
@@ -58,6 +59,7 @@ def make_nodes(context=None, overrides: dict | None = None) -> list:
         controller.sensor_listeners.append(estimator.on_sensor_sample)
         controller.status_listeners += [estimator.on_status, grasp_manager.on_status]
         grasp_manager.scene_listeners.append(kinematics.on_scene)
+        grasp_manager.command_listeners.append(controller.on_command)
         estimator.estimate_listeners += [kinematics.on_estimate, grasp_manager.on_estimate]
     except Exception:
         close_all(nodes)

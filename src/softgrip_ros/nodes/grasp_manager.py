@@ -99,6 +99,7 @@ class GraspManagerNode(Node):
         self.fsm = GraspStateMachine(kinematics, config, force_law, scene_model)
         self.scene = FREE
         self.scene_listeners = []            # in-process: kinematics.on_scene
+        self.command_listeners = []          # in-process: pressure_controller.on_command (it takes no lock of ours)
         self.scene_pub = self.create_publisher(GraspScene, "grasp_scene", QoSProfile(
             depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
         self.feedback = ControllerFeedback(v["estimate_timeout"], v["status_timeout"], v["sensor_fault_grace"])
@@ -188,8 +189,10 @@ class GraspManagerNode(Node):
         self.sent = (request, now)
         source = {Source.SUPPLY: PressureCommand.SUPPLY, Source.VACUUM: PressureCommand.VACUUM,
                   Source.VENT: PressureCommand.VENT, Source.HOLD: PressureCommand.HOLD}[request.source]
-        publish(self, self.command_pub, PressureCommand(header=self._header(), target_gauge_pressure_pa=request.target_gauge_pa,
-                                                 max_rate_pa_per_s=math.nan, source=source))
+        message = PressureCommand(header=self._header(), target_gauge_pressure_pa=request.target_gauge_pa,
+                                  max_rate_pa_per_s=math.nan, source=source)
+        notify(self.command_listeners, message)
+        publish(self, self.command_pub, message)
 
     def state_message(self) -> GripperState:
         s = self.fsm.state
