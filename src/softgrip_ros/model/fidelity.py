@@ -147,6 +147,7 @@ class ModelSelector:
             raise ValueError(f"tolerance_m must be a positive length, got {tolerance_m}")
         self.fidelity, self.tolerance_m, self.bounds = fidelity, tolerance_m, bounds
         self.validated_range_pa = validated_range_pa
+        self._by_class = {}                  # the choice per scene class: it is asked at 200 Hz
 
     def scene_class(self, pressure_pa: float, scene: Scene) -> str:
         if scene.contact:
@@ -158,6 +159,12 @@ class ModelSelector:
         return self.choose_for_class(self.scene_class(pressure_pa, scene))
 
     def choose_for_class(self, scene_class: str) -> Choice:
+        choice = self._by_class.get(scene_class)
+        if choice is None:
+            choice = self._by_class[scene_class] = self._choose_for_class(scene_class)
+        return choice
+
+    def _choose_for_class(self, scene_class: str) -> Choice:
         bound = {m: self.bounds.tip_error_bound_m[m][scene_class] for m in MODELS}
         if self.fidelity != "auto":
             model = self.fidelity
@@ -193,6 +200,7 @@ class _RodSolve(typing.NamedTuple):
     scene: Scene
     pressure_pa: float
     solution: object              # RodSolution
+    tip: tuple                    # the solution's tip as floats
     tip_slope: tuple
     time_s: float                 # when it was asked for (NaN: no clock given)
 
@@ -222,6 +230,7 @@ class SceneModel:
             raise ValueError(f"min_solve_interval_s must be >= 0, got {min_solve_interval_s}")
         self.resolve_pressure_pa, self.min_solve_interval_s = resolve_pressure_pa, min_solve_interval_s
         self.solves = 0
+        self._descriptions = {}
         self._rod: _RodSolve | None = None
         self._rod_solver = rod_solver or (lambda pressure, obstacle, opening: self.rod.solve(
             pressure, obstacle=obstacle, from_pressure_pa=opening, steps=ROD_CONTINUATION_STEPS))
@@ -237,14 +246,16 @@ class SceneModel:
         pressure = min(max(gauge_pa, free.MODEL_MIN_PRESSURE_PA), free.max_pressure_pa)
         low, high = self.selector.validated_range_pa
         validated = low <= pressure <= high
-        message = scene.describe()
+        message = self._descriptions.get(scene)
+        if message is None:
+            message = self._descriptions[scene] = scene.describe()
         if choice.model == "l2":
-            if solve and self.needs_solve(pressure, scene, now_s):
+            if solve and self._stale(pressure, scene, now_s):
                 self.solve_rod(pressure, scene, now_s)
             last = self._rod
             if last is not None and last.scene == scene and last.solution.converged:
                 solution = last.solution
-                return Evaluation("l2", choice.scene_class, pressure, tuple(float(v) for v in solution.tip), last.tip_slope,
+                return Evaluation("l2", choice.scene_class, pressure, last.tip, last.tip_slope,
                                   lambda nodes=solution.nodes_m: [tuple(map(float, p)) for p in nodes], validated,
                                   solution.contact_force_n, choice.bound_m, choice.meets_tolerance,
                                   message + (f" (l2 at {last.pressure_pa:.0f} Pa)" if last.pressure_pa != pressure else ""))
@@ -260,10 +271,11 @@ class SceneModel:
     def needs_solve(self, gauge_pa: float, scene: Scene, now_s: float | None = None) -> bool:
         """Whether L2 is chosen here and its last solve is for another scene, or too far in pressure
         and (given ``now_s``) at least ``min_solve_interval_s`` old."""
-        if self.selector.choose(gauge_pa, scene).model != "l2":
-            return False
+        return self.selector.choose(gauge_pa, scene).model == "l2" and self._stale(gauge_pa, scene, now_s)
+
+    def _stale(self, gauge_pa: float, scene: Scene, now_s: float | None) -> bool:
         last = self._rod
-        if last is None or last.scene != scene:
+        if last is None or (last.scene is not scene and last.scene != scene):
             return True
         recent = now_s is not None and now_s - last.time_s < self.min_solve_interval_s
         return abs(gauge_pa - last.pressure_pa) > self.resolve_pressure_pa and not recent
@@ -277,6 +289,7 @@ class SceneModel:
         if previous is not None and previous.scene == scene and previous.solution.converged and solution.converged \
                 and 0.0 < abs(gauge_pa - previous.pressure_pa) <= 10 * max(self.resolve_pressure_pa, 100.0):
             slope = tuple((a - b) / (gauge_pa - previous.pressure_pa) for a, b in zip(solution.tip, previous.solution.tip))
-        self._rod = _RodSolve(scene, gauge_pa, solution, slope, math.nan if now_s is None else now_s)   # one assignment
+        self._rod = _RodSolve(scene, gauge_pa, solution, tuple(float(v) for v in solution.tip), slope,
+                              math.nan if now_s is None else now_s)   # one assignment
         self.solves += 1
         return solution
