@@ -254,7 +254,7 @@ def charts(result: dict) -> None:
     kin = result["kinematics"]
     colours = {"l0": "tab:blue", "l1": "tab:orange", "l2": "tab:green", "reference": "tab:red"}
     markers = {"free": "o", "free_beyond": "^", "contact": "s"}
-    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.6))
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 5.4))
     for point in kin["points"]:
         for model in MODELS:
             left.plot(point["cost_s"][model] * 1e6, max(point["error_m"][model], 1e-7) * 1e3, markers[point["scene_class"]],
@@ -270,7 +270,7 @@ def charts(result: dict) -> None:
     left.set(xscale="log", yscale="log", xlabel="compute time per pose [us] (median)", ylabel="tip error against the reference [mm]",
              title="Kinematics: accuracy against cost")
     left.grid(True, which="both", alpha=0.3)
-    left.legend(fontsize=7, loc="center", framealpha=0.9)
+    left.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=3)   # below: no point hidden
     free = [p for p in kin["points"] if p["scene_class"] != "contact"]
     pressures = [p["pressure_pa"] / 1e3 for p in free]
     for model in MODELS:
