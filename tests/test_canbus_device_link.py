@@ -278,3 +278,14 @@ def test_readings_are_as_old_as_their_frames_not_their_late_processing():
         link.close()
         sender.shutdown()
         receiver.shutdown()
+
+
+def test_a_stamped_command_at_or_before_the_last_one_is_ignored(rig):
+    _, link = rig
+    assert link.command(10e3, Source.SUPPLY, math.nan, stamp_s=5.0) == ""
+    assert link.command(20e3, Source.SUPPLY, math.nan, stamp_s=5.1) == ""
+    assert link.command(10e3, Source.SUPPLY, math.nan, stamp_s=5.0) is None      # a late copy
+    assert link.command(30e3, Source.SUPPLY, math.nan, stamp_s=5.1) is None      # a repeated one
+    assert link.controller._target == 20e3
+    assert link.command(5e3, Source.SUPPLY, math.nan) == ""                      # unstamped: applies
+    assert link.controller._target == 5e3

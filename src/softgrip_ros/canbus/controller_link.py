@@ -66,6 +66,7 @@ class ControllerLink:
         self.regulator_actual_gauge_pa = math.nan
         self.last_frame_time = -math.inf
         self._last_heartbeat = -math.inf
+        self._last_command_stamp = 0.0
         if not 0.0 <= command_frame_period_s <= 0.1:
             raise ValueError(f"command_frame_period_s must lie in [0, 0.1] s, got {command_frame_period_s}")
         self.command_frame_period_s = command_frame_period_s
@@ -114,8 +115,15 @@ class ControllerLink:
                 self.last_listener_error = f"{type(error).__name__}: {error}"
 
     # ---- the control period ---------------------------------------------------------------------
-    def command(self, target_gauge_pa: float, source: Source, max_rate_pa_per_s: float) -> str:
+    def command(self, target_gauge_pa: float, source: Source, max_rate_pa_per_s: float, stamp_s: float = 0.0) -> str | None:
+        """Apply a command; None when it is ignored as stale. A command stamped (``stamp_s``, any clock
+        the sender keeps monotonic; 0 = unstamped) at or before the last one applied is a late copy
+        (in the composed controller each command comes both directly and by DDS) and must not undo
+        a newer one. An unstamped command always applies."""
         with self._lock:
+            if stamp_s and stamp_s <= self._last_command_stamp:
+                return None
+            self._last_command_stamp = max(self._last_command_stamp, stamp_s)
             return self.controller.command(target_gauge_pa, source, max_rate_pa_per_s, self.clock())
 
     def update_estimate(self, gauge_pa: float) -> None:

@@ -8,7 +8,6 @@ service ~/vent. The control law and safety rules are in softgrip_ros.control.pre
 from __future__ import annotations
 
 import dataclasses
-import threading
 
 import can
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -74,8 +73,6 @@ class PressureControllerNode(LifecycleNode):
         self.sensor_pubs = {}
         self.sensor_listeners = []       # in-process consumers of each reading: f(name, gauge_pa, stamp_s)
         self.status_listeners = []       # in-process consumers of each controller/status: f(ControllerStatus)
-        self._command_lock = threading.Lock()    # commands come from the executor and from in-process callers
-        self._last_command_stamp = 0.0
         self.create_subscription(PressureCommand, "pressure/command", self.on_command, 10)
         self.estimate_subscription = None
         self._subscribe_estimate(self.values["use_estimate"])
@@ -194,21 +191,19 @@ class PressureControllerNode(LifecycleNode):
 
     def on_command(self, msg: PressureCommand):
         """A pressure command, from the topic or (composed) by a direct call from the grasp manager,
-        which saves a trip through DDS and the executor. The same command then also arrives by the
-        topic, later: a command stamped at or before the last one applied is such a copy (or a stale
-        one) and is ignored, so that it cannot undo a newer command. An unstamped one always applies."""
+        which saves a trip through DDS and the executor; its later DDS copy is ignored by its stamp
+        (see :meth:`ControllerLink.command`)."""
         if self.link is None:
             self.get_logger().warn("pressure command ignored: the controller is not configured")
             return
-        stamp = stamp_seconds(msg.header.stamp)
-        with self._command_lock:
-            if stamp and stamp <= self._last_command_stamp:
-                return
-            self._last_command_stamp = max(self._last_command_stamp, stamp)
-            try:
-                self.last_note = self.link.command(msg.target_gauge_pressure_pa, msg.source, msg.max_rate_pa_per_s)
-            except ValueError as error:
-                self.last_note = f"command rejected: {error}"
+        try:
+            note = self.link.command(msg.target_gauge_pressure_pa, msg.source, msg.max_rate_pa_per_s,
+                                     stamp_seconds(msg.header.stamp))
+        except ValueError as error:
+            note = f"command rejected: {error}"
+        if note is None:
+            return
+        self.last_note = note
         if self.last_note:
             self.get_logger().warn(self.last_note)
 
