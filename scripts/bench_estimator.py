@@ -18,7 +18,7 @@ import sys
 import time
 
 import numpy as np
-from softgrip_ros.benchmarking import figure_rows, machine_line, median_seconds, update_section
+from softgrip_ros.benchmarking import figure_rows, machine_line, median_seconds, repeat_count, update_section
 from softgrip_ros.estimation import simulation as sim
 from softgrip_ros.estimation.estimator import PressureEstimator
 from softgrip_ros.estimation.filters import FILTER_TYPES
@@ -106,11 +106,9 @@ def chart(figures: dict, details: dict, path: pathlib.Path = CHART) -> None:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", action="store_true", help="print the figures as JSON, write nothing")
-    parser.add_argument("--repeat", type=int, default=7, help="timed passes per filter (median)")
+    parser.add_argument("--repeat", type=repeat_count, default=7, help="timed passes per filter (median)")
     parser.add_argument("--runs", type=int, default=50, help="Monte Carlo runs for the NEES check")
     args = parser.parse_args(argv)
-    if args.repeat < 3:
-        parser.error("--repeat must be at least 3 for a meaningful median")
     if args.runs < 10:
         parser.error("--runs must be at least 10")
     started = time.perf_counter()

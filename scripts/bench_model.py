@@ -10,7 +10,7 @@ import sys
 
 import numpy as np
 
-from softgrip_ros.benchmarking import machine_line, median_seconds, update_section, verdict
+from softgrip_ros.benchmarking import machine_line, median_seconds, repeat_count, update_section, verdict
 from softgrip_ros.model.calibration import build_kinematics
 
 TARGETS_US = {"l0_single_us": 20.0, "l0_batch_us_per_pressure": 0.2, "l1_single_us": 200.0, "inverse_us": 200.0}
@@ -53,10 +53,8 @@ def measure(repeat: int) -> dict:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", action="store_true", help="print the figures as JSON, write nothing")
-    parser.add_argument("--repeat", type=int, default=15, help="timed runs per figure (median)")
+    parser.add_argument("--repeat", type=repeat_count, default=15, help="timed runs per figure (median)")
     args = parser.parse_args(argv)
-    if args.repeat < 3:
-        parser.error("--repeat must be at least 3 for a meaningful median")
     figures = measure(args.repeat)
     if args.json:
         print(json.dumps(figures, indent=2))

@@ -31,7 +31,7 @@ import yaml
 from scipy.integrate import solve_ivp
 from tqdm import tqdm
 
-from softgrip_ros.benchmarking import machine_line, median_seconds, update_section
+from softgrip_ros.benchmarking import machine_line, median_seconds, repeat_count, update_section
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.fidelity import FREE, MODELS, SCENE_CLASSES, ErrorBounds, Scene, SceneModel, cylinder_scene
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PlantState, PneumaticParameters, PneumaticPlant, Valve
@@ -413,10 +413,8 @@ def report(result: dict, command: str) -> str:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", action="store_true", help="print the points and pareto lists as JSON, write nothing")
-    parser.add_argument("--repeat", type=int, default=5, help="timed repeats per point (median)")
+    parser.add_argument("--repeat", type=repeat_count, default=5, help="timed repeats per point (median)")
     args = parser.parse_args(argv)
-    if args.repeat < 3:
-        parser.error("--repeat must be at least 3 for a meaningful median")
     started = time.perf_counter()
     l1 = build_kinematics("l1")
     rod = RodFinger(l1.geometry, l1.calibration)

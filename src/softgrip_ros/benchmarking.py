@@ -6,6 +6,7 @@ taken in one run.
 """
 from __future__ import annotations
 
+import argparse
 import datetime
 import os
 import pathlib
@@ -25,6 +26,14 @@ def median_seconds(function, number: int, repeat: int) -> float:
             function()
         samples.append((time.perf_counter() - start) / number)
     return statistics.median(samples)
+
+
+def repeat_count(text: str) -> int:
+    """argparse type of every bench script's --repeat: a median needs at least 3 runs."""
+    value = int(text)
+    if value < 3:
+        raise argparse.ArgumentTypeError(f"must be at least 3 for a meaningful median, got {value}")
+    return value
 
 
 def machine_line() -> str:
