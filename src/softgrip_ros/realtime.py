@@ -79,3 +79,61 @@ class PeriodicThread:
                 except Exception as error:      # publishing must never stop the loop
                     self.errors += 1
                     self.last_error = f"{type(error).__name__}: {error}"
+
+
+class TimerThread:
+    """Several periodic callbacks on one thread, for nodes composed in one process.
+
+    An rclpy timer costs an executor wake per tick, and each wake rebuilds the wait set over
+    every entity of every node (about a millisecond of Python for the composed controller's
+    five nodes): the composed nodes' timers at 50, 20 and 10 Hz cost a fifth of a core that
+    way. Here a tick costs its callback. A callback that falls behind is not burst to catch
+    up; its exceptions go to ``on_error(name, error)`` and never stop the thread.
+    """
+
+    def __init__(self, name: str, on_error=None):
+        self.name = name
+        self.on_error = on_error
+        self.errors = 0
+        self._timers = []                    # [next due (monotonic s), period s, callback]
+        self._stop = threading.Event()
+        self._thread = None
+
+    def add(self, period_s: float, callback) -> None:
+        if not period_s > 0.0:
+            raise ValueError(f"period_s must be positive, got {period_s}")
+        if self._thread is not None:
+            raise RuntimeError("add timers before start()")
+        self._timers.append([time.monotonic() + period_s, period_s, callback])
+
+    def start(self) -> None:
+        if self._thread is None and self._timers:
+            self._stop.clear()
+            self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
+            self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            if self._thread is not threading.current_thread():
+                self._thread.join(timeout=2.0)
+            self._thread = None
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            due = min(timer[0] for timer in self._timers)
+            delay = due - time.monotonic()
+            if delay > 0.0 and self._stop.wait(delay):
+                return
+            now = time.monotonic()
+            for timer in self._timers:
+                if timer[0] <= now:
+                    timer[0] += timer[1]
+                    if timer[0] <= now:           # fell a period behind: skip, do not burst
+                        timer[0] = now + timer[1]
+                    try:
+                        timer[2]()
+                    except Exception as error:    # a failing callback must not stop the others
+                        self.errors += 1
+                        if self.on_error is not None:
+                            self.on_error(getattr(timer[2], "__name__", repr(timer[2])), error)

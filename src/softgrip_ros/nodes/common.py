@@ -14,6 +14,8 @@ from rclpy._rclpy_pybind11 import RCLError
 from rclpy.time import Time
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
 
+from softgrip_ros.realtime import TimerThread
+
 P_ATM_PA = 101_325.0
 
 
@@ -45,6 +47,18 @@ def publish(node, publisher, message) -> None:
             raise
 
 
+def listened(node, publisher) -> bool:
+    """Whether ``publisher`` has a subscriber. The high-rate topics (sensor readings, estimates,
+    tip poses) are not built or serialised for nobody: in the composed controller their consumers
+    take them by direct call, and a DDS publish holds the GIL for its serialisation and write."""
+    try:
+        return publisher.get_subscription_count() > 0
+    except (RCLError, InvalidHandle):
+        if node.context.ok():
+            raise
+        return False
+
+
 def notify(listeners, *args) -> None:
     """Call every in-process listener with ``args``; one that raises does not starve the ones after it.
     The first error is raised once all have run, for the caller to count and report."""
@@ -56,6 +70,25 @@ def notify(listeners, *args) -> None:
             first = first or error
     if first is not None:
         raise first
+
+
+def node_timers(node, in_process: bool) -> TimerThread | None:
+    """For a node composed in one process (``in_process``), a :class:`TimerThread` for its periodic
+    callbacks (started by :func:`every`'s caller, stopped in its ``close()``); otherwise None, and
+    :func:`every` makes rclpy timers as usual."""
+    if not in_process:
+        return None
+    logger = node.get_logger()
+    return TimerThread(f"{node.get_name()}-timers", on_error=lambda name, error: logger.error(
+        f"{name} failed: {type(error).__name__}: {error}", throttle_duration_sec=5.0))
+
+
+def every(node, timers: TimerThread | None, period_s: float, callback) -> None:
+    """Call ``callback`` every ``period_s``: on ``timers`` when given, else on an rclpy timer."""
+    if timers is None:
+        node.create_timer(period_s, callback)
+    else:
+        timers.add(period_s, callback)
 
 
 def run_node(node_factory, args=None, executor_factory=None) -> int:

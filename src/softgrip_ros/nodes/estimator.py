@@ -21,7 +21,7 @@ from std_msgs.msg import Header
 from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 from softgrip_ros.estimation.estimator import EstimatorConfig, Health, PressureEstimator, SensorConfig
 from softgrip_ros.model.pneumatics import Valve
-from softgrip_ros.nodes.common import P_ATM_PA, notify, publish, run_node, stamp_msg, stamp_seconds
+from softgrip_ros.nodes.common import P_ATM_PA, every, listened, node_timers, notify, publish, run_node, stamp_msg, stamp_seconds
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
 _DEFAULTS = EstimatorConfig()
@@ -84,11 +84,16 @@ class EstimatorNode(Node):
         if not in_process:
             self.create_subscription(ControllerStatus, "controller/status", self.on_status, 10)
         self.create_subscription(PressureCommand, "pressure/command", self._on_command, 10)
-        self.create_timer(max(self.period_s, 1.0 / PREDICTION_RATE_LIMIT_HZ), self._on_timer)
-        self.create_timer(0.5, self._publish_diagnostics)
+        self.periodic = node_timers(self, in_process)
+        every(self, self.periodic, max(self.period_s, 1.0 / PREDICTION_RATE_LIMIT_HZ), self._on_timer)
+        every(self, self.periodic, 0.5, self._publish_diagnostics)
+        if self.periodic is not None:
+            self.periodic.start()
 
     def close(self) -> None:
         """Nothing to vent: the estimator only listens. Later in-process samples are ignored."""
+        if self.periodic is not None:
+            self.periodic.stop()
         with self._lock:
             self.closed = True
 
@@ -142,9 +147,10 @@ class EstimatorNode(Node):
     def _publish(self, estimate) -> None:
         if estimate is None:
             return
-        publish(self, self.estimate_pub, FluidPressure(header=Header(stamp=stamp_msg(estimate.stamp_s), frame_id="softgrip_chamber"),
-                                                       fluid_pressure=estimate.gauge_pa + P_ATM_PA,
-                                                       variance=estimate.variance_pa2))
+        if listened(self, self.estimate_pub):
+            publish(self, self.estimate_pub, FluidPressure(
+                header=Header(stamp=stamp_msg(estimate.stamp_s), frame_id="softgrip_chamber"),
+                fluid_pressure=estimate.gauge_pa + P_ATM_PA, variance=estimate.variance_pa2))
         notify(self.estimate_listeners, estimate.stamp_s, estimate.gauge_pa, estimate.variance_pa2)
 
     def _publish_diagnostics(self) -> None:

@@ -32,7 +32,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from softgrip_interfaces.msg import GraspScene
 from softgrip_ros.model.fidelity import CHOICES, FREE, RodSolverProcess, Scene, SceneModel
 from softgrip_ros.model.rod import Circle, Sheet
-from softgrip_ros.nodes.common import P_ATM_PA, publish, run_node, stamp_msg, stamp_seconds
+from softgrip_ros.nodes.common import P_ATM_PA, every, listened, node_timers, publish, run_node, stamp_msg, stamp_seconds
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
 SPECS = [
@@ -85,11 +85,16 @@ class KinematicsNode(Node):
                 stamp_seconds(msg.header.stamp), msg.fluid_pressure - P_ATM_PA, msg.variance), 10)
             latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
             self.create_subscription(GraspScene, "grasp_scene", self._on_scene_message, latched)
-        self.create_timer(1.0 / self.values["marker_rate_hz"], self._publish_markers)
-        self.create_timer(1.0, self._publish_diagnostics)
+        self.periodic = node_timers(self, in_process)
+        every(self, self.periodic, 1.0 / self.values["marker_rate_hz"], self._publish_markers)
+        every(self, self.periodic, 1.0, self._publish_diagnostics)
+        if self.periodic is not None:
+            self.periodic.start()
 
     def close(self) -> None:
         """Nothing to vent: the kinematics only listens. Later in-process estimates are ignored."""
+        if self.periodic is not None:
+            self.periodic.stop()
         with self._lock:
             self.closed = True
             self._solve_wanted.notify_all()
@@ -138,6 +143,8 @@ class KinematicsNode(Node):
         (x_left, z, angle_left), slope = evaluation.tip, evaluation.tip_slope    # slope: d(x, z, angle)/dp
         header = Header(stamp=stamp_msg(stamp_s), frame_id=self.values["frame_id"])
         for sign, publisher in ((1.0, self.left_pub), (-1.0, self.right_pub)):
+            if not listened(self, publisher):
+                continue
             x, angle = x_left * sign, angle_left * sign
             jacobian = (sign * slope[0], 0.0, slope[1], 0.0, sign * slope[2], 0.0)     # over x y z rx ry rz
             message = PoseWithCovarianceStamped(header=header)
@@ -147,7 +154,7 @@ class KinematicsNode(Node):
             publish(self, publisher, message)
 
     def _publish_markers(self) -> None:
-        if self.last is None or self.marker_pub.get_subscription_count() == 0:
+        if self.last is None or not listened(self, self.marker_pub):
             return                                          # model no more than a scene needs
         backbone = self.last[1].backbone()
         header = Header(stamp=self.get_clock().now().to_msg(), frame_id=self.values["frame_id"])

@@ -21,7 +21,7 @@ from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 from softgrip_ros.canbus.codec import FrameCodec
 from softgrip_ros.canbus.controller_link import make_control_loop, ControllerLink, SensorBinding
 from softgrip_ros.control.pressure import PressureControlConfig, PressureController, Severity, severity
-from softgrip_ros.nodes.common import P_ATM_PA, notify, open_bus, publish, run_node, stamp_msg, stamp_seconds
+from softgrip_ros.nodes.common import P_ATM_PA, listened, notify, open_bus, publish, run_node, stamp_msg, stamp_seconds
 from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, check_all, declare
 
 _DEFAULTS = PressureControlConfig()
@@ -225,8 +225,9 @@ class PressureControllerNode(LifecycleNode):
             return
         # stamped when measured, not when processed (they differ when this process is starved)
         measured_s = self.get_clock().now().nanoseconds * 1e-9 - max(0.0, link.clock() - sent_at)
-        publish(self, publisher, FluidPressure(header=Header(stamp=stamp_msg(measured_s), frame_id=name),
-                                               fluid_pressure=gauge_pa + P_ATM_PA, variance=self.noise_variance[name]))
+        if listened(self, publisher):
+            publish(self, publisher, FluidPressure(header=Header(stamp=stamp_msg(measured_s), frame_id=name),
+                                                   fluid_pressure=gauge_pa + P_ATM_PA, variance=self.noise_variance[name]))
         notify(self.sensor_listeners, name, gauge_pa, measured_s)
 
     def _header(self, frame_id="softgrip_base"):
