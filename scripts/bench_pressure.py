@@ -64,11 +64,12 @@ def can_step(seed: int) -> dict:
     counter = {"frames": 0}
     notifier = can.Notifier(buses[2], [lambda _: counter.__setitem__("frames", counter["frames"] + 1)], timeout=0.05)
     link.controller.active = True
-    loop = make_control_loop(link.step, 500.0, 50.0)
+    loop = make_control_loop(link, 500.0, 50.0)
     device.start()
     loop.start()
     try:
         time.sleep(0.3)
+        loop.periods_s.clear()                # the periods while regulating
         link.command(TARGET, Source.SUPPLY, math.nan)
         start = time.monotonic()
         times, pressures = [], []

@@ -12,6 +12,8 @@ from softgrip_ros.canbus.sim_device import SimDeviceConfig, SimulatedDevice
 from softgrip_ros.control.pressure import Fault, Mode, PressureControlConfig, PressureController, Source
 from softgrip_ros.model.pneumatics import Valve
 
+from tests.helpers.ros import wait_for
+
 SENSORS = [SensorBinding("chamber_a", "PressureSensor1"), SensorBinding("chamber_b", "PressureSensor2")]
 
 
@@ -116,6 +118,35 @@ def test_silent_bus_is_detected(rig):
     device.set_fault("bus_silent", False)
     _, _, outputs = run(link, device, 0.3)
     assert Fault.BUS_SILENT not in outputs[-1].fault_flags
+
+
+def test_at_rest_the_loop_slows_and_a_command_or_a_reading_beyond_the_limits_steps_at_once(rig):
+    """Venting, the loop runs at its rest rate (1 Hz here, so that nothing else could explain a
+    prompt step); a command wakes it, and so does a reading beyond the limits, which vents."""
+    from softgrip_ros.canbus.controller_link import make_control_loop
+    device, link = rig
+    statuses = []
+    loop = make_control_loop(link, 500.0, 50.0, on_status=statuses.append, rest_rate_hz=1.0)
+    link.command(0.0, Source.VENT, math.nan)
+    loop.start()
+    try:
+        wait_for(lambda: loop.rest_ticks >= 1, message="a step at rest")
+        time.sleep(0.1)
+        at_rest = loop.ticks
+        assert at_rest <= 2
+        link.command(20e3, Source.SUPPLY, math.nan)
+        wait_for(lambda: loop.ticks >= at_rest + 20 and device.valves() == (Valve.SUPPLY,), timeout=0.9,
+                 message="regulating at the full rate")
+        link.command(0.0, Source.HOLD, math.nan)
+        wait_for(lambda: statuses[-1].mode == Mode.HOLD, timeout=0.9, message="HOLD")
+        time.sleep(0.05)
+        before = loop.ticks
+        device.set_fault("sensor_bias_pa", 70e3)   # every reading beyond 50 kPa + the 5 kPa margin
+        wait_for(lambda: statuses[-1].mode == Mode.FAULT, timeout=0.9, message="FAULT from the reading")
+        assert loop.ticks <= before + 3 and Fault.OVERPRESSURE in statuses[-1].fault_flags
+        wait_for(lambda: device.valves() == (Valve.VENT,), timeout=0.9, message="vent")
+    finally:
+        loop.stop()
 
 
 def test_regulator_overshoot_vents_below_limit_plus_margin(rig):

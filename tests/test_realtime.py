@@ -48,3 +48,33 @@ def test_timer_thread_refuses_a_bad_period_and_late_additions():
             timers.add(1.0, lambda: None)
     finally:
         timers.stop()
+
+
+def test_periodic_thread_slows_down_at_rest_and_wakes_at_once():
+    """A step that reports rest gets the rest rate (1 Hz here, against 1 kHz); wake() runs a step
+    at once, and a step that no longer rests is back at the full rate."""
+    from softgrip_ros.realtime import PeriodicThread
+    state = {"resting": True, "steps": 0}
+
+    def step():
+        state["steps"] += 1
+        return state["resting"]
+
+    loop = PeriodicThread(step, 1000.0, "test-loop", rest_rate_hz=1.0, resting=lambda resting: resting)
+    loop.start()
+    try:
+        wait_for(lambda: state["steps"] >= 1, message="the first step")
+        threading.Event().wait(0.2)
+        assert state["steps"] == 1 and loop.rest_ticks == 1          # the next one is a second away
+        state["resting"] = False
+        loop.wake()
+        wait_for(lambda: state["steps"] >= 50, timeout=0.9, message="full rate after wake()")
+        state["resting"] = True
+        wait_for(lambda: loop.rest_ticks >= 2, message="at rest again")
+        resting_at = state["steps"]
+        threading.Event().wait(0.2)
+        assert state["steps"] == resting_at
+    finally:
+        loop.stop()
+    with pytest.raises(ValueError, match="rest_rate_hz must lie in"):
+        PeriodicThread(step, 100.0, "test-loop", rest_rate_hz=200.0, resting=bool)

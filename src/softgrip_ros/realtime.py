@@ -1,8 +1,9 @@
-"""PeriodicThread: call a function at a fixed rate on its own thread, scheduled on absolute deadlines.
+"""Threads for the suite's periodic work, off the rclpy executor.
 
-Both real-time loops of the suite use it: the pressure controller's control loop and the
-simulated device's plant. An rclpy timer shares the executor (and the GIL) with every
-callback of the process and loses ticks under load; these loops must not.
+:class:`PeriodicThread` calls a function at a fixed rate on absolute deadlines: the pressure
+controller's control loop and the simulated device's plant. An rclpy timer shares the executor
+(and the GIL) with every callback of the process and loses ticks under load; these loops must
+not. :class:`TimerThread` runs the composed nodes' slower periodic callbacks.
 """
 from __future__ import annotations
 
@@ -19,24 +20,34 @@ GIL_SWITCH_INTERVAL_S = 2e-4
 class PeriodicThread:
     """Calls ``step()`` at ``rate_hz``, and ``on_output(result)`` after each tick.
 
-    ``periods_s`` and ``work_s`` keep the recent tick-to-tick periods and the time spent in
-    ``step()``. After falling more than 10 periods behind, the schedule re-anchors rather
-    than bursting to catch up. Exceptions from ``on_output`` are counted, never raised.
+    With ``rest_rate_hz`` and ``resting``: after a tick whose result ``resting(result)`` calls
+    at rest, the next tick comes at the slower ``rest_rate_hz``; :meth:`wake` (from any thread)
+    runs a tick at once and restarts the schedule from there. ``periods_s`` and ``work_s`` keep
+    the recent tick-to-tick periods and the time spent in ``step()``. After falling more than
+    10 periods behind, the schedule re-anchors rather than bursting to catch up. Exceptions
+    from ``on_output`` are counted, never raised.
     """
 
-    def __init__(self, step, rate_hz: float, name: str, on_output=None, history: int = 20000):
+    def __init__(self, step, rate_hz: float, name: str, on_output=None, history: int = 20000,
+                 rest_rate_hz: float | None = None, resting=None):
         if not 1.0 <= rate_hz <= 5000.0:
             raise ValueError(f"rate_hz must lie in [1, 5000], got {rate_hz}")
+        if rest_rate_hz is not None and not 1.0 <= rest_rate_hz <= rate_hz:
+            raise ValueError(f"rest_rate_hz must lie in [1, rate_hz = {rate_hz:g}], got {rest_rate_hz}")
         self.step_function = step
         self.period_s = 1.0 / rate_hz
+        self.rest_period_s = self.period_s if rest_rate_hz is None else 1.0 / rest_rate_hz
+        self.resting = resting
         self.name = name
         self.on_output = on_output
         self.periods_s = collections.deque(maxlen=history)
         self.work_s = collections.deque(maxlen=history)
         self.ticks = 0
+        self.rest_ticks = 0
         self.errors = 0
         self.last_error = ""
         self._stop = threading.Event()
+        self._wake = threading.Event()
         self._thread = None
 
     @property
@@ -53,26 +64,39 @@ class PeriodicThread:
 
     def stop(self) -> None:
         self._stop.set()
+        self._wake.set()
         if self._thread is not None:
             self._thread.join(timeout=2.0)
             self._thread = None
 
+    def wake(self) -> None:
+        """Run a tick now instead of at the next deadline (a command, a reading beyond a limit)."""
+        self._wake.set()
+
     def _run(self) -> None:
-        start = previous = time.monotonic()
-        tick = 0
+        deadline = previous = time.monotonic()
+        period = self.period_s
         while not self._stop.is_set():
-            tick += 1
-            delay = start + tick * self.period_s - time.monotonic()
+            deadline += period
+            delay = deadline - time.monotonic()
             if delay > 0.0:
-                self._stop.wait(delay)
-            elif delay < -10 * self.period_s:
-                start, tick = time.monotonic(), 0
+                if self._wake.wait(delay):
+                    deadline = time.monotonic()
+            elif delay < -10 * period:
+                deadline = time.monotonic()
+            self._wake.clear()
+            if self._stop.is_set():
+                return
             now = time.monotonic()
             self.periods_s.append(now - previous)
             previous = now
             output = self.step_function()
             self.work_s.append(time.monotonic() - now)
             self.ticks += 1
+            period = self.period_s
+            if self.resting is not None and self.resting(output):
+                period = self.rest_period_s
+                self.rest_ticks += 1
             if self.on_output is not None:
                 try:
                     self.on_output(output)

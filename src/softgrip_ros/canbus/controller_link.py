@@ -78,6 +78,7 @@ class ControllerLink:
                              f"got {valve_lifetime_s:g}")
         self.valve_lifetime_s = valve_lifetime_s
         self._last_command_frames = {}      # message -> (signals, time sent)
+        self.wake = None                    # the control loop's wake(): a command or a reading beyond a limit
         self._notifier = can.Notifier(bus, [self._on_frame], timeout=0.05)
 
     @property
@@ -97,8 +98,8 @@ class ControllerLink:
             self.frames_rx += 1
             self.last_frame_time = max(self.last_frame_time, sent_at)
             if decoded.name in self.sensors:
-                if decoded.signals["SensorStatus"] == 0:
-                    self.controller.update_sensor(self.sensors[decoded.name], decoded.signals["GaugePressure"], sent_at)
+                urgent = decoded.signals["SensorStatus"] == 0 and self.controller.update_sensor(
+                    self.sensors[decoded.name], decoded.signals["GaugePressure"], sent_at)
                 sensor_name = self.sensors[decoded.name]
             elif decoded.name == "RegulatorStatus":
                 self.regulator_actual_gauge_pa = decoded.signals["ActualGaugePressure"]
@@ -107,6 +108,8 @@ class ControllerLink:
                 return
             else:
                 return
+        if urgent and self.wake is not None:
+            self.wake()
         if self.on_sensor is not None and decoded.signals["SensorStatus"] == 0:
             try:
                 self.on_sensor(sensor_name, decoded.signals["GaugePressure"], sent_at)
@@ -124,7 +127,10 @@ class ControllerLink:
             if stamp_s and stamp_s <= self._last_command_stamp:
                 return None
             self._last_command_stamp = max(self._last_command_stamp, stamp_s)
-            return self.controller.command(target_gauge_pa, source, max_rate_pa_per_s, self.clock())
+            note = self.controller.command(target_gauge_pa, source, max_rate_pa_per_s, self.clock())
+        if self.wake is not None:
+            self.wake()
+        return note
 
     def update_estimate(self, gauge_pa: float) -> None:
         with self._lock:
@@ -180,27 +186,33 @@ class ControllerLink:
 
 
 
-def make_control_loop(step, rate_hz: float, status_rate_hz: float, on_status=None) -> PeriodicThread:
-    """The pressure controller's loop: ``step`` at ``rate_hz``; ``on_status`` at about
-    ``status_rate_hz`` and at once on a change (see :class:`StatusOnChange`)."""
-    on_output = None if on_status is None else StatusOnChange(on_status, round(rate_hz / status_rate_hz))
-    return PeriodicThread(step, rate_hz, "softgrip-control-loop", on_output=on_output)
+def make_control_loop(link: ControllerLink, rate_hz: float, status_rate_hz: float, on_status=None,
+                      rest_rate_hz: float | None = None) -> PeriodicThread:
+    """The pressure controller's loop: ``link.step`` at ``rate_hz`` while regulating, and at
+    ``rest_rate_hz`` (default: the same) while venting, holding, inactive or faulted, when the
+    valves stay as they are; a command, or a reading beyond the limits, runs a step at once.
+    ``on_status`` at about ``status_rate_hz`` and at once on a change (see :class:`StatusOnChange`)."""
+    on_output = None if on_status is None else StatusOnChange(on_status, 1.0 / status_rate_hz)
+    loop = PeriodicThread(link.step, rate_hz, "softgrip-control-loop", on_output=on_output,
+                          rest_rate_hz=rest_rate_hz, resting=lambda output: output.mode != Mode.REGULATE)
+    link.wake = loop.wake
+    return loop
 
 
 class StatusOnChange:
-    """Pass a ControlOutput on every ``every``-th call, and at once when the valves, the mode,
-    the regulator enable or (by more than ``regulator_band_pa``) the regulator command change."""
+    """Pass a ControlOutput on when ``period_s`` has passed since the last one passed, and at once
+    when the valves, the mode, the regulator enable or (by more than ``regulator_band_pa``) the
+    regulator command change."""
 
-    def __init__(self, callback, every: int, regulator_band_pa: float = 1e3):
-        self.callback, self.every, self.regulator_band_pa = callback, max(1, int(every)), regulator_band_pa
-        self._count, self._last = 0, None
+    def __init__(self, callback, period_s: float, regulator_band_pa: float = 1e3, clock=time.monotonic):
+        self.callback, self.period_s, self.regulator_band_pa, self.clock = callback, period_s, regulator_band_pa, clock
+        self._sent_at, self._last = -math.inf, None
 
     def __call__(self, output) -> None:
-        self._count += 1
-        last = self._last
+        last, now = self._last, self.clock()
         changed = (last is None or (output.valves, output.mode, output.regulator_enabled)
                    != (last.valves, last.mode, last.regulator_enabled)
                    or abs(output.regulator_setpoint_gauge_pa - last.regulator_setpoint_gauge_pa) > self.regulator_band_pa)
-        if changed or self._count >= self.every:
-            self._count, self._last = 0, output
+        if changed or now - self._sent_at >= self.period_s - 1e-4:
+            self._sent_at, self._last = now, output
             self.callback(output)

@@ -203,9 +203,13 @@ class PressureController:
             self._latched &= ~Fault.OVERPRESSURE
         return note
 
-    def update_sensor(self, name: str, gauge_pa: float, now: float) -> None:
+    def update_sensor(self, name: str, gauge_pa: float, now: float) -> bool:
+        """Take a reading; True when it lies beyond the limits plus margin and the controller has
+        not yet vented for that (step now)."""
         if math.isfinite(gauge_pa):
             self._sensors[name] = (gauge_pa, now)
+            return not self._within_limits(gauge_pa) and Fault.OVERPRESSURE not in self._latched
+        return False
 
     def update_estimate(self, gauge_pa: float, now: float) -> None:
         if math.isfinite(gauge_pa):

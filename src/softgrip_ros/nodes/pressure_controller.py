@@ -28,6 +28,8 @@ _DEFAULTS = PressureControlConfig()
 SPECS = CAN_SPECS + [
     ParamSpec("autostart", True, "configure and activate on start-up"),
     ParamSpec("control_rate_hz", 500.0, "control loop rate", "Hz", 10.0, 1000.0),
+    ParamSpec("rest_rate_hz", 100.0, "control loop rate while venting, holding or faulted (a command or a reading "
+              "beyond the limits steps at once); <= control_rate_hz", "Hz", 10.0, 1000.0),
     ParamSpec("status_rate_hz", 50.0, "controller/status publish rate", "Hz", 1.0, 200.0),
     ParamSpec("command_frame_period", 0.01, "RegulatorSetpoint and ValveCommand re-sent this often when unchanged "
               "(a change goes out in its control period); 0 = every period", "s", 0.0, 0.1),
@@ -92,7 +94,7 @@ class PressureControllerNode(LifecycleNode):
     def _on_set(self, parameters):
         def extra(params):
             changed = {p.name: p.value for p in params}
-            if any(n.startswith(("can.", "sensors.", "control_rate_hz", "command_frame_period", "valve_lifetime")) for n in changed) and self.link is not None:
+            if any(n.startswith(("can.", "sensors.", "control_rate_hz", "rest_rate_hz", "command_frame_period", "valve_lifetime")) for n in changed) and self.link is not None:
                 return "CAN, sensor and rate parameters apply at configure: deactivate and clean up first"
             if any(n in LIVE for n in changed):
                 try:
@@ -126,6 +128,9 @@ class PressureControllerNode(LifecycleNode):
             self.get_logger().error("sensors.names, sensors.messages and sensors.noise_std_pa need equal, non-zero lengths")
             return TransitionCallbackReturn.FAILURE
         try:
+            if self.values["rest_rate_hz"] > self.values["control_rate_hz"]:
+                raise ValueError(f"rest_rate_hz ({self.values['rest_rate_hz']:g}) must not exceed control_rate_hz "
+                                 f"({self.values['control_rate_hz']:g})")
             overrides = {n: self.values[f"can.frame_ids.{n}"] for n in self.codec.message_names
                          if self.values[f"can.frame_ids.{n}"]}
             self.codec = FrameCodec(frame_ids=overrides)
@@ -146,8 +151,8 @@ class PressureControllerNode(LifecycleNode):
 
     def on_activate(self, state) -> TransitionCallbackReturn:
         self.controller.active = True
-        self.loop = make_control_loop(self.link.step, self.values["control_rate_hz"], self.values["status_rate_hz"],
-                                on_status=self._on_loop_output)
+        self.loop = make_control_loop(self.link, self.values["control_rate_hz"], self.values["status_rate_hz"],
+                                      on_status=self._on_loop_output, rest_rate_hz=self.values["rest_rate_hz"])
         self.loop.start()
         return super().on_activate(state)
 
