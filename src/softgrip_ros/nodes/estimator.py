@@ -29,6 +29,10 @@ SPECS = [
     ParamSpec("frequency", 200.0, "largest pressure/estimate rate (predictions while silent: at most 50 Hz)", "Hz", 1.0, 2000.0),
     ParamSpec("sensor_timeout", _DEFAULTS.sensor_timeout_s, "a sensor silent this long is dropped from fusion", "s", 0.001, 10.0),
     ParamSpec("filter_type", _DEFAULTS.filter_type, "the filter", choices=("kf", "ekf", "ukf")),
+    ParamSpec("fusion_window", 0.005, "while the chamber rests, samples this close are fused in one filter step "
+              "(0: each at once)", "s", 0.0, 0.005),
+    ParamSpec("max_fusion_shift_pa", _DEFAULTS.max_fusion_shift_pa, "... 'rests': its modelled change over the "
+              "window stays within this", "Pa", 1.0, 1000.0),
     ParamSpec("sensors.names", ["chamber_a", "chamber_b"], "sensors fused: topics pressure/sensor/<name>"),
     ParamSpec("sensors.noise_std_pa", [300.0, 150.0], "1-sigma noise of each sensor (R = noise^2)", "Pa"),
     ParamSpec("sensors.rejection_threshold", [16.0, 16.0], "Mahalanobis gate of each sensor, chi-square with 1 dof (16 = 4 sigma)"),
@@ -51,7 +55,8 @@ def config_from(values: dict) -> EstimatorConfig:
     sensors = tuple(SensorConfig(n, float(s), float(g)) for n, s, g in zip(names, noise, gates))
     return EstimatorConfig(filter_type=values["filter_type"], sensors=sensors, sensor_timeout_s=values["sensor_timeout"],
                            process_noise_pa2_per_s=tuple(float(v) for v in values["process_noise_covariance"]),
-                           nis_window=values["nis_window"], max_consecutive_rejections=values["max_consecutive_rejections"])
+                           nis_window=values["nis_window"], max_consecutive_rejections=values["max_consecutive_rejections"],
+                           fusion_window_s=values["fusion_window"], max_fusion_shift_pa=values["max_fusion_shift_pa"])
 
 
 class EstimatorNode(Node):
