@@ -220,6 +220,20 @@ def test_pending_samples_are_fused_under_the_inputs_they_were_taken_with():
     assert estimator.estimate().stamp_s == pytest.approx(0.0035)
 
 
+def test_a_sample_beyond_three_sigma_ends_a_rest_and_is_fused_at_once():
+    estimator = PressureEstimator(EstimatorConfig(fusion_window_s=0.005))
+    estimator.set_inputs(0.0, True, Valve.CLOSED, 0.0)
+    for k in range(400):                          # noise-free: the estimate converges on 10 kPa
+        estimator.add_measurement("chamber_b", 10e3, 0.001 * k)
+    estimator.add_measurement("chamber_b", 10e3, 0.3995)
+    assert estimator.resting and estimator._pending
+    x, P = estimator.filter.x[0, 0], estimator.filter.P[0, 0]
+    sigma = math.sqrt(P + 150.0 ** 2)
+    assert estimator.add_measurement("chamber_b", x + 3.5 * sigma, 0.4)      # inside the 4-sigma gate
+    assert not estimator.resting and not estimator._pending
+    assert estimator.estimate().stamp_s == pytest.approx(0.4) and estimator.estimate().gauge_pa > x
+
+
 def test_bad_samples_and_settings_are_rejected_clearly():
     estimator = PressureEstimator()
     assert estimator.add_measurement("chamber_a", math.nan, 0.0) is False

@@ -14,14 +14,17 @@ P_ATM_PA = 101_325.0
 
 
 @pytest.fixture
-def wired(rclpy_context):
+def wired(rclpy_context, request):
+    """The estimator (with the parameters of ``request.param``, if any) and a node feeding it."""
     from rclpy.node import Node
+    from rclpy.parameter import Parameter
     from sensor_msgs.msg import FluidPressure
     from diagnostic_msgs.msg import DiagnosticArray
     from softgrip_interfaces.msg import ControllerStatus
     from softgrip_ros.nodes.estimator import EstimatorNode
 
-    estimator = EstimatorNode(context=rclpy_context)
+    overrides = [Parameter(name, value=value) for name, value in getattr(request, "param", {}).items()]
+    estimator = EstimatorNode(context=rclpy_context, parameter_overrides=overrides)
     feeder = Node("test_feeder", context=rclpy_context)
     publishers = {name: feeder.create_publisher(FluidPressure, f"pressure/sensor/{name}", 50)
                   for name in ("chamber_a", "chamber_b")}
@@ -58,6 +61,7 @@ def _header(stamp, frame):
     return Header(stamp=stamp, frame_id=frame)
 
 
+@pytest.mark.parametrize("wired", [{"rest_frequency": 200.0}], indirect=True)
 def test_fuses_sensor_topics_into_a_published_estimate_with_variance(wired):
     from diagnostic_msgs.msg import DiagnosticStatus
     from softgrip_interfaces.msg import ControllerStatus
@@ -76,6 +80,29 @@ def test_fuses_sensor_topics_into_a_published_estimate_with_variance(wired):
     assert np.median(stds) < 150.0 / math.sqrt(2)                 # tighter than the best sensor's one-sample noise
     assert estimates[-1].header.stamp.sec > 0
     wait_for(lambda: any(d.level == DiagnosticStatus.OK and "fusing 2 sensors" in d.message for d in diagnostics), message="diagnostics OK")
+
+
+def test_at_rest_estimates_go_out_at_the_rest_rate(wired):
+    """A sealed chamber at a constant pressure rests: estimates at rest_frequency (20 Hz; one per
+    45 ms of sample stamps at most, but for noise beyond 3 sigma, which ends a rest:
+    test_estimation pins that rule), as accurate as ever."""
+    from softgrip_interfaces.msg import ControllerStatus
+    from softgrip_ros.nodes.common import stamp_seconds as stamp_s
+    feeder, publishers, status_pub, estimates, _ = wired
+    rng = np.random.default_rng(2)
+    truth = 10e3
+    status_pub.publish(ControllerStatus(header=_header(feeder.get_clock().now().to_msg(), ""), valve_states=[0],
+                                        regulator_command_gauge_pressure_pa=truth, regulator_enabled=True))
+    _feed(feeder, publishers, ("chamber_a", "chamber_b"), truth, 0.3, rng)     # converge
+    start = len(estimates)
+    _feed(feeder, publishers, ("chamber_a", "chamber_b"), truth, 1.0, rng)
+    at_rest = estimates[start:]
+    gaps = np.diff([stamp_s(m.header.stamp) for m in at_rest])
+    # a 3-sigma sample ends a rest too: about 1 in 370 samples of pure noise, 1-2 of these 500
+    assert 5 <= len(at_rest) <= 27 and np.median(gaps) >= 0.045 - 1e-6 and np.sum(gaps < 0.045 - 1e-6) <= 4, gaps
+    values = np.array([m.fluid_pressure - P_ATM_PA for m in at_rest])
+    assert np.all(np.abs(values - truth) < 4 * np.sqrt([m.variance for m in at_rest]) + 1.0)
+
 
 
 def test_silent_sensors_give_predictions_with_growing_variance_and_a_warning(wired):

@@ -10,8 +10,8 @@ a filter alone does not do:
 - **Fusion window.** With ``fusion_window_s`` > 0, while the chamber rests (its modelled change
   over the window within ``max_fusion_shift_pa``) samples wait and are fused together, each
   moved to the fusion instant by the model (:meth:`PressureEstimator.fuse_pending`); a fill or
-  an evacuation is fused sample by sample. Asking for the estimate, new inputs or a prediction
-  fuses what waits first.
+  an evacuation, or a sample 3 sigma off the estimate, is fused sample by sample and ends the
+  rest (``resting``). Asking for the estimate, new inputs or a prediction fuses what waits first.
 - **Gating.** Each sensor's sample is tested by its Mahalanobis distance, d^2 = y^2 / S, against
   that sensor's chi-square threshold (1 degree of freedom); a sample beyond it is rejected and
   counted. After ``max_consecutive_rejections`` in a row from every live sensor the filter is
@@ -40,6 +40,7 @@ from softgrip_ros.estimation.filters import CHAMBER, FILTER_TYPES, make_filter, 
 from softgrip_ros.model.pneumatics import PlantInputs, PneumaticPlant, Valve
 
 _H_CHAMBER = np.array([[1.0, 0.0]])      # every sensor measures the chamber
+REST_GATE_D2 = 9.0                        # 3 sigma: a sample this far from the estimate ends a rest
 
 
 class Health(enum.IntEnum):
@@ -184,6 +185,7 @@ class PressureEstimator:
         self.time_s = math.nan
         self.reinitialisations = 0
         self._pending = []                   # [(name, gauge, stamp)] taken, not yet fused
+        self.resting = False                 # samples wait for a fusion window (see add_measurement)
 
     # ---- inputs and time ----------------------------------------------------------------------
     @property
@@ -218,7 +220,12 @@ class PressureEstimator:
     def add_measurement(self, name: str, gauge_pa: float, stamp_s: float) -> bool:
         """Take one sample; True when it was taken: fused now or, with a fusion window, pending
         until the next fusion (whose gate may still reject it). Unknown sensors raise ValueError."""
-        if self.config.fusion_window_s <= 0.0 or not self.initialised or not (self._pending or self._at_rest()):
+        if self.config.fusion_window_s <= 0.0 or not self.initialised:
+            return self.add_measurements({name: gauge_pa}, stamp_s)[name]
+        if not self._pending:
+            self.resting = self._at_rest()
+        if not self.resting or self._surprising(name, gauge_pa):
+            self.resting = False
             return self.add_measurements({name: gauge_pa}, stamp_s)[name]
         if not self._screen(name, gauge_pa, stamp_s) or self._late([name], stamp_s):
             return False
@@ -272,6 +279,12 @@ class PressureEstimator:
         x = self.filter.x[:, 0]
         change = plant_step(self.plant, x, self.config.fusion_window_s, self.inputs)[CHAMBER] - x[CHAMBER]
         return abs(change) <= self.config.max_fusion_shift_pa
+
+    def _surprising(self, name: str, value: float) -> bool:
+        """A sample beyond REST_GATE_D2 of the estimate: the chamber moves without the model
+        knowing (a leak, a squeeze). It ends the rest and is fused at once."""
+        x, P = self.filter.x, self.filter.P
+        return (value - x[CHAMBER, 0]) ** 2 > REST_GATE_D2 * (P[CHAMBER, CHAMBER] + self._variance[name])
 
     def _screen(self, name: str, value: float, stamp_s: float) -> bool:
         """Whether a sample is a number (counted as invalid if not); ValueError for an unknown sensor."""

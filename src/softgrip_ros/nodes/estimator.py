@@ -4,9 +4,11 @@ Pa, with its variance).
 In: pressure/sensor/<name> for each configured sensor; controller/status (the regulator command
 and valve state, the process model's inputs); pressure/command (a VENT or HOLD is applied to the
 model at once, ahead of the status that confirms it). Out: pressure/estimate, stamped with the
-time the estimate refers to, after each fused sample (at most ``frequency``) and, while no
-sample has been fused for two periods, predicted forward at min(``frequency``, 50 Hz) (an rclpy
-timer at hundreds of Hz would starve the sensor callbacks); /diagnostics at 2 Hz.
+time the estimate refers to, after a sample (at most ``frequency``; while the chamber rests, at
+most ``rest_frequency``: nothing moves, and every estimate costs the kinematics and the grasp
+manager work and its subscribers a message) and, while no sample has come for two periods,
+predicted forward at min(``frequency``, 50 Hz) (an rclpy timer at hundreds of Hz would starve
+the sensor callbacks); /diagnostics at 2 Hz.
 Parameters follow robot_localization where they fit. The filters live in softgrip_ros.estimation.
 """
 from __future__ import annotations
@@ -27,6 +29,8 @@ from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 _DEFAULTS = EstimatorConfig()
 SPECS = [
     ParamSpec("frequency", 200.0, "largest pressure/estimate rate (predictions while silent: at most 50 Hz)", "Hz", 1.0, 2000.0),
+    ParamSpec("rest_frequency", 20.0, "pressure/estimate rate while the chamber rests (see fusion_window); "
+              "<= frequency", "Hz", 1.0, 2000.0),
     ParamSpec("sensor_timeout", _DEFAULTS.sensor_timeout_s, "a sensor silent this long is dropped from fusion", "s", 0.001, 10.0),
     ParamSpec("filter_type", _DEFAULTS.filter_type, "the filter", choices=("kf", "ekf", "ukf")),
     ParamSpec("fusion_window", 0.005, "while the chamber rests, samples this close are fused in one filter step "
@@ -78,8 +82,12 @@ class EstimatorNode(Node):
         self.estimator = PressureEstimator(config_from(self.values))
         self.add_on_set_parameters_callback(
             lambda params: check_all(specs, params, lambda _: "estimator parameters apply at start-up: restart the node"))
+        if self.values["rest_frequency"] > self.values["frequency"]:
+            raise ValueError(f"rest_frequency ({self.values['rest_frequency']:g} Hz) must not exceed frequency "
+                             f"({self.values['frequency']:g} Hz)")
         self.period_s = 1.0 / self.values["frequency"]
-        self.last_publish_s = -float("inf")
+        self.rest_period_s = 1.0 / self.values["rest_frequency"]
+        self.last_publish_s = self.last_sample_s = -float("inf")
         self.estimate_pub = self.create_publisher(FluidPressure, "pressure/estimate", 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         for name in [] if in_process else self.values["sensors.names"]:
@@ -108,8 +116,11 @@ class EstimatorNode(Node):
     def on_sensor_sample(self, name: str, gauge_pa: float, stamp_s: float) -> None:
         """One reading of sensor ``name`` taken at ``stamp_s``; publishes the estimate when one is due."""
         with self._lock:
-            due = (not self.closed and self.estimator.add_measurement(name, gauge_pa, stamp_s)
-                   and stamp_s - self.last_publish_s >= 0.9 * self.period_s)
+            taken = not self.closed and self.estimator.add_measurement(name, gauge_pa, stamp_s)
+            if taken:
+                self.last_sample_s = max(self.last_sample_s, stamp_s)
+            due = taken and stamp_s - self.last_publish_s >= 0.9 * (self.rest_period_s if self.estimator.resting
+                                                                    else self.period_s)
             estimate = self._take_estimate() if due else None
         self._publish(estimate)
 
@@ -133,11 +144,11 @@ class EstimatorNode(Node):
                                           stamp_seconds(msg.header.stamp) or self._now())
 
     def _on_timer(self) -> None:
-        """While no fused sample has been published for two timer periods, publish the prediction."""
+        """While no sample has come (and no estimate gone out) for two timer periods, publish the prediction."""
         now = self._now()
         with self._lock:
             estimate = None
-            if self.estimator.initialised and now - self.last_publish_s >= 2.0 / PREDICTION_RATE_LIMIT_HZ:
+            if self.estimator.initialised and now - max(self.last_publish_s, self.last_sample_s) >= 2.0 / PREDICTION_RATE_LIMIT_HZ:
                 self.estimator.predict_to(now)    # committed: a sample older than this would be dropped as late anyway
                 estimate = self._take_estimate()
         self._publish(estimate)
