@@ -78,7 +78,7 @@ def can_step(seed: int) -> dict:
             pressures.append(device.chamber_gauge_pa())
             time.sleep(0.0005)
         frames_before, t0 = counter["frames"], time.monotonic()
-        time.sleep(1.0)
+        regulate_for(link.command, 1.0)
         frames_per_s = (counter["frames"] - frames_before) / (time.monotonic() - t0)
         periods = np.array(loop.periods_s)
     finally:
@@ -93,6 +93,15 @@ def can_step(seed: int) -> dict:
     return {"rise_s": rise_time(times, pressures, TARGET), "overshoot_pct": max(0.0, (pressures.max() - TARGET) / TARGET * 100),
             "sse_kpa": abs(settled.mean() - TARGET) / 1e3, "frames_per_s": frames_per_s,
             "period_p99_ms": float(np.percentile(periods, 99) * 1e3)}
+
+
+def regulate_for(command, seconds: float) -> None:
+    """Command TARGET and repeat it every 0.5 s for ``seconds``, as the grasp manager does: without
+    a command for ``command_timeout`` (2 s) the controller would hold, and its loop rest."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        command(TARGET, Source.SUPPLY, math.nan)
+        time.sleep(min(0.5, max(0.0, end - time.monotonic())))
 
 
 def node_loop_periods(rate_hz: float, seconds: float) -> np.ndarray:
@@ -113,8 +122,7 @@ def node_loop_periods(rate_hz: float, seconds: float) -> np.ndarray:
         with spinning(device, controller, context=context):
             time.sleep(0.5)
             controller.loop.periods_s.clear()
-            controller.link.command(TARGET, Source.SUPPLY, math.nan)
-            time.sleep(seconds)
+            regulate_for(controller.link.command, seconds)
             return np.array(controller.loop.periods_s), np.array(controller.loop.work_s)
     finally:
         for node in (controller, device):
