@@ -6,8 +6,8 @@ import pytest
 
 from softgrip_ros.control.grasp_fsm import GraspConfig, GraspRequest, Mode, Phase
 from softgrip_ros.model.calibration import build_kinematics
-from softgrip_ros.model.fidelity import (FREE, ErrorBounds, ModelSelector, RodSolverProcess, Scene, SceneModel,
-                                         cylinder_scene)
+from softgrip_ros.model.fidelity import (FREE, ErrorBounds, LatestSolveThread, ModelSelector, RodSolverProcess, Scene,
+                                         SceneModel, cylinder_scene)
 from softgrip_ros.model.reference import ReferenceFinger
 from softgrip_ros.model.rod import Circle, Sheet
 from tests.helpers.grasp_loop import GraspLoop
@@ -92,6 +92,41 @@ def test_l2_in_a_process_of_its_own_gives_the_same_solution():
     here = SceneModel("auto", 1e-3).evaluate(-10e3, CLAMP_40MM)
     assert apart.model == here.model == "l2"
     assert apart.tip == here.tip and apart.contact_force_n == here.contact_force_n
+
+
+def test_the_solve_thread_solves_the_latest_request_and_reports_failures():
+    """While a solve runs, newer requests replace each other: the latest pressure is solved next,
+    the ones between never. A failing solve is reported and the thread goes on."""
+    import threading
+    from tests.helpers.ros import wait_for
+    started, release, solved, errors = threading.Event(), threading.Event(), [], []
+
+    def rod_solver(pressure, obstacle, opening):
+        if pressure == -1e3:
+            raise RuntimeError("no convergence")
+        started.set()
+        release.wait(5.0)
+        solved.append(pressure)
+        return MODEL.rod.solve(pressure, obstacle=obstacle, from_pressure_pa=opening, steps=4)
+
+    model = SceneModel("auto", 1e-3, rod_solver=rod_solver)
+    thread = LatestSolveThread(model, on_error=lambda pressure, error: errors.append((pressure, str(error))))
+    try:
+        thread.request(-5e3, CLAMP_40MM)
+        assert started.wait(5.0)
+        for pressure in (-6e3, -7e3, -8e3):
+            thread.request(pressure, CLAMP_40MM)
+        release.set()
+        wait_for(lambda: model.solves == 2, timeout=10.0, message="two solves")
+        assert solved == [-5e3, -8e3]
+        thread.request(-1e3, CLAMP_40MM)
+        wait_for(lambda: errors, message="the failure reported")
+        assert errors == [(-1e3, "no convergence")]
+        thread.request(-9e3, CLAMP_40MM)
+        wait_for(lambda: len(solved) == 3, timeout=10.0, message="a solve after the failure")
+    finally:
+        thread.close()
+    assert not any(t.name == "softgrip-l2" for t in threading.enumerate())
 
 
 def test_without_a_solve_it_says_l2_is_pending_and_uses_l1():

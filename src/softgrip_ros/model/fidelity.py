@@ -19,6 +19,7 @@ import dataclasses
 import math
 import multiprocessing
 import pathlib
+import threading
 import typing
 from concurrent.futures import ProcessPoolExecutor
 
@@ -113,6 +114,46 @@ class RodSolverProcess:
 
     def close(self) -> None:
         self._executor.shutdown(wait=True, cancel_futures=True)
+
+
+class LatestSolveThread:
+    """:meth:`SceneModel.solve_rod` on a thread of its own, for a caller that cannot wait
+    milliseconds (the kinematics node answers each estimate at once, with the last solve).
+    :meth:`request` replaces a request not yet started: the latest pressure is the one worth
+    solving. A failed solve goes to ``on_error(pressure_pa, error)`` and the thread goes on."""
+
+    def __init__(self, model: "SceneModel", on_error=None, name: str = "softgrip-l2"):
+        self.model, self.on_error = model, on_error
+        self._wanted = threading.Condition()
+        self._request = None                 # (pressure, scene, stamp)
+        self._closed = False
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def request(self, pressure_pa: float, scene: "Scene", stamp_s: float | None = None) -> None:
+        with self._wanted:
+            self._request = (pressure_pa, scene, stamp_s)
+            self._wanted.notify()
+
+    def close(self) -> None:
+        with self._wanted:
+            self._closed = True
+            self._wanted.notify_all()
+        self._thread.join(timeout=2.0)
+
+    def _run(self) -> None:
+        while True:
+            with self._wanted:
+                while self._request is None and not self._closed:
+                    self._wanted.wait()
+                if self._closed:
+                    return
+                (pressure, scene, stamp_s), self._request = self._request, None
+            try:
+                self.model.solve_rod(pressure, scene, stamp_s)
+            except Exception as error:        # noqa: BLE001 - a failed solve must not end the thread
+                if self.on_error is not None:
+                    self.on_error(pressure, error)
 
 
 _WORKER_ROD: RodFinger | None = None

@@ -30,7 +30,7 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from softgrip_interfaces.msg import GraspScene
-from softgrip_ros.model.fidelity import CHOICES, FREE, RodSolverProcess, Scene, SceneModel
+from softgrip_ros.model.fidelity import CHOICES, FREE, LatestSolveThread, RodSolverProcess, Scene, SceneModel
 from softgrip_ros.model.rod import Circle, Sheet
 from softgrip_ros.nodes.common import P_ATM_PA, every, listened, node_timers, publish, run_node, stamp_msg, stamp_seconds
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
@@ -69,10 +69,9 @@ class KinematicsNode(Node):
                                 resolve_pressure_pa=self.values["resolve_pressure_pa"],
                                 min_solve_interval_s=self.values["min_solve_interval"], rod_solver=self.rod_solver)
         self.scene = FREE
-        self._solve_wanted = threading.Condition(self._lock)
-        self._solve_request = None           # (pressure, scene, stamp), the latest wins
-        self._solver = threading.Thread(target=self._solve_loop, name="kinematics-l2", daemon=True)
-        self._solver.start()
+        logger = self.get_logger()
+        self.solver = LatestSolveThread(self.model, name="kinematics-l2", on_error=lambda pressure, error: logger.error(
+            f"L2 solve at {pressure:.0f} Pa failed: {error!r}"))
         self.period_s = 1.0 / self.values["publish_rate_hz"]
         self.last_publish_s = -math.inf
         self.last = None                     # (variance, Evaluation)
@@ -97,8 +96,7 @@ class KinematicsNode(Node):
             self.periodic.stop()
         with self._lock:
             self.closed = True
-            self._solve_wanted.notify_all()
-        self._solver.join(timeout=2.0)
+        self.solver.close()
         if self.rod_solver is not None:
             self.rod_solver.close()
 
@@ -115,20 +113,6 @@ class KinematicsNode(Node):
             return
         self.on_scene(scene)
 
-    def _solve_loop(self) -> None:
-        while True:
-            with self._lock:
-                while self._solve_request is None and not self.closed:
-                    self._solve_wanted.wait()
-                if self.closed:
-                    return
-                pressure, scene, stamp_s = self._solve_request
-                self._solve_request = None
-            try:
-                self.model.solve_rod(pressure, scene, stamp_s)
-            except Exception as error:        # noqa: BLE001 - a failed solve must not end the worker
-                self.get_logger().error(f"L2 solve at {pressure:.0f} Pa failed: {error!r}")
-
     def on_estimate(self, stamp_s: float, gauge_pa: float, variance_pa2: float) -> None:
         """Publish both tip poses for the estimate at ``stamp_s``, unless one went out less than a period ago."""
         with self._lock:
@@ -136,8 +120,7 @@ class KinematicsNode(Node):
                 return
             evaluation = self.model.evaluate(gauge_pa, self.scene, solve=False)
             if self.model.needs_solve(evaluation.pressure_pa, self.scene, stamp_s):
-                self._solve_request = (evaluation.pressure_pa, self.scene, stamp_s)
-                self._solve_wanted.notify()
+                self.solver.request(evaluation.pressure_pa, self.scene, stamp_s)
             self.last = (variance_pa2, evaluation)
             self.last_publish_s = stamp_s
         (x_left, z, angle_left), slope = evaluation.tip, evaluation.tip_slope    # slope: d(x, z, angle)/dp
