@@ -44,10 +44,13 @@ install_pinned() {
   "$venv/bin/python" -m pip check >/dev/null || die "pip check found inconsistent dependencies: $("$venv/bin/python" -m pip check)"
 }
 
+# stamp_matches FILE HASH: FILE records HASH (what was installed or built from is unchanged)
+stamp_matches() { [ -f "$1" ] && [ "$(cat "$1")" = "$2" ]; }
+
 # ---- 1. virtual environment with pinned dependencies
 requirements_hash="$py_version-$(hash_of requirements/requirements.txt requirements/constraints.txt)"
 stamp="$venv/.softgrip-requirements"
-if [ -x "$venv/bin/python" ] && [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$requirements_hash" ]; then
+if [ -x "$venv/bin/python" ] && stamp_matches "$stamp" "$requirements_hash"; then
   say "venv up to date ($venv)"
 else
   if [ -x "$venv/bin/python" ] && [ "$("$venv/bin/python" -c 'import sys; print(f"{sys.version_info[0]}.{sys.version_info[1]}")')" != "$py_version" ]; then
@@ -65,7 +68,7 @@ fi
 if [ "$with_reference" = 1 ]; then
   reference_hash="$py_version-$(hash_of requirements/reference.txt requirements/constraints.txt)"
   reference_stamp="$venv/.softgrip-reference"
-  if [ -f "$reference_stamp" ] && [ "$(cat "$reference_stamp")" = "$reference_hash" ]; then
+  if stamp_matches "$reference_stamp" "$reference_hash"; then
     say "reference extra up to date"
   else
     say "installing the reference extra (PyElastica)"
@@ -88,7 +91,7 @@ build_inputs() {
 }
 build_hash="$requirements_hash-$(build_inputs | xargs sha256sum | sha256sum | cut -d' ' -f1)"
 build_stamp="$repo_root/install/.softgrip-build"
-if [ -f "$build_stamp" ] && [ "$(cat "$build_stamp")" = "$build_hash" ]; then
+if stamp_matches "$build_stamp" "$build_hash"; then
   say "install/ up to date"
 else
   say "colcon build (softgrip_interfaces, softgrip_ros)"
