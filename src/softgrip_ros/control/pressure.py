@@ -304,7 +304,8 @@ class PressureController:
         rate = self._update_rate(feedback, dt)
         valve = self._arbitrate(error, rate)
         regulator, valve_override = self._regulation(error, feedback, dt, now)
-        valve = valve if valve_override is None else valve_override  # Valve.CLOSED is 0: no "or"
+        if valve_override is not None and valve != Valve.VACUUM:   # the pump needs no settled regulator
+            valve = valve_override                                  # (Valve.CLOSED is 0: no "or")
         return self._output(regulator, True, self._regulator_source(), valve, Mode.REGULATE,
                             faults, feedback, self._phase if self._phase != "track" else "")
 
