@@ -234,6 +234,37 @@ def test_a_sample_beyond_three_sigma_ends_a_rest_and_is_fused_at_once():
     assert estimator.estimate().stamp_s == pytest.approx(0.4) and estimator.estimate().gauge_pa > x
 
 
+BOOST = [(0.0, PlantInputs(0.0, True, (Valve.CLOSED,))), (0.2, PlantInputs(78.8e3, True, (Valve.SUPPLY,))),
+         (0.26, PlantInputs(19.8e3, True, (Valve.CLOSED,))), (0.4, PlantInputs(19.8e3, True, (Valve.SUPPLY,))),
+         (0.6, PlantInputs(0.0, True, (Valve.VENT,))), (0.8, PlantInputs(0.0, True, (Valve.CLOSED,)))]
+
+
+def boost_run(late_s, **changes):
+    """A boosted fill, its settle, a vent; the estimator learns each input ``late_s`` after the
+    device acted on it. (rejected samples, RMSE of the estimate after every sample)."""
+    trajectory = sim.simulate(duration_s=1.0, scenario=BOOST, seed=4)
+    estimator = PressureEstimator(sim.config_for(trajectory, "ekf", **changes))
+    feed, errors = sim.InputFeed([(t + late_s, inputs) for t, inputs in BOOST]), []
+    for t, name, value in trajectory.samples:
+        feed.until(estimator, t)
+        estimator.add_measurement(name, value, t)
+        errors.append(estimator.estimate().gauge_pa - trajectory.truth_at(t)[0])
+    return sum(s.rejected for s in estimator.stats.values()), float(np.sqrt(np.mean(np.square(errors))))
+
+
+def test_input_timing_uncertainty_keeps_a_late_input_from_locking_the_gate():
+    """Inputs 4 ms late (a control period, the bus, a stalled thread): without the timing term
+    the estimate falls kilopascals behind a boosted fill with a tight P and the gate rejects
+    sample after sample; with it (10 ms) the filter follows. Perfectly timed, it costs a little."""
+    rejected_without, rmse_without = boost_run(0.004, input_timing_std_s=0.0)
+    rejected_with, rmse_with = boost_run(0.004)
+    assert rejected_without >= 15 and rmse_without > 200.0, (rejected_without, rmse_without)
+    assert rejected_with <= 3 and rmse_with < 0.5 * rmse_without, (rejected_with, rmse_with)
+    _, rmse_on_time_without = boost_run(0.0, input_timing_std_s=0.0)
+    _, rmse_on_time_with = boost_run(0.0)
+    assert rmse_on_time_with <= 1.3 * rmse_on_time_without
+
+
 def test_bad_samples_and_settings_are_rejected_clearly():
     estimator = PressureEstimator()
     assert estimator.add_measurement("chamber_a", math.nan, 0.0) is False
@@ -250,7 +281,8 @@ def test_bad_samples_and_settings_are_rejected_clearly():
                              ({"sensors": ()}, "at least one sensor"), ({"nis_window": 3}, "nis_window"),
                              ({"sensor_timeout_s": -1.0}, "sensor_timeout_s"),
                              ({"fusion_window_s": 0.01}, "fusion_window_s must lie in"),
-                             ({"max_fusion_shift_pa": 0.0}, "max_fusion_shift_pa")):
+                             ({"max_fusion_shift_pa": 0.0}, "max_fusion_shift_pa"),
+                             ({"input_timing_std_s": 0.5}, "input_timing_std_s")):
         with pytest.raises(ValueError, match=message):
             EstimatorConfig(**changes)
     with pytest.raises(ValueError, match="noise_std_pa"):

@@ -103,6 +103,7 @@ class EstimatorConfig:
     max_lag_s: float = 0.02
     fusion_window_s: float = 0.0
     max_fusion_shift_pa: float = 50.0
+    input_timing_std_s: float = 0.01
     nis_window: int = 200
     nis_confidence: float = 0.999
     max_consecutive_rejections: int = 25
@@ -119,6 +120,8 @@ class EstimatorConfig:
         process_noise_matrix(self.process_noise_pa2_per_s)
         require_positive(self, "sensor_timeout_s", "max_step_s", "max_lag_s", "initial_regulator_std_pa",
                          "max_fusion_shift_pa")
+        if not 0.0 <= self.input_timing_std_s <= 0.1:
+            raise ValueError(f"input_timing_std_s must lie in [0, 0.1] s, got {self.input_timing_std_s}")
         if not 0.0 <= self.fusion_window_s <= min(self.max_lag_s, self.max_step_s):
             raise ValueError(f"fusion_window_s must lie in [0, min(max_lag_s, max_step_s) = "
                              f"{min(self.max_lag_s, self.max_step_s):g}] s, got {self.fusion_window_s}")
@@ -199,7 +202,22 @@ class PressureEstimator:
         self.fuse_pending()                   # under the inputs they were taken with
         if self.initialised and stamp_s > self.time_s:
             self._predict_to(stamp_s)
-        self.inputs = PlantInputs(regulator_command_gauge_pa, bool(regulator_enabled), (Valve(valve),))
+        inputs = PlantInputs(regulator_command_gauge_pa, bool(regulator_enabled), (Valve(valve),))
+        if self.initialised and inputs != self.inputs and self.config.input_timing_std_s > 0.0:
+            self._widen_for_input_timing(inputs)
+        self.inputs = inputs
+
+    def _widen_for_input_timing(self, inputs: PlantInputs) -> None:
+        """An input reaches the device within about ``input_timing_std_s`` of its stamp (a control
+        period, the bus, a stalled thread on either side), so the state is uncertain by the change
+        in its rate times that: P grows by d d' with d = (rate after - rate before) * sigma_t.
+        Without it, a boosted fill starting a few ms off its stamp put the estimate kilopascals
+        behind with a tight P, and the gate rejected every sample until the lockout reset the filter."""
+        x, step_s = self.filter.x[:, 0], 1e-3
+        rate_before = (plant_step(self.plant, x, step_s, self.inputs) - x) / step_s
+        rate_after = (plant_step(self.plant, x, step_s, inputs) - x) / step_s
+        d = (rate_after - rate_before) * self.config.input_timing_std_s
+        self.filter.add_covariance(np.outer(d, d))
 
     def predict_to(self, stamp_s: float) -> None:
         """Advance the filter to ``stamp_s`` with the current inputs (no-op when not later), after

@@ -102,6 +102,10 @@ class PressureFilter:
         self.f.x = np.asarray(x0, dtype=float).reshape(2, 1).copy()
         self.f.P = np.asarray(P0, dtype=float).copy()
 
+    def add_covariance(self, extra: np.ndarray) -> None:
+        """P += extra (2, 2), symmetric positive semi-definite (an uncertainty the model learns of)."""
+        self.f.P = _symmetric(self.f.P + extra)
+
     def predict(self, dt: float, inputs: PlantInputs) -> None:
         raise NotImplementedError
 
@@ -219,6 +223,10 @@ class PlantUKF(PressureFilter):
         self.f.x = np.asarray(x0, dtype=float).reshape(2).copy()
         self.f.P = np.asarray(P0, dtype=float).copy()
         self._sigmas_stale = True
+
+    def add_covariance(self, extra: np.ndarray) -> None:
+        super().add_covariance(extra)
+        self._sigmas_stale = True            # the last predict's sigma points no longer span P
 
     def _transition(self, x, dt, inputs=None):
         return plant_step(self.plant, x, dt, inputs) if dt > 0.0 else np.array(x, dtype=float)

@@ -35,6 +35,8 @@ SPECS = [
     ParamSpec("filter_type", _DEFAULTS.filter_type, "the filter", choices=("kf", "ekf", "ukf")),
     ParamSpec("fusion_window", 0.005, "while the chamber rests, samples this close are fused in one filter step "
               "(0: each at once)", "s", 0.0, 0.005),
+    ParamSpec("input_timing_std", _DEFAULTS.input_timing_std_s, "how far an input's effect at the device may lie "
+              "from its stamp (1 sigma); P grows by the change in rate times this at each input change", "s", 0.0, 0.1),
     ParamSpec("max_fusion_shift_pa", _DEFAULTS.max_fusion_shift_pa, "... 'rests': its modelled change over the "
               "window stays within this", "Pa", 1.0, 1000.0),
     ParamSpec("sensors.names", ["chamber_a", "chamber_b"], "sensors fused: topics pressure/sensor/<name>"),
@@ -60,7 +62,8 @@ def config_from(values: dict) -> EstimatorConfig:
     return EstimatorConfig(filter_type=values["filter_type"], sensors=sensors, sensor_timeout_s=values["sensor_timeout"],
                            process_noise_pa2_per_s=tuple(float(v) for v in values["process_noise_covariance"]),
                            nis_window=values["nis_window"], max_consecutive_rejections=values["max_consecutive_rejections"],
-                           fusion_window_s=values["fusion_window"], max_fusion_shift_pa=values["max_fusion_shift_pa"])
+                           fusion_window_s=values["fusion_window"], max_fusion_shift_pa=values["max_fusion_shift_pa"],
+                           input_timing_std_s=values["input_timing_std"])
 
 
 class EstimatorNode(Node):
