@@ -252,3 +252,20 @@ def test_bad_startup_parameter_exits_1_with_its_reason(argument, message):
     assert run.returncode == 1
     assert message in run.stderr
     assert "Traceback" not in run.stderr
+
+
+def test_a_failed_configure_leaves_the_bus_closed_and_a_bad_rest_rate_is_refused(rclpy_context):
+    """A configure that fails (an interface python-can lacks) logs why and leaves the node
+    unconfigured, without trying to activate; a rest rate above the control rate stops start-up."""
+    from rclpy.parameter import Parameter
+    from softgrip_ros.nodes.pressure_controller import PressureControllerNode
+
+    controller = PressureControllerNode(context=rclpy_context, parameter_overrides=[
+        Parameter("can.interface", value="no_such_interface"), Parameter("can.channel", value=unique("cfg"))])
+    try:
+        assert controller.link is None and controller.bus is None and controller.loop is None
+    finally:
+        controller.close()
+        controller.destroy_node()
+    with pytest.raises(ValueError, match=r"rest_rate_hz \(800 Hz\) must not exceed control_rate_hz \(500 Hz\)"):
+        PressureControllerNode(context=rclpy_context, parameter_overrides=[Parameter("rest_rate_hz", value=800.0)])

@@ -58,6 +58,10 @@ LIVE = {"max_gauge_pressure_pa": "max_gauge_pa", "min_gauge_pressure_pa": "min_g
 LEVELS = {Severity.OK: DiagnosticStatus.OK, Severity.WARN: DiagnosticStatus.WARN, Severity.ERROR: DiagnosticStatus.ERROR}
 
 
+def _rest_rate_error(values) -> str:
+    return f"rest_rate_hz ({values['rest_rate_hz']:g} Hz) must not exceed control_rate_hz ({values['control_rate_hz']:g} Hz)"
+
+
 class PressureControllerNode(LifecycleNode):
     def __init__(self, **kwargs):
         super().__init__("pressure_controller", **kwargs)
@@ -68,6 +72,8 @@ class PressureControllerNode(LifecycleNode):
                        for name in self.codec.message_names]
         self.specs.update({s.name: s for s in frame_specs})
         self.values.update(declare(self, frame_specs))
+        if self.values["rest_rate_hz"] > self.values["control_rate_hz"]:    # at start-up: exit 1 with the reason
+            raise ValueError(_rest_rate_error(self.values))
         self.controller = PressureController(self._control_config(self.values))
         self.add_on_set_parameters_callback(self._on_set)
         self.status_pub = self.create_publisher(ControllerStatus, "controller/status", 10)
@@ -83,8 +89,7 @@ class PressureControllerNode(LifecycleNode):
         self.last_output = None
         self.last_note = ""
         self.create_timer(1.0, self._publish_diagnostics)
-        if self.values["autostart"]:
-            self.trigger_configure()
+        if self.values["autostart"] and self.trigger_configure() == TransitionCallbackReturn.SUCCESS:
             self.trigger_activate()
 
     # ---- parameters ---------------------------------------------------------------------------
@@ -129,8 +134,7 @@ class PressureControllerNode(LifecycleNode):
             return TransitionCallbackReturn.FAILURE
         try:
             if self.values["rest_rate_hz"] > self.values["control_rate_hz"]:
-                raise ValueError(f"rest_rate_hz ({self.values['rest_rate_hz']:g}) must not exceed control_rate_hz "
-                                 f"({self.values['control_rate_hz']:g})")
+                raise ValueError(_rest_rate_error(self.values))
             overrides = {n: self.values[f"can.frame_ids.{n}"] for n in self.codec.message_names
                          if self.values[f"can.frame_ids.{n}"]}
             self.codec = FrameCodec(frame_ids=overrides)
