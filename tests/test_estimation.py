@@ -265,6 +265,16 @@ def test_input_timing_uncertainty_keeps_a_late_input_from_locking_the_gate():
     assert rmse_on_time_with <= 1.3 * rmse_on_time_without
 
 
+def test_with_a_fusion_window_bad_samples_are_refused_as_without():
+    estimator = PressureEstimator(EstimatorConfig(fusion_window_s=0.005))
+    estimator.set_inputs(0.0, True, Valve.CLOSED, 0.0)
+    assert estimator.add_measurement("chamber_a", 100.0, 0.0)                  # initialised
+    with pytest.raises(ValueError, match="unknown sensor 'chamber_z'"):
+        estimator.add_measurement("chamber_z", 100.0, 0.001)
+    assert estimator.add_measurement("chamber_a", math.nan, 0.002) is False
+    assert estimator.stats["chamber_a"].invalid == 1 and not estimator._pending
+
+
 def test_bad_samples_and_settings_are_rejected_clearly():
     estimator = PressureEstimator()
     assert estimator.add_measurement("chamber_a", math.nan, 0.0) is False

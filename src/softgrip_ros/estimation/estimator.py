@@ -240,12 +240,14 @@ class PressureEstimator:
         until the next fusion (whose gate may still reject it). Unknown sensors raise ValueError."""
         if self.config.fusion_window_s <= 0.0 or not self.initialised:
             return self.add_measurements({name: gauge_pa}, stamp_s)[name]
+        if not self._screen(name, gauge_pa, stamp_s):
+            return False
         if not self._pending:
             self.resting = self._at_rest()
         if not self.resting or self._surprising(name, gauge_pa):
             self.resting = False
             return self.add_measurements({name: gauge_pa}, stamp_s)[name]
-        if not self._screen(name, gauge_pa, stamp_s) or self._late([name], stamp_s):
+        if self._late([name], stamp_s):
             return False
         self._pending.append((name, float(gauge_pa), stamp_s))
         if stamp_s - self._pending[0][2] >= self.config.fusion_window_s:
