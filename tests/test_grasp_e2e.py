@@ -99,7 +99,7 @@ def test_the_composed_nodes_keep_fast_work_off_the_executor_and_serialise_only_w
     nodes, user, _, _ = suite
     periods = [t.timer_period_ns * 1e-9 for n in nodes.values() for t in n.timers]
     assert periods and min(periods) >= 0.5, periods
-    assert all(nodes[name].periodic is not None for name in ("estimator", "kinematics", "grasp_manager"))
+    assert all(nodes[name].periodic.thread is not None for name in ("estimator", "kinematics", "grasp_manager"))
     controller = nodes["pressure_controller"]
     publisher = controller.sensor_pubs["chamber_a"]
     published, taken = [], []

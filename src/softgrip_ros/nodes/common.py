@@ -72,23 +72,30 @@ def notify(listeners, *args) -> None:
         raise first
 
 
-def node_timers(node, in_process: bool) -> TimerThread | None:
-    """For a node composed in one process (``in_process``), a :class:`TimerThread` for its periodic
-    callbacks (started by :func:`every`'s caller, stopped in its ``close()``); otherwise None, and
-    :func:`every` makes rclpy timers as usual."""
-    if not in_process:
-        return None
-    logger = node.get_logger()
-    return TimerThread(f"{node.get_name()}-timers", on_error=lambda name, error: logger.error(
-        f"{name} failed: {type(error).__name__}: {error}", throttle_duration_sec=5.0))
+class NodeTimers:
+    """A node's periodic callbacks: rclpy timers when the node runs on its own; for a node composed
+    in one process (``in_process``), one :class:`TimerThread` (``thread``), which the node starts
+    once its callbacks are added and stops in its ``close()``."""
 
+    def __init__(self, node, in_process: bool):
+        self.node = node
+        logger = node.get_logger()
+        self.thread = TimerThread(f"{node.get_name()}-timers", on_error=lambda name, error: logger.error(
+            f"{name} failed: {type(error).__name__}: {error}", throttle_duration_sec=5.0)) if in_process else None
 
-def every(node, timers: TimerThread | None, period_s: float, callback) -> None:
-    """Call ``callback`` every ``period_s``: on ``timers`` when given, else on an rclpy timer."""
-    if timers is None:
-        node.create_timer(period_s, callback)
-    else:
-        timers.add(period_s, callback)
+    def every(self, period_s: float, callback) -> None:
+        if self.thread is None:
+            self.node.create_timer(period_s, callback)
+        else:
+            self.thread.add(period_s, callback)
+
+    def start(self) -> None:
+        if self.thread is not None:
+            self.thread.start()
+
+    def stop(self) -> None:
+        if self.thread is not None:
+            self.thread.stop()
 
 
 def run_node(node_factory, args=None, executor_factory=None) -> int:

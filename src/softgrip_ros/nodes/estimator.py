@@ -23,7 +23,7 @@ from std_msgs.msg import Header
 from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 from softgrip_ros.estimation.estimator import EstimatorConfig, Health, PressureEstimator, SensorConfig
 from softgrip_ros.model.pneumatics import Valve
-from softgrip_ros.nodes.common import P_ATM_PA, every, listened, node_timers, notify, publish, run_node, stamp_msg, stamp_seconds
+from softgrip_ros.nodes.common import P_ATM_PA, NodeTimers, listened, notify, publish, run_node, stamp_msg, stamp_seconds
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
 _DEFAULTS = EstimatorConfig()
@@ -100,16 +100,14 @@ class EstimatorNode(Node):
         if not in_process:
             self.create_subscription(ControllerStatus, "controller/status", self.on_status, 10)
         self.create_subscription(PressureCommand, "pressure/command", self._on_command, 10)
-        self.periodic = node_timers(self, in_process)
-        every(self, self.periodic, max(self.period_s, 1.0 / PREDICTION_RATE_LIMIT_HZ), self._on_timer)
-        every(self, self.periodic, 0.5, self._publish_diagnostics)
-        if self.periodic is not None:
-            self.periodic.start()
+        self.periodic = NodeTimers(self, in_process)
+        self.periodic.every(max(self.period_s, 1.0 / PREDICTION_RATE_LIMIT_HZ), self._on_timer)
+        self.periodic.every(0.5, self._publish_diagnostics)
+        self.periodic.start()
 
     def close(self) -> None:
         """Nothing to vent: the estimator only listens. Later in-process samples are ignored."""
-        if self.periodic is not None:
-            self.periodic.stop()
+        self.periodic.stop()
         with self._lock:
             self.closed = True
 

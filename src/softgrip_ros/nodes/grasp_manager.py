@@ -28,7 +28,7 @@ from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.fidelity import CHOICES as FIDELITY_CHOICES
 from softgrip_ros.model.fidelity import FREE, SceneModel
 from softgrip_ros.model.grasp import ClampForceLaw
-from softgrip_ros.nodes.common import P_ATM_PA, every, node_timers, notify, publish, run_node
+from softgrip_ros.nodes.common import P_ATM_PA, NodeTimers, notify, publish, run_node
 from softgrip_ros.nodes.kinematics import scene_message
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
@@ -114,20 +114,18 @@ class GraspManagerNode(Node):
             self.create_subscription(FluidPressure, "pressure/estimate", lambda msg: self.on_estimate(
                 None, msg.fluid_pressure - P_ATM_PA, msg.variance), 10)
             self.create_subscription(ControllerStatus, "controller/status", self.on_status, 10)
-        self.periodic = node_timers(self, in_process)
-        every(self, self.periodic, 1.0 / v["state_rate_hz"], self._on_timer)
-        every(self, self.periodic, 1.0, self._publish_diagnostics)
+        self.periodic = NodeTimers(self, in_process)
+        self.periodic.every(1.0 / v["state_rate_hz"], self._on_timer)
+        self.periodic.every(1.0, self._publish_diagnostics)
         self.action_server = ActionServer(self, Grasp, "grasp", execute_callback=self._execute,
                                           goal_callback=lambda _: GoalResponse.ACCEPT,
                                           cancel_callback=lambda _: CancelResponse.ACCEPT)
-        if self.periodic is not None:
-            self.periodic.start()
+        self.periodic.start()
 
     def close(self) -> None:
         """Stop whatever runs (the pressure controller vents on its own shutdown too); later
         in-process calls are ignored, as this node is destroyed before the ones that call it."""
-        if self.periodic is not None:
-            self.periodic.stop()
+        self.periodic.stop()
         if self.context.ok() and self.fsm.state.phase != Phase.IDLE:
             self.submit(GraspRequest(Mode.STOP, command_id="shutdown"))
         with self._lock:

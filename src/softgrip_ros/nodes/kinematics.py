@@ -32,7 +32,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from softgrip_interfaces.msg import GraspScene
 from softgrip_ros.model.fidelity import CHOICES, FREE, LatestSolveThread, RodSolverProcess, Scene, SceneModel
 from softgrip_ros.model.rod import Circle, Sheet
-from softgrip_ros.nodes.common import P_ATM_PA, every, listened, node_timers, publish, run_node, stamp_msg, stamp_seconds
+from softgrip_ros.nodes.common import P_ATM_PA, NodeTimers, listened, publish, run_node, stamp_msg, stamp_seconds
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
 SPECS = [
@@ -84,16 +84,14 @@ class KinematicsNode(Node):
                 stamp_seconds(msg.header.stamp), msg.fluid_pressure - P_ATM_PA, msg.variance), 10)
             latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
             self.create_subscription(GraspScene, "grasp_scene", self._on_scene_message, latched)
-        self.periodic = node_timers(self, in_process)
-        every(self, self.periodic, 1.0 / self.values["marker_rate_hz"], self._publish_markers)
-        every(self, self.periodic, 1.0, self._publish_diagnostics)
-        if self.periodic is not None:
-            self.periodic.start()
+        self.periodic = NodeTimers(self, in_process)
+        self.periodic.every(1.0 / self.values["marker_rate_hz"], self._publish_markers)
+        self.periodic.every(1.0, self._publish_diagnostics)
+        self.periodic.start()
 
     def close(self) -> None:
         """Nothing to vent: the kinematics only listens. Later in-process estimates are ignored."""
-        if self.periodic is not None:
-            self.periodic.stop()
+        self.periodic.stop()
         with self._lock:
             self.closed = True
         self.solver.close()
