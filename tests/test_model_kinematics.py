@@ -1,4 +1,5 @@
 """Bending laws and PCC kinematics: exactness, monotonicity, symmetry, inverse, derivatives, bad input."""
+import dataclasses
 import math
 
 import numpy as np
@@ -152,6 +153,52 @@ def test_vectorised_equals_scalar(values):
                 assert getattr(batch, field)[i] == pytest.approx(getattr(single, field), rel=1e-12, abs=1e-15), field
             assert bool(batch.in_validated_range[i]) == single.in_validated_range
             assert bool(batch.in_contact[i]) == single.in_contact
+
+
+def test_large_batches_assemble_chunks_and_match_scalar_poses():
+    from softgrip_ros.model.kinematics import BATCH_CHUNK
+    grid = np.linspace(-20e3, 58e3, 2 * BATCH_CHUNK + 17)    # three chunks, the last one short
+    for kin in MODELS:
+        batch = kin.poses(grid)
+        assert batch.segment_angles_rad.shape == (grid.size, CHAMBER_COUNT)
+        for i in (0, BATCH_CHUNK - 1, BATCH_CHUNK, 2 * BATCH_CHUNK + 3, grid.size - 1):
+            single = kin.pose(grid[i])
+            assert batch.tip_spacing_m[i] == pytest.approx(single.tip_spacing_m, rel=1e-12, abs=1e-15)
+            assert batch.left_tip_z_m[i] == pytest.approx(single.left_tip_z_m, rel=1e-12)
+            assert batch.included_angle_rad[i] == pytest.approx(single.included_angle_rad, rel=1e-12)
+            assert batch.segment_angles_rad[i] == pytest.approx(single.segment_angles_rad, rel=1e-12, abs=1e-18)
+            assert (bool(batch.in_contact[i]), bool(batch.in_validated_range[i])) == (
+                single.in_contact, single.in_validated_range)
+
+
+def test_small_angle_trig_kernel_is_exact_to_rounding():
+    from softgrip_ros.model.kinematics import _trig_array, _trig_small_array
+    x = np.concatenate([np.linspace(-0.999, 0.999, 20001), [0.0, 1e-300, -1e-12, 1e-6]])
+    fast, reference = _trig_small_array(x), _trig_array(x)
+    for name, got, want in zip(("sin", "cos", "sinc"), fast, reference):
+        assert np.max(np.abs(got - want)) <= 4 * np.finfo(float).eps, name
+    assert np.all(fast[2][x == 0.0] == 1.0)
+
+
+def test_a_bend_beyond_the_small_angle_kernel_uses_the_general_trigonometry():
+    # a gain 8x the calibrated one bends a segment beyond 2 rad, where sqrt(1 - sin^2) loses cos's sign
+    strong = type(L0)(GEOMETRY, dataclasses.replace(L0.calibration, gain=8 * L0.calibration.gain), L0.material)
+    pressures = np.array([10e3, 40e3])
+    assert max(strong.pose(40e3).segment_angles_rad) > 2.0
+    batch = strong.poses(pressures)
+    for i, p in enumerate(pressures):
+        assert batch.left_tip_x_m[i] == pytest.approx(strong.pose(p).left_tip_x_m, rel=1e-12, abs=1e-15)
+        assert batch.left_tip_z_m[i] == pytest.approx(strong.pose(p).left_tip_z_m, rel=1e-12, abs=1e-15)
+
+
+def test_saturation_batch_path_equals_the_scalar_one_and_survives_a_narrow_knee():
+    from softgrip_ros.model.bending import Saturation
+    grid = np.linspace(-100e3, 60e3, 1601)
+    for width in (L0.calibration.saturation_width_pa, 1.0):   # 1 Pa: exp((p - p_sat)/w) overflows
+        saturation = Saturation(dataclasses.replace(L0.calibration, saturation_width_pa=width))
+        batch = saturation.effective_pressure(grid)
+        assert np.all(np.isfinite(batch))
+        assert batch == pytest.approx([saturation.effective_pressure(float(p)) for p in grid], rel=1e-12, abs=1e-9)
 
 
 @pytest.mark.parametrize("kin", MODELS, ids=lambda k: k.model)

@@ -98,7 +98,12 @@ class Saturation:
         w = self.width_pa
         if isinstance(pressure_pa, float):
             return -w * _logaddexp(-pressure_pa / w, -self.pressure_pa / w) + self._offset
-        return -w * np.logaddexp(-np.asarray(pressure_pa) / w, -self.pressure_pa / w) + self._offset
+        p = np.asarray(pressure_pa)
+        excess = (p - self.pressure_pa) / w
+        if excess.size and np.max(excess) > 700.0:   # exp would overflow: a very narrow knee
+            return -w * np.logaddexp(-p / w, -self.pressure_pa / w) + self._offset
+        # the same value as p - w log(1 + exp(excess)); np.exp is vectorised, np.logaddexp is not
+        return p - w * np.log1p(np.exp(excess)) + self._offset
 
     def slope(self, pressure_pa):
         """d p_eff / d p, in (0, 1]."""
