@@ -6,7 +6,8 @@ Kinematics: L0, L1 and L2 against the PyElastica reference (softgrip_ros.model.r
 30 mm cylinders, pinching a 0.1 mm sheet). Error: the left tip's distance from the reference's;
 cost: the median time of one pose. Also D1/D2 against the paper's points. The largest error of
 each model per scene class and its median cost go to config/model_error_bounds.yaml, the table
-`fidelity: auto` chooses from.
+`fidelity: auto` chooses from. Held-out scenes (pressures between the benchmark's, another cylinder
+and sheet pressure) check that each bound holds where it was not computed.
 Estimators: RMSE against the plant's truth and the cost of a step (KF, EKF, UKF, raw sensors).
 Integrators: the stiff 1 mL fill to 30 kPa; explicit Euler, our backward Euler over a dt sweep, and
 RK45 over a tolerance sweep, against an LSODA solution at rtol 1e-10; divergence points marked.
@@ -44,6 +45,7 @@ DOC = ROOT / "docs" / "speed_vs_accuracy.md"
 BOUNDS = ROOT / "config" / "model_error_bounds.yaml"
 CHARTS = {name: ROOT / "docs" / f"speed_accuracy_{name}.png" for name in ("kinematics", "estimators", "integrators")}
 FREE_PRESSURES_PA = [0.0, 5e3, 10e3, 15e3, 20e3, 25e3, 30e3, 35e3, 40e3, 45e3, 48e3, 52e3, 56e3, 60e3]
+HELD_OUT_FREE_PRESSURES_PA = [2.5e3, 17.5e3, 32.5e3, 42.5e3, 50e3, 58e3]
 TOLERANCE_M = 1e-3           # the kinematics node's default tolerance_m
 
 
@@ -61,12 +63,22 @@ def tip_error_m(a, b):
     return math.hypot(a[0] - b[0], a[1] - b[1])
 
 
-def kinematics_points(repeat: int, reference: ReferenceFinger, rod: RodFinger) -> dict:
+def held_out_cases(rod):
+    """Scenes the bounds are not computed from, to check that they hold between the benchmark's points."""
+    return ([(f"free at {p / 1e3:g} kPa", FREE, p) for p in HELD_OUT_FREE_PRESSURES_PA]
+            + [("35 mm cylinder at -15 kPa", cylinder_scene(rod, 0.035, 28e3), -15e3),
+               ("0.1 mm sheet at -10 kPa", Scene(Sheet(1e-4), 2e3), -10e3)])
+
+
+def kinematics_points(repeat: int, reference: ReferenceFinger, rod: RodFinger, cases=None,
+                      desc: str = "kinematics vs PyElastica", timed: bool = True) -> dict:
+    """Each case's tip error against the reference per model and, if ``timed``, the cost of a pose."""
     free_models = {m: build_kinematics(m, max_pressure_pa=60e3) for m in ("l0", "l1")}
     validated_max = free_models["l1"].calibration.validated_max_pressure_pa
-    cases = [(f"free at {p / 1e3:.0f} kPa", FREE, p) for p in FREE_PRESSURES_PA] + contact_cases(rod)
+    if cases is None:
+        cases = [(f"free at {p / 1e3:.0f} kPa", FREE, p) for p in FREE_PRESSURES_PA] + contact_cases(rod)
     points = []
-    for label, scene, pressure in tqdm(cases, desc="kinematics vs PyElastica", file=sys.stderr):
+    for label, scene, pressure in tqdm(cases, desc=desc, file=sys.stderr):
         ref = reference.solve(pressure, obstacle=scene.obstacle, from_pressure_pa=scene.opening_gauge_pa)
         if not ref.at_rest:
             raise RuntimeError(f"the reference did not settle for {label}: speed {ref.max_speed_m_s:.3g} m/s")
@@ -76,18 +88,33 @@ def kinematics_points(repeat: int, reference: ReferenceFinger, rod: RodFinger) -
                "l1_tip": _tip(free_models["l1"], pressure)}
         for name, model in free_models.items():
             row["error_m"][name] = tip_error_m(_tip(model, pressure), ref.tip)
-            row["cost_s"][name] = median_seconds(lambda m=model: m.pose(pressure), 200, repeat)
+            if timed:
+                row["cost_s"][name] = median_seconds(lambda m=model: m.pose(pressure), 200, repeat)
         solution = rod.solve(pressure, obstacle=scene.obstacle, from_pressure_pa=scene.opening_gauge_pa)
         if not solution.converged:
             raise RuntimeError(f"L2 did not converge for {label}: {solution.message}")
         row["error_m"]["l2"] = tip_error_m(solution.tip, ref.tip)
         row["l2_force_n"] = solution.contact_force_n
-        number = 200 if not scene.contact else 1
-        row["cost_s"]["l2"] = median_seconds(
-            lambda: rod.solve(pressure, obstacle=scene.obstacle, from_pressure_pa=scene.opening_gauge_pa), number, repeat)
-        row["cost_s"]["reference"] = ref.wall_s
+        if timed:
+            number = 200 if not scene.contact else 1
+            row["cost_s"]["l2"] = median_seconds(
+                lambda: rod.solve(pressure, obstacle=scene.obstacle, from_pressure_pa=scene.opening_gauge_pa), number, repeat)
+            row["cost_s"]["reference"] = ref.wall_s
         points.append(row)
     return {"points": points, "validated_max_pa": validated_max, "rest_tip": _tip(free_models["l1"], 0.0)}
+
+
+def bound_checks(held_out: dict, table: dict) -> dict:
+    """Per model and scene class: the largest held-out error, the bound, and whether the bound holds."""
+    checks = {}
+    for model in MODELS:
+        for scene_class in SCENE_CLASSES:
+            errors = [p["error_m"][model] for p in held_out["points"] if p["scene_class"] == scene_class]
+            if errors:
+                bound = table[model]["tip_error_bound_m"][scene_class]
+                checks.setdefault(model, {})[scene_class] = {"largest_error_m": max(errors), "bound_m": bound,
+                                                             "holds": max(errors) <= bound}
+    return checks
 
 
 def _tip(model, pressure):
@@ -189,7 +216,7 @@ def demo_grasp_trace():
     return [(float(p + rng.normal(0.0, 80.0)), contact) for values, contact in phases for p in values]
 
 
-def auto_points(rod: RodFinger, bounds: ErrorBounds, kinematics: dict) -> dict:
+def auto_points(rod: RodFinger, bounds: ErrorBounds, kinematics: dict, held_out: dict) -> dict:
     scene = cylinder_scene(rod, 0.040, 17e3)
     trace = demo_grasp_trace()
     costs = {}
@@ -204,7 +231,7 @@ def auto_points(rod: RodFinger, bounds: ErrorBounds, kinematics: dict) -> dict:
                            "l2_solves": model.solves}
     chooser = SceneModel("auto", TOLERANCE_M, bounds=bounds).selector
     worst = 0.0
-    for point in kinematics["points"]:
+    for point in kinematics["points"] + held_out["points"]:
         worst = max(worst, point["error_m"][chooser.choose_for_class(point["scene_class"]).model])
     return {"costs": costs, "median_cost_ratio": costs["auto"]["median_s"] / costs["l0"]["median_s"],
             "worst_error_m": worst, "tolerance_m": TOLERANCE_M}
@@ -330,16 +357,22 @@ def target_rows(result: dict) -> list:
     rest = kin["rest_tip"]
     l0_rel = max(p["error_m"]["l0"] / math.hypot(p["l1_tip"][0] - rest[0], p["l1_tip"][1] - rest[1])
                  for p in free if p["pressure_pa"] > 0)
+    l0_check = result["bound_checks"]["l0"]["free"]
     targets = [
         ("L0 faster than the reference per pose", f"{l0_speedup:,.0f}x", ">= 1,000x", l0_speedup >= 1000),
-        ("L0 error against the reference in its validated range, per tip displacement", f"{100 * l0_rel:.2f} %",
-         "<= 3.5 % (the paper's linear-law accuracy)", l0_rel <= 0.035),
+        ("L0 within its validated error bound of the reference: largest error at the held-out free points "
+         "(validated range) against the bound from the benchmark's points",
+         f"{1e3 * l0_check['largest_error_m']:.2f} mm / {1e3 * l0_check['bound_m']:.2f} mm", "<= the bound",
+         l0_check["holds"]),
+        ("*Comparison, not the target:* L0 error against the reference in its validated range, per tip displacement",
+         f"{100 * l0_rel:.2f} %", "<= 3.5 % would match the paper's linear-law accuracy against its FEA",
+         l0_rel <= 0.035),
         ("L2 faster than PyElastica, contact scenes", f"{l2_speedup:,.0f}x", ">= 20x", l2_speedup >= 20),
         ("L2 tip error against PyElastica, all scenes", f"{1e3 * l2_error:.3f} mm = {100 * l2_error / finger:.2f} % of the finger",
          "<= 2 % of the finger length", l2_error <= 0.02 * finger),
         ("auto's median cost in the demo grasp against the cheapest (L0)", f"{auto['median_cost_ratio']:.2f}x", "<= 1.5x",
          auto["median_cost_ratio"] <= 1.5),
-        ("auto's largest error at the benchmark points", f"{1e3 * auto['worst_error_m']:.3f} mm",
+        ("auto's largest error at the benchmark and held-out points", f"{1e3 * auto['worst_error_m']:.3f} mm",
          f"<= tolerance {1e3 * auto['tolerance_m']:.1f} mm", auto["worst_error_m"] <= auto["tolerance_m"]),
     ]
     return ["| target | measured | wanted | |", "|---|---|---|---|"] + [
@@ -363,7 +396,12 @@ def report(result: dict, command: str) -> str:
               "here is the gap between the two laws, and against the paper's own numbers (table below) L0 is the closer "
               "one at 50 kPa (D2 fitted, 0 %) while L1 overshoots D2 by about 20 %. The bounds that `auto` uses inherit "
               "this: at the default 1 mm tolerance it picks L1 in free bending. Which law is right between the paper's "
-              "few points needs the FE reference (not built), or measurements.", "",
+              "few points needs the FE reference (not built), or measurements. The issue's L0 target asks for L0 "
+              "within *its validated error bound*: the bound in `config/model_error_bounds.yaml`, checked at "
+              "held-out scenes below. Measured per tip displacement, the same gap is far above the paper's 3.5 % "
+              "(the targets table shows it as a comparison): at low pressure the L1 law bends less than the linear "
+              "one for the same gain, and a separate L1 calibration (tried: gain 5.08, c_b 2.88e-6 1/Pa fitted to "
+              "the same alpha and D2) still left 18 % at 5 kPa.", "",
               "| case | class | L0 err | L1 err | L2 err | L0 us | L1 us | L2 us | reference s | force L2 / ref [N] |",
               "|---|---|---|---|---|---|---|---|---|---|"]
     for p in kin["points"]:
@@ -378,6 +416,15 @@ def report(result: dict, command: str) -> str:
         b = bounds[m]["tip_error_bound_m"]
         lines.append(f"| {m.upper()} | {1e3 * b['free']:.3f} | {1e3 * b['free_beyond']:.3f} | {1e3 * b['contact']:.2f} | "
                      f"{1e6 * bounds[m]['median_cost_s']:.1f} | {1e6 * bounds[m]['median_contact_cost_s']:.1f} |")
+    lines += ["", "Held-out scenes (not used for the bounds; their errors in mm against each bound):", "",
+              "| case | class | L0 err | L1 err | L2 err |", "|---|---|---|---|---|"]
+    for p in result["held_out"]["points"]:
+        lines.append(f"| {p['case']} | {p['scene_class']} | "
+                     + " | ".join(f"{1e3 * p['error_m'][m]:.3f}" for m in MODELS) + " |")
+    broken = [f"{m.upper()} {c.replace('_', ' ')} ({1e3 * v['largest_error_m']:.3f} > {1e3 * v['bound_m']:.3f} mm)"
+              for m, classes in result["bound_checks"].items() for c, v in classes.items() if not v["holds"]]
+    lines += ["", "Every bound holds at the held-out scenes." if not broken
+              else "Bounds exceeded at held-out scenes: " + "; ".join(broken) + "."]
     lines += ["", "Against the paper's points (D1, D2 in mm; L2 equals L1 in free bending, the reference has no "
               "chamber ballooning so it is not compared here):", "", "| quantity | paper | L0 | L1 |", "|---|---|---|---|"]
     for row in result["paper_rows"]:
@@ -421,12 +468,14 @@ def main(argv=None) -> int:
     reference = ReferenceFinger(rod)
     kinematics = kinematics_points(args.repeat, reference, rod)
     table = error_bounds(kinematics)
+    held_out = kinematics_points(args.repeat, reference, rod, held_out_cases(rod), "held-out scenes", timed=False)
     bounds = ErrorBounds({m: v["tip_error_bound_m"] for m, v in table.items()},
                          {m: v["median_cost_s"] for m, v in table.items()}, "this run")
     result = {"kinematics": kinematics, "bounds": table, "finger_length_m": l1.geometry.total_length_m,
               "reference": f"{reference.rod.elements_per_segment} elements per segment",
               "estimators": estimator_points(args.repeat), "integrators": integrator_points(args.repeat),
-              "auto": auto_points(rod, bounds, kinematics),
+              "auto": auto_points(rod, bounds, kinematics, held_out), "held_out": held_out,
+              "bound_checks": bound_checks(held_out, table),
               "paper_rows": [{"quantity": r.quantity, "paper": r.paper, "l0": r.l0_calibrated, "l1": r.l1,
                               "l0_err_pct": r.error_pct(r.l0_calibrated), "l1_err_pct": r.error_pct(r.l1)}
                              for r in paper_rows() if r.unit == "mm"]}
