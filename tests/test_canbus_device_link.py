@@ -149,6 +149,21 @@ def test_at_rest_the_loop_slows_and_a_command_or_a_reading_beyond_the_limits_ste
         loop.stop()
 
 
+def test_a_command_steps_in_the_callers_thread_without_waiting_for_the_loop(rig):
+    """With a loop attached, a command's frames go out from the commanding thread at once (a loop
+    that never ticks here could not have sent them); an inactive controller sends nothing."""
+    from softgrip_ros.canbus.controller_link import make_control_loop
+    device, link = rig
+    make_control_loop(link, 1.0, 1.0)          # sets link.wake; never started
+    wait_for(lambda: link.frames_rx > 20, message="sensor frames")
+    link.command(20e3, Source.SUPPLY, math.nan)
+    wait_for(lambda: device.valves() == (Valve.SUPPLY,), timeout=0.5, message="the supply valve open")
+    link.controller.active = False
+    sent = link.frames_tx
+    link.command(0.0, Source.VENT, math.nan)
+    assert link.frames_tx == sent
+
+
 def test_regulator_overshoot_vents_below_limit_plus_margin(rig):
     device, link = rig
     config = link.controller.config

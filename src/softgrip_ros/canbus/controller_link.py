@@ -58,6 +58,7 @@ class ControllerLink:
         self.on_sensor = on_sensor
         self.clock = clock
         self._lock = threading.Lock()
+        self._step_lock = threading.Lock()
         self.frames_rx = 0
         self.frames_tx = 0
         self.send_errors = 0
@@ -128,6 +129,12 @@ class ControllerLink:
                 return None
             self._last_command_stamp = max(self._last_command_stamp, stamp_s)
             note = self.controller.command(target_gauge_pa, source, max_rate_pa_per_s, self.clock())
+            active = self.controller.active
+        if active and self.wake is not None:
+            # Step here, in the caller's thread: handing the step to the woken loop thread cost
+            # ~1 ms more (a thread wake and the GIL) in the composed controller. The loop still
+            # ticks at once, for the status and a schedule that starts from the command.
+            self.step()
         if self.wake is not None:
             self.wake()
         return note
@@ -137,16 +144,19 @@ class ControllerLink:
             self.controller.update_estimate(gauge_pa, self.clock())
 
     def step(self) -> ControlOutput:
-        now = self.clock()
-        with self._lock:
-            output = self.controller.step(now)
-        if now - self.last_frame_time > self.bus_silent_timeout_s:
-            output = dataclasses.replace(output, fault_flags=output.fault_flags | Fault.BUS_SILENT)
-        self._send_output(output, now)
-        if now - self._last_heartbeat >= HEARTBEAT_PERIOD_S:
-            self._last_heartbeat = now
-            self._send("ControllerHeartbeat", {"ControllerState": CONTROLLER_STATE.get(output.mode, 1)})
-        return output
+        """One control period: the controller's step and its frames. Steps from two threads (the
+        loop's, and a command's) run one at a time, so that frames leave in the order computed."""
+        with self._step_lock:
+            now = self.clock()
+            with self._lock:
+                output = self.controller.step(now)
+            if now - self.last_frame_time > self.bus_silent_timeout_s:
+                output = dataclasses.replace(output, fault_flags=output.fault_flags | Fault.BUS_SILENT)
+            self._send_output(output, now)
+            if now - self._last_heartbeat >= HEARTBEAT_PERIOD_S:
+                self._last_heartbeat = now
+                self._send("ControllerHeartbeat", {"ControllerState": CONTROLLER_STATE.get(output.mode, 1)})
+            return output
 
     def send_vent(self, repeats: int = 3) -> None:
         """Vent frames now (shutdown, deactivate, the ~/vent service), a few times for robustness."""
