@@ -144,9 +144,11 @@ def run_node(node_factory, args=None, executor_factory=None) -> int:
 
 
 def _read_errors_of_unfinished_callbacks(executor) -> None:
-    """A callback that was running in the executor's pool when SIGINT/SIGTERM shut ROS down fails
-    on a handle the shutdown destroyed; its task's error would otherwise be printed as "exception
-    never retrieved". Those are read and dropped here; any other error is reported."""
+    """A callback that was running in the executor's pool when SIGINT/SIGTERM or the end of
+    :func:`spinning` shut the executor down fails on a handle the shutdown destroyed (in Jazzy,
+    rclpy's own task wrapper can, triggering the executor's guard condition); its task's error
+    would otherwise be printed as "exception never retrieved". Those are read and dropped here;
+    any other error is reported."""
     for future in list(getattr(executor, "_futures", [])):
         error = future.exception() if future.done() else None
         if error is not None and not isinstance(error, (InvalidHandle, RCLError)):
@@ -189,3 +191,4 @@ def spinning(*nodes, context=None, threads: int = 4):
         pool = getattr(executor, "_executor", None)   # Jazzy's shutdown() leaves its thread pool running
         if pool is not None:
             pool.shutdown(wait=True)
+        _read_errors_of_unfinished_callbacks(executor)
