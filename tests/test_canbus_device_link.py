@@ -151,12 +151,15 @@ def test_at_rest_the_loop_slows_and_a_command_or_a_reading_beyond_the_limits_ste
 
 def test_a_command_steps_in_the_callers_thread_without_waiting_for_the_loop(rig):
     """With a loop attached, a command's frames go out from the commanding thread at once (a loop
-    that never ticks here could not have sent them); an inactive controller sends nothing."""
+    that never ticks here could not have sent them), after its note is handed on; an inactive
+    controller sends nothing."""
     from softgrip_ros.canbus.controller_link import make_control_loop
     device, link = rig
     make_control_loop(link, 1.0, 1.0)          # sets link.wake; never started
     wait_for(lambda: link.frames_rx > 20, message="sensor frames")
-    link.command(20e3, Source.SUPPLY, math.nan)
+    seen = []    # the note reaches on_applied before the step the command runs sends anything
+    link.command(90e3, Source.SUPPLY, math.nan, on_applied=lambda note: seen.append((note, link.frames_tx)))
+    assert "clamped" in seen[0][0] and seen[0][1] < link.frames_tx
     wait_for(lambda: device.valves() == (Valve.SUPPLY,), timeout=0.5, message="the supply valve open")
     link.controller.active = False
     sent = link.frames_tx

@@ -119,17 +119,21 @@ class ControllerLink:
                 self.last_listener_error = f"{type(error).__name__}: {error}"
 
     # ---- the control period ---------------------------------------------------------------------
-    def command(self, target_gauge_pa: float, source: Source, max_rate_pa_per_s: float, stamp_s: float = 0.0) -> str | None:
+    def command(self, target_gauge_pa: float, source: Source, max_rate_pa_per_s: float, stamp_s: float = 0.0,
+                on_applied=None) -> str | None:
         """Apply a command; None when it is ignored as stale. A command stamped (``stamp_s``, any clock
         the sender keeps monotonic; 0 = unstamped) at or before the last one applied is a late copy
         (in the composed controller each command comes both directly and by DDS) and must not undo
-        a newer one. An unstamped command always applies."""
+        a newer one. An unstamped command always applies. ``on_applied(note)`` runs once it has
+        applied, before any step reports on it (so that a status can carry the note)."""
         with self._lock:
             if stamp_s and stamp_s <= self._last_command_stamp:
                 return None
             self._last_command_stamp = max(self._last_command_stamp, stamp_s)
             note = self.controller.command(target_gauge_pa, source, max_rate_pa_per_s, self.clock())
             active = self.controller.active
+            if on_applied is not None:
+                on_applied(note)
         if active and self.wake is not None:
             # Step here, in the caller's thread: handing the step to the woken loop thread cost
             # ~1 ms more (a thread wake and the GIL) in the composed controller. The loop still

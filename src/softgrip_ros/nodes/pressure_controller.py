@@ -207,14 +207,14 @@ class PressureControllerNode(LifecycleNode):
             return
         try:
             note = self.link.command(msg.target_gauge_pressure_pa, msg.source, msg.max_rate_pa_per_s,
-                                     stamp_seconds(msg.header.stamp))
+                                     stamp_seconds(msg.header.stamp), on_applied=self._set_note)
         except ValueError as error:
-            note = f"command rejected: {error}"
-        if note is None:
-            return
-        self.last_note = note
-        if self.last_note:
-            self.get_logger().warn(self.last_note)
+            note = self.last_note = f"command rejected: {error}"
+        if note:
+            self.get_logger().warn(note)
+
+    def _set_note(self, note: str) -> None:
+        self.last_note = note     # before the step the command triggers publishes the status
 
     def _on_estimate(self, msg: FluidPressure):
         if self.values["use_estimate"] and self.link is not None:
