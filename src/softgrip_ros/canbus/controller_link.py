@@ -134,12 +134,12 @@ class ControllerLink:
             active = self.controller.active
             if on_applied is not None:
                 on_applied(note)
-        if active and self.wake is not None:
-            # Step here, in the caller's thread: handing the step to the woken loop thread cost
-            # ~1 ms more (a thread wake and the GIL) in the composed controller. The loop still
-            # ticks at once, for the status and a schedule that starts from the command.
-            self.step()
-        if self.wake is not None:
+        if self.wake is not None:            # a control loop runs this link
+            if active:
+                # Step here, in the caller's thread: handing the step to the woken loop thread
+                # cost ~1 ms more (a thread wake and the GIL) in the composed controller. The loop
+                # still ticks at once, for the status and a schedule that starts from the command.
+                self.step()
             self.wake()
         return note
 

@@ -58,8 +58,10 @@ LIVE = {"max_gauge_pressure_pa": "max_gauge_pa", "min_gauge_pressure_pa": "min_g
 LEVELS = {Severity.OK: DiagnosticStatus.OK, Severity.WARN: DiagnosticStatus.WARN, Severity.ERROR: DiagnosticStatus.ERROR}
 
 
-def _rest_rate_error(values) -> str:
-    return f"rest_rate_hz ({values['rest_rate_hz']:g} Hz) must not exceed control_rate_hz ({values['control_rate_hz']:g} Hz)"
+def _check_rest_rate(values) -> None:
+    if values["rest_rate_hz"] > values["control_rate_hz"]:
+        raise ValueError(f"rest_rate_hz ({values['rest_rate_hz']:g} Hz) must not exceed control_rate_hz "
+                         f"({values['control_rate_hz']:g} Hz)")
 
 
 class PressureControllerNode(LifecycleNode):
@@ -72,8 +74,7 @@ class PressureControllerNode(LifecycleNode):
                        for name in self.codec.message_names]
         self.specs.update({s.name: s for s in frame_specs})
         self.values.update(declare(self, frame_specs))
-        if self.values["rest_rate_hz"] > self.values["control_rate_hz"]:    # at start-up: exit 1 with the reason
-            raise ValueError(_rest_rate_error(self.values))
+        _check_rest_rate(self.values)        # at start-up: exit 1 with the reason
         self.controller = PressureController(self._control_config(self.values))
         self.add_on_set_parameters_callback(self._on_set)
         self.status_pub = self.create_publisher(ControllerStatus, "controller/status", 10)
@@ -133,8 +134,7 @@ class PressureControllerNode(LifecycleNode):
             self.get_logger().error("sensors.names, sensors.messages and sensors.noise_std_pa need equal, non-zero lengths")
             return TransitionCallbackReturn.FAILURE
         try:
-            if self.values["rest_rate_hz"] > self.values["control_rate_hz"]:
-                raise ValueError(_rest_rate_error(self.values))
+            _check_rest_rate(self.values)
             overrides = {n: self.values[f"can.frame_ids.{n}"] for n in self.codec.message_names
                          if self.values[f"can.frame_ids.{n}"]}
             self.codec = FrameCodec(frame_ids=overrides)
