@@ -37,8 +37,8 @@ SPECS = [
               "(0: each at once)", "s", 0.0, 0.005),
     ParamSpec("input_timing_std", _DEFAULTS.input_timing_std_s, "how far an input's effect at the device may lie "
               "from its stamp (1 sigma); P grows by the change in rate times this at each input change", "s", 0.0, 0.1),
-    ParamSpec("max_fusion_shift_pa", _DEFAULTS.max_fusion_shift_pa, "... 'rests': its modelled change over the "
-              "window stays within this", "Pa", 1.0, 1000.0),
+    ParamSpec("max_fusion_shift_pa", _DEFAULTS.max_fusion_shift_pa, "the chamber rests (see fusion_window) while its "
+              "modelled change over the window stays within this", "Pa", 1.0, 1000.0),
     ParamSpec("sensors.names", ["chamber_a", "chamber_b"], "sensors fused: topics pressure/sensor/<name>"),
     ParamSpec("sensors.noise_std_pa", [300.0, 150.0], "1-sigma noise of each sensor (R = noise^2)", "Pa"),
     ParamSpec("sensors.rejection_threshold", [16.0, 16.0], "Mahalanobis gate of each sensor, chi-square with 1 dof (16 = 4 sigma)"),
