@@ -109,6 +109,23 @@ def test_encode_refuses_bad_values():
         codec.encode("Nope", {})
 
 
+def test_a_repeated_frame_is_taken_from_the_cache_and_equals_a_fresh_encode():
+    """At rest the controller re-sends the same signals every 10 ms: after one pass of the alive
+    counter every frame is a cached payload, bit for bit what cantools gives."""
+    cached = FrameCodec()
+    signals = {"Channel0": 3, "Channel1": 0, "Channel2": 0, "Channel3": 0, "OpenLifetime": 0.025}
+    for k in range(40):
+        frame = cached.encode("ValveCommand", signals)
+        assert frame.data == FrameCodec().encode("ValveCommand", signals, counter=k).data
+    assert len(cached._encoded) == 16
+    changed = cached.encode("ValveCommand", {**signals, "Channel0": 1})
+    assert changed.data[0] == 1 and len(cached._encoded) == 17
+    with pytest.raises(ValueError, match="cannot encode ValveCommand"):
+        cached.encode("ValveCommand", {**signals, "OpenLifetime": 1.0})
+    with pytest.raises(ValueError, match="cannot encode ValveCommand"):
+        cached.encode("ValveCommand", {**signals, "Channel0": [1]})     # unhashable: not cached, refused
+
+
 def test_frame_ids_are_configurable():
     tx = FrameCodec(frame_ids={"PressureSensor1": 0x300})
     rx = FrameCodec(frame_ids={"PressureSensor1": 0x300})

@@ -29,6 +29,7 @@ COUNTER_SIGNAL = "AliveCounter"
 CRC_SIGNAL = "Crc"
 COUNTER_MODULO = 16
 CRC_BYTE = 7
+ENCODED_CACHE_SIZE = 512     # (message, signals, counter) -> payload; cleared when full
 
 REJECT_REASONS = ("unknown_id", "bad_dlc", "bad_crc", "repeated_counter", "counter_jump", "out_of_range", "undecodable")
 
@@ -107,6 +108,9 @@ class FrameCodec:
                         for name, m in self._messages.items()}
         self._lock = threading.Lock()
         self._tx_counters = collections.defaultdict(int)
+        # a frame is a pure function of its signals and counter: a controller at rest re-sends the
+        # same few every 10 ms, and cantools' encode costs more than the rest of a send
+        self._encoded: dict = {}
         self._rx_counters: dict = {}
         self._rx_jumps = collections.defaultdict(int)
         self.rejected = collections.Counter({reason: 0 for reason in REJECT_REASONS})
@@ -132,16 +136,27 @@ class FrameCodec:
             if counter is None:
                 counter = self._tx_counters[name]
                 self._tx_counters[name] = (counter + 1) % COUNTER_MODULO
-        values = dict(signals)
-        values[COUNTER_SIGNAL] = counter % COUNTER_MODULO
-        values[CRC_SIGNAL] = 0
-        try:
-            payload = bytearray(message.encode(values, scaling=True, padding=False, strict=True))
-        except (cantools.database.EncodeError, KeyError) as error:
-            raise ValueError(f"cannot encode {name}: {error}") from None
         frame_id = self.frame_ids[name]
-        payload[CRC_BYTE] = frame_crc(frame_id, bytes(payload))
-        return can.Message(arbitration_id=frame_id, data=bytes(payload), is_extended_id=False)
+        key = (name, tuple(signals.items()), counter % COUNTER_MODULO)
+        try:
+            data = self._encoded.get(key)
+        except TypeError:                     # an unhashable value: cantools judges it, uncached
+            key, data = None, None
+        if data is None:
+            values = dict(signals)
+            values[COUNTER_SIGNAL] = counter % COUNTER_MODULO
+            values[CRC_SIGNAL] = 0
+            try:
+                payload = bytearray(message.encode(values, scaling=True, padding=False, strict=True))
+            except (cantools.database.EncodeError, KeyError, TypeError) as error:
+                raise ValueError(f"cannot encode {name}: {error}") from None
+            payload[CRC_BYTE] = frame_crc(frame_id, bytes(payload))
+            data = bytes(payload)
+            if key is not None:
+                if len(self._encoded) >= ENCODED_CACHE_SIZE:
+                    self._encoded.clear()
+                self._encoded[key] = data
+        return can.Message(arbitration_id=frame_id, data=data, is_extended_id=False)
 
     def decode(self, frame: can.Message) -> DecodedFrame | None:
         """The validated signals of ``frame``, or None (the reason is counted in ``rejected``)."""
