@@ -105,6 +105,28 @@ def test_at_rest_estimates_go_out_at_the_rest_rate(wired):
 
 
 
+def test_a_batch_of_readings_gives_one_estimate_at_its_newest_and_an_unknown_sensor_is_refused(rclpy_context):
+    """The composed controller hands over the readings of a bus batch together (10 ms of them
+    while it rests): one estimate comes of it, stamped at the newest sample, not at an older one
+    that happened to make an estimate due."""
+    from softgrip_ros.nodes.estimator import EstimatorNode
+    estimator = EstimatorNode(in_process=True, context=rclpy_context)
+    published = []
+    estimator.estimate_listeners.append(lambda stamp_s, gauge_pa, variance_pa2: published.append((stamp_s, gauge_pa)))
+    try:
+        t0 = estimator._now()
+        estimator.on_sensor_samples([("chamber_a", 10e3, t0)])
+        assert [stamp for stamp, _ in published] == [t0]
+        estimator.on_sensor_samples([("chamber_b" if k % 2 else "chamber_a", 10e3, t0 + 0.006 * k) for k in range(1, 11)])
+        assert len(published) == 2 and published[-1][0] == pytest.approx(t0 + 0.06)
+        with pytest.raises(ValueError, match=r"unknown sensors \['chamber_z'\]"):
+            estimator.on_sensor_samples([("chamber_z", 1.0, t0 + 0.061), ("chamber_a", 10e3, t0 + 0.062)])
+        assert estimator.estimator.stats["chamber_a"].last_stamp_s == pytest.approx(t0 + 0.062)
+    finally:
+        estimator.close()
+        estimator.destroy_node()
+
+
 def test_silent_sensors_give_predictions_with_growing_variance_and_a_warning(wired):
     from diagnostic_msgs.msg import DiagnosticStatus
     feeder, publishers, status_pub, estimates, diagnostics = wired

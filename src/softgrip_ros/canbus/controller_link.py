@@ -1,7 +1,11 @@
 """The pressure controller's side of the bus: frames in, control core, frames out (no ROS).
 
-Reception runs on a python-can Notifier thread: sensor and regulator frames are decoded
-(invalid ones are counted and dropped by the codec) and fed to the control core. The
+Reception runs on a :class:`~softgrip_ros.canbus.reader.BatchReader` thread: sensor and
+regulator frames are decoded (invalid ones are counted and dropped by the codec) and fed to the
+control core, a batch at a time. While the controller rests (venting, holding, inactive or
+faulted: the valves stay as they are) the frames are taken every ``rest_receive_period_s``
+instead of at once, which saves a thread wake per frame; a reading beyond the limits is then
+acted on within that period. A command ends the wait. The
 owner calls :meth:`ControllerLink.step` once per control period; it runs the core and
 sends RegulatorSetpoint and ValveCommand in that period when their content changed, and else
 every ``command_frame_period_s`` (they are cyclic frames: the device's watchdog expects them),
@@ -22,6 +26,7 @@ import time
 import can
 
 from softgrip_ros.canbus.codec import FrameCodec, frame_age_s
+from softgrip_ros.canbus.reader import BatchReader
 from softgrip_ros.control.pressure import ControlOutput, Fault, Mode, PressureController, Source
 from softgrip_ros.model.pneumatics import Valve
 from softgrip_ros.realtime import PeriodicThread
@@ -39,14 +44,14 @@ class SensorBinding:
 
 
 class ControllerLink:
-    """Owns the controller's bus traffic. ``on_sensor(name, gauge_pa, stamp)`` is called for every
-    valid sensor frame (from the Notifier thread); ``stamp`` is when the frame was sent, on ``clock``
-    (see :func:`frame_age_s`)."""
+    """Owns the controller's bus traffic. ``on_readings(readings)`` is called (from the reception
+    thread) with each batch's valid sensor readings, [(name, gauge_pa, stamp)] oldest first;
+    ``stamp`` is when the frame was sent, on ``clock`` (see :func:`frame_age_s`)."""
 
     def __init__(self, bus: can.BusABC, controller: PressureController, sensors: list,
-                 codec: FrameCodec | None = None, bus_silent_timeout_s: float = 0.25, on_sensor=None,
+                 codec: FrameCodec | None = None, bus_silent_timeout_s: float = 0.25, on_readings=None,
                  clock=time.monotonic, command_frame_period_s: float = 0.01, valve_lifetime_s: float = 0.025,
-                 control_period_s: float = 0.002):
+                 control_period_s: float = 0.002, rest_receive_period_s: float = 0.0):
         self.bus = bus
         self.controller = controller
         self.codec = codec or FrameCodec()
@@ -55,7 +60,7 @@ class ControllerLink:
         if unknown:
             raise ValueError(f"sensor messages {sorted(unknown)} are not in the DBC")
         self.bus_silent_timeout_s = bus_silent_timeout_s
-        self.on_sensor = on_sensor
+        self.on_readings = on_readings
         self.clock = clock
         self._lock = threading.Lock()
         self._step_lock = threading.Lock()
@@ -80,41 +85,49 @@ class ControllerLink:
         self.valve_lifetime_s = valve_lifetime_s
         self._last_command_frames = {}      # message -> (signals, time sent)
         self.wake = None                    # the control loop's wake(): a command or a reading beyond a limit
-        self._notifier = can.Notifier(bus, [self._on_frame], timeout=0.05)
+        self.resting = False                # the last step left the valves as they are (not regulating)
+        self._reader = BatchReader(bus, self._on_frames, rest_receive_period_s, lambda: self.resting,
+                                   name="softgrip-can-rx")
 
     @property
     def frames_bad(self) -> int:
         return self.codec.rejected_total
 
+    @property
+    def receive_errors(self) -> tuple:
+        """(count, the last one's text) of failed reads from the bus."""
+        return self._reader.errors, self._reader.last_error
+
     def close(self) -> None:
-        self._notifier.stop(timeout=1.0)
+        self._reader.stop(timeout_s=1.0)
 
     # ---- reception --------------------------------------------------------------------------------
-    def _on_frame(self, frame: can.Message) -> None:
-        sent_at = self.clock() - frame_age_s(frame)
-        decoded = self.codec.decode(frame)
-        if decoded is None:
+    def _on_frames(self, frames: list) -> None:
+        now = self.clock()
+        valid = [(decoded, now - frame_age_s(frame)) for frame in frames
+                 if (decoded := self.codec.decode(frame)) is not None]
+        if not valid:
             return
+        readings, urgent = [], False
         with self._lock:
-            self.frames_rx += 1
-            self.last_frame_time = max(self.last_frame_time, sent_at)
-            if decoded.name in self.sensors:
-                urgent = decoded.signals["SensorStatus"] == 0 and self.controller.update_sensor(
-                    self.sensors[decoded.name], decoded.signals["GaugePressure"], sent_at)
-                sensor_name = self.sensors[decoded.name]
-            elif decoded.name == "RegulatorStatus":
-                self.regulator_actual_gauge_pa = decoded.signals["ActualGaugePressure"]
-                self.controller.update_regulator_status(decoded.signals["ActualGaugePressure"],
-                                                        int(decoded.signals["FaultBits"]))
-                return
-            else:
-                return
+            self.frames_rx += len(valid)
+            for decoded, sent_at in valid:
+                self.last_frame_time = max(self.last_frame_time, sent_at)
+                signals = decoded.signals
+                if decoded.name in self.sensors:
+                    if signals["SensorStatus"] == 0:
+                        name = self.sensors[decoded.name]
+                        urgent = self.controller.update_sensor(name, signals["GaugePressure"], sent_at) or urgent
+                        readings.append((name, signals["GaugePressure"], sent_at))
+                elif decoded.name == "RegulatorStatus":
+                    self.regulator_actual_gauge_pa = signals["ActualGaugePressure"]
+                    self.controller.update_regulator_status(signals["ActualGaugePressure"], int(signals["FaultBits"]))
         if urgent and self.wake is not None:
             self.wake()
-        if self.on_sensor is not None and decoded.signals["SensorStatus"] == 0:
+        if readings and self.on_readings is not None:
             try:
-                self.on_sensor(sensor_name, decoded.signals["GaugePressure"], sent_at)
-            except Exception as error:   # a failing listener must not kill reception (the Notifier thread)
+                self.on_readings(readings)
+            except Exception as error:   # a failing listener must not stop reception
                 self.listener_errors += 1
                 self.last_listener_error = f"{type(error).__name__}: {error}"
 
@@ -134,6 +147,7 @@ class ControllerLink:
             active = self.controller.active
             if on_applied is not None:
                 on_applied(note)
+        self._reader.wake()                  # the readings matter at once from here on
         if self.wake is not None:            # a control loop runs this link
             if active:
                 # Step here, in the caller's thread: handing the step to the woken loop thread
@@ -154,6 +168,7 @@ class ControllerLink:
             now = self.clock()
             with self._lock:
                 output = self.controller.step(now)
+            self.resting = output.mode != Mode.REGULATE
             if now - self.last_frame_time > self.bus_silent_timeout_s:
                 output = dataclasses.replace(output, fault_flags=output.fault_flags | Fault.BUS_SILENT)
             self._send_output(output, now)

@@ -56,7 +56,7 @@ def make_nodes(context=None, overrides: dict | None = None) -> list:
         grasp_manager = GraspManagerNode(in_process=True, context=context,
                                          parameter_overrides=overrides.get("grasp_manager", []))
         nodes += [estimator, kinematics, grasp_manager]
-        controller.sensor_listeners.append(estimator.on_sensor_sample)
+        controller.sensor_listeners.append(estimator.on_sensor_samples)
         controller.status_listeners += [estimator.on_status, grasp_manager.on_status]
         grasp_manager.scene_listeners.append(kinematics.on_scene)
         grasp_manager.command_listeners.append(controller.on_command)

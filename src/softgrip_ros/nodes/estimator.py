@@ -68,7 +68,7 @@ def config_from(values: dict) -> EstimatorConfig:
 
 class EstimatorNode(Node):
     """in_process: the readings and the controller status come by direct calls to
-    :meth:`on_sensor_sample` and :meth:`on_status` from the composed controller's pressure
+    :meth:`on_sensor_samples` and :meth:`on_status` from the composed controller's pressure
     controller, instead of through their topics (see nodes.controller).
     ``estimate_listeners``: in-process consumers of each published estimate,
     f(stamp_s, gauge_pa, variance_pa2); called outside the estimator's lock, which is never held
@@ -95,8 +95,8 @@ class EstimatorNode(Node):
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         for name in [] if in_process else self.values["sensors.names"]:
             self.create_subscription(FluidPressure, f"pressure/sensor/{name}",
-                                     lambda msg, name=name: self.on_sensor_sample(
-                                         name, msg.fluid_pressure - P_ATM_PA, stamp_seconds(msg.header.stamp)), 50)
+                                     lambda msg, name=name: self.on_sensor_samples(
+                                         [(name, msg.fluid_pressure - P_ATM_PA, stamp_seconds(msg.header.stamp))]), 50)
         if not in_process:
             self.create_subscription(ControllerStatus, "controller/status", self.on_status, 10)
         self.create_subscription(PressureCommand, "pressure/command", self._on_command, 10)
@@ -114,16 +114,25 @@ class EstimatorNode(Node):
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
-    def on_sensor_sample(self, name: str, gauge_pa: float, stamp_s: float) -> None:
-        """One reading of sensor ``name`` taken at ``stamp_s``; publishes the estimate when one is due."""
+    def on_sensor_samples(self, samples: list) -> None:
+        """Readings [(sensor name, gauge Pa, stamp s)], oldest first (a batch of the bus's, or one
+        from a topic); then at most one estimate, when one is due: the newest, not one of a
+        batch's older samples. A sensor this estimator does not fuse raises ValueError, after
+        the others are taken."""
+        unknown = [name for name, _, _ in samples if name not in self.estimator.sensors]
         with self._lock:
-            taken = not self.closed and self.estimator.add_measurement(name, gauge_pa, stamp_s)
-            if taken:
-                self.last_sample_s = max(self.last_sample_s, stamp_s)
-            due = taken and stamp_s - self.last_publish_s >= 0.9 * (self.rest_period_s if self.estimator.resting
-                                                                    else self.period_s)
+            newest = None
+            for name, gauge_pa, stamp_s in samples:
+                if not self.closed and name not in unknown and self.estimator.add_measurement(name, gauge_pa, stamp_s):
+                    newest = stamp_s if newest is None else max(newest, stamp_s)
+            if newest is not None:
+                self.last_sample_s = max(self.last_sample_s, newest)
+            due = newest is not None and newest - self.last_publish_s >= 0.9 * (
+                self.rest_period_s if self.estimator.resting else self.period_s)
             estimate = self._take_estimate() if due else None
         self._publish(estimate)
+        if unknown:
+            raise ValueError(f"unknown sensors {sorted(set(unknown))}; configured: {sorted(self.estimator.sensors)}")
 
     def on_status(self, msg: ControllerStatus) -> None:
         """The process model's inputs: the regulator command and the valve state."""

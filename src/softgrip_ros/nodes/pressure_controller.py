@@ -30,6 +30,9 @@ SPECS = CAN_SPECS + [
     ParamSpec("control_rate_hz", 500.0, "control loop rate", "Hz", 10.0, 1000.0),
     ParamSpec("rest_rate_hz", 100.0, "control loop rate while venting, holding or faulted (a command or a reading "
               "beyond the limits steps at once); <= control_rate_hz", "Hz", 10.0, 1000.0),
+    ParamSpec("rest_receive_period", 0.01, "while the controller rests (not regulating), received frames are taken "
+              "in batches this often, one thread wake each instead of one per frame; a reading beyond the limits "
+              "is then acted on within it; 0 = each frame at once", "s", 0.0, 0.05),
     ParamSpec("status_rate_hz", 50.0, "controller/status publish rate", "Hz", 1.0, 200.0),
     ParamSpec("command_frame_period", 0.01, "RegulatorSetpoint and ValveCommand re-sent this often when unchanged "
               "(a change goes out in its control period); 0 = every period", "s", 0.0, 0.1),
@@ -80,7 +83,7 @@ class PressureControllerNode(LifecycleNode):
         self.status_pub = self.create_publisher(ControllerStatus, "controller/status", 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.sensor_pubs = {}
-        self.sensor_listeners = []       # in-process consumers of each reading: f(name, gauge_pa, stamp_s)
+        self.sensor_listeners = []       # in-process consumers of the readings: f([(name, gauge_pa, stamp_s)]) per batch
         self.status_listeners = []       # in-process consumers of each controller/status: f(ControllerStatus)
         self.create_subscription(PressureCommand, "pressure/command", self.on_command, 10)
         self.estimate_subscription = None
@@ -100,7 +103,8 @@ class PressureControllerNode(LifecycleNode):
     def _on_set(self, parameters):
         def extra(params):
             changed = {p.name: p.value for p in params}
-            if any(n.startswith(("can.", "sensors.", "control_rate_hz", "rest_rate_hz", "command_frame_period", "valve_lifetime")) for n in changed) and self.link is not None:
+            if any(n.startswith(("can.", "sensors.", "control_rate_hz", "rest_rate_hz", "rest_receive_period",
+                                                "command_frame_period", "valve_lifetime")) for n in changed) and self.link is not None:
                 return "CAN, sensor and rate parameters apply at configure: deactivate and clean up first"
             if any(n in LIVE for n in changed):
                 try:
@@ -140,7 +144,8 @@ class PressureControllerNode(LifecycleNode):
             self.codec = FrameCodec(frame_ids=overrides)
             self.bus = open_bus(self.values["can.interface"], self.values["can.channel"], self.values["can.bitrate"])
             self.link = ControllerLink(self.bus, self.controller, [SensorBinding(n, m) for n, m in zip(names, messages)],
-                                       codec=self.codec, on_sensor=self._publish_sensor,
+                                       codec=self.codec, on_readings=self._publish_readings,
+                                       rest_receive_period_s=self.values["rest_receive_period"],
                                        command_frame_period_s=self.values["command_frame_period"],
                                        valve_lifetime_s=self.values["valve_lifetime"],
                                        control_period_s=1.0 / self.values["control_rate_hz"])
@@ -228,16 +233,20 @@ class PressureControllerNode(LifecycleNode):
             response.success, response.message = True, "venting"
         return response
 
-    def _publish_sensor(self, name: str, gauge_pa: float, sent_at: float):
-        publisher, link = self.sensor_pubs.get(name), self.link
-        if publisher is None or link is None:
+    def _publish_readings(self, readings: list):
+        link = self.link
+        if link is None:
             return
         # stamped when measured, not when processed (they differ when this process is starved)
-        measured_s = self.get_clock().now().nanoseconds * 1e-9 - max(0.0, link.clock() - sent_at)
-        if listened(self, publisher):
-            publish(self, publisher, FluidPressure(header=Header(stamp=stamp_msg(measured_s), frame_id=name),
-                                                   fluid_pressure=gauge_pa + P_ATM_PA, variance=self.noise_variance[name]))
-        notify(self.sensor_listeners, name, gauge_pa, measured_s)
+        ros_now_s, link_now_s = self.get_clock().now().nanoseconds * 1e-9, link.clock()
+        samples = [(name, gauge_pa, ros_now_s - max(0.0, link_now_s - sent_at)) for name, gauge_pa, sent_at in readings]
+        wanted = {}
+        for name, gauge_pa, measured_s in samples:
+            publisher = self.sensor_pubs.get(name)
+            if publisher is not None and wanted.setdefault(name, listened(self, publisher)):
+                publish(self, publisher, FluidPressure(header=Header(stamp=stamp_msg(measured_s), frame_id=name),
+                                                       fluid_pressure=gauge_pa + P_ATM_PA, variance=self.noise_variance[name]))
+        notify(self.sensor_listeners, samples)
 
     def _header(self, frame_id="softgrip_base"):
         return Header(stamp=self.get_clock().now().to_msg(), frame_id=frame_id)
@@ -273,7 +282,8 @@ class PressureControllerNode(LifecycleNode):
                 ("mode", out.mode.name), ("fault_flags", int(faults)), ("frames_rx", link.frames_rx),
                 ("frames_tx", link.frames_tx), ("frames_bad", link.frames_bad),
                 ("rejected", dict(link.codec.rejected)), ("last_sensor_age_s", f"{link.last_sensor_age_s():.4f}"),
-                ("sensor_listener_errors", link.listener_errors), ("status_publish_errors", status_errors))]
+                ("sensor_listener_errors", link.listener_errors), ("status_publish_errors", status_errors),
+                ("receive_errors", link.receive_errors[0]))]
             # a consumer of the readings or the status that raises (in the composed controller: the
             # estimator, kinematics, grasp manager) is caught so that control goes on; it must still be seen
             errors = [e for n, e in ((link.listener_errors, link.last_listener_error),
@@ -281,6 +291,9 @@ class PressureControllerNode(LifecycleNode):
             if errors:
                 status.level = max(status.level, DiagnosticStatus.WARN)
                 status.message = f"{status.message}; consumer error: {errors[-1]}"
+            if link.receive_errors[0]:
+                status.level = max(status.level, DiagnosticStatus.WARN)
+                status.message = f"{status.message}; bus read error: {link.receive_errors[1]}"
         publish(self, self.diagnostics_pub, DiagnosticArray(header=self._header(), status=[status]))
 
 

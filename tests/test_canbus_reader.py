@@ -1,0 +1,156 @@
+"""The batch reception thread, alone and under the controller link, over python-can's virtual bus."""
+import threading
+import time
+import uuid
+
+import can
+import pytest
+
+from softgrip_ros.canbus.codec import FrameCodec
+from softgrip_ros.canbus.controller_link import ControllerLink, SensorBinding
+from softgrip_ros.canbus.reader import BatchReader
+from softgrip_ros.control.pressure import PressureControlConfig, PressureController, Source
+
+from tests.helpers.ros import wait_for
+
+SENSORS = [SensorBinding("chamber_a", "PressureSensor1"), SensorBinding("chamber_b", "PressureSensor2")]
+
+
+@pytest.fixture
+def buses():
+    channel = f"softgrip-reader-{uuid.uuid4().hex[:8]}"
+    sender, receiver = can.Bus(interface="virtual", channel=channel), can.Bus(interface="virtual", channel=channel)
+    yield sender, receiver
+    sender.shutdown()
+    receiver.shutdown()
+
+
+def frame(k: int) -> can.Message:
+    return can.Message(arbitration_id=0x100 + k, data=bytes(8), is_extended_id=False)
+
+
+class Batches:
+    def __init__(self):
+        self.calls, self.lock = [], threading.Lock()
+
+    def __call__(self, frames):
+        with self.lock:
+            self.calls.append([f.arbitration_id - 0x100 for f in frames])
+
+    def ids(self):
+        with self.lock:
+            return [k for call in self.calls for k in call]
+
+
+def test_frames_queued_behind_the_first_come_in_one_call_in_order(buses):
+    sender, receiver = buses
+    for k in range(40):
+        sender.send(frame(k))
+    batches = Batches()
+    reader = BatchReader(receiver, batches, max_batch=16)
+    try:
+        wait_for(lambda: len(batches.ids()) == 40, timeout=2.0, message="all 40 frames")
+    finally:
+        reader.stop()
+    assert batches.ids() == list(range(40))
+    assert [len(call) for call in batches.calls] == [16, 16, 8]
+    assert (reader.batches, reader.frames, reader.errors) == (3, 40, 0)
+
+
+def test_while_resting_frames_wait_for_the_period_and_a_wake_ends_the_wait(buses):
+    sender, receiver = buses
+    batches = Batches()
+    resting = threading.Event()
+    resting.set()
+    reader = BatchReader(receiver, batches, rest_period_s=0.5, resting=resting.is_set)
+    try:
+        sender.send(frame(0))
+        wait_for(lambda: batches.ids() == [0], timeout=2.0, message="the first frame at once")
+        sent = time.monotonic()
+        for k in range(1, 6):                     # arrive during the rest wait
+            sender.send(frame(k))
+            time.sleep(0.01)
+        time.sleep(0.1)
+        assert batches.ids() == [0], "read during the rest wait"
+        resting.clear()
+        reader.wake()
+        wait_for(lambda: len(batches.ids()) == 6, timeout=2.0, message="the waiting frames once woken")
+        assert time.monotonic() - sent < 0.45     # woken, not the end of the 0.5 s period
+        assert batches.calls[1] == [1, 2, 3, 4, 5]
+        sender.send(frame(6))                     # not resting: at once
+        wait_for(lambda: batches.ids()[-1:] == [6], timeout=0.2, message="a frame at once after the rest")
+    finally:
+        reader.stop()
+
+
+class FailingOnce:
+    """A bus whose first read fails, then delivers one frame."""
+
+    def __init__(self):
+        self.reads = 0
+
+    def recv(self, timeout=None):
+        self.reads += 1
+        if self.reads == 1:
+            raise can.CanOperationError("adapter unplugged")
+        if self.reads == 2:
+            return frame(7)
+        time.sleep(min(timeout or 0.0, 0.01))
+        return None
+
+
+def test_a_failing_read_is_counted_and_reading_goes_on():
+    batches = Batches()
+    reader = BatchReader(FailingOnce(), batches, timeout_s=0.01)
+    try:
+        wait_for(lambda: batches.ids() == [7], timeout=2.0, message="the frame after the failure")
+    finally:
+        reader.stop()
+    assert reader.errors == 1 and "adapter unplugged" in reader.last_error
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(ValueError, match="rest_period_s"):
+        BatchReader(None, print, rest_period_s=-0.1)
+    with pytest.raises(ValueError, match="max_batch"):
+        BatchReader(None, print, max_batch=0)
+
+
+def test_the_link_takes_readings_in_batches_while_resting_and_at_once_after_a_command(buses):
+    """A vented controller rests: the readings of 50 ms come in one batch. A command to regulate
+    wakes the reader, and each reading is taken as it comes from then on."""
+    sender, receiver = buses
+    codec = FrameCodec()
+    batches = []
+    link = ControllerLink(receiver, PressureController(PressureControlConfig()), SENSORS,
+                          on_readings=batches.append, rest_receive_period_s=0.05)
+    link.controller.active = True
+
+    def reading(value):
+        sender.send(codec.encode("PressureSensor1", {"GaugePressure": value, "SensorStatus": 0}))
+
+    try:
+        link.command(0.0, Source.VENT, float("nan"))
+        link.step()                               # no control loop here: step by hand
+        assert link.resting
+        reading(0.0)
+        wait_for(lambda: batches, timeout=1.0, message="the first reading")
+        time.sleep(0.08)                          # past the rest wait after it (which the command's wake may end)
+        reading(1.0)
+        wait_for(lambda: len(batches) == 2, timeout=1.0, message="a reading after a quiet spell, at once")
+        for k in range(2, 7):
+            reading(float(k))
+            time.sleep(0.005)
+        wait_for(lambda: len(batches) >= 3, timeout=1.0, message="the resting batch")
+        assert [value for _, value, _ in batches[2]] == [2.0, 3.0, 4.0, 5.0, 6.0]
+        link.command(20e3, Source.SUPPLY, float("nan"))
+        link.step()
+        assert not link.resting
+        count = len(batches)
+        for k in range(7, 10):
+            reading(float(k))
+            wait_for(lambda: len(batches) > count, timeout=0.04, message="a reading taken at once")
+            count = len(batches)
+        assert [len(batch) for batch in batches[-3:]] == [1, 1, 1]
+    finally:
+        link.close()
