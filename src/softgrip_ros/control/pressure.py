@@ -364,13 +364,19 @@ class PressureController:
 
     def _arbitrate(self, error: float, rate: float) -> Valve:
         """SUPPLY (the regulated line) normally; the raw vacuum pump while far above a negative
-        target, handing back ``boost_lead_s`` before the predicted crossing (as the boost does)."""
+        target, handing back ``boost_lead_s`` before the predicted crossing (as the boost does).
+
+        "Far above" is judged where the slewing setpoint will be ``boost_lead_s`` ahead: a clamp
+        at the default 1 MPa/s then opens the pump at once instead of after the 5 kPa band's
+        5 ms of slew, while a slow ramp (10 kPa/s: 50 Pa ahead) is followed as before."""
         c = self.config
         if self._target < 0.0:
-            if error < -c.valve_band_pa:
+            setpoint_ahead = max(self._target, self._setpoint - self._rate * c.boost_lead_s)
+            error_ahead = min(error, error + setpoint_ahead - self._setpoint)
+            if error_ahead < -c.valve_band_pa:
                 self._evacuating = True
             crossing_soon = rate < 0.0 and error / rate <= c.boost_lead_s
-            if error > -0.5 * c.valve_band_pa or crossing_soon:
+            if error_ahead > -0.5 * c.valve_band_pa or crossing_soon:
                 self._evacuating = False
         else:
             self._evacuating = False
