@@ -93,25 +93,28 @@ def test_the_composed_nodes_keep_fast_work_off_the_executor_and_serialise_only_w
     """Each rclpy timer wakes the executor, whose wait set is rebuilt over every entity of every
     node: the composed nodes' periodic work runs on their own timer threads (grasp_state at >= 10 Hz
     from there is checked in the grasp above); the pressure controller keeps a 1 Hz diagnostics
-    timer. A reading or estimate topic nobody subscribes to is not published, while the in-process
-    consumers still take every one; a subscriber gets them at once."""
+    timer. A reading, estimate or status topic nobody subscribes to is not published, while the
+    in-process consumers still take every one; a subscriber gets them at once."""
     from sensor_msgs.msg import FluidPressure
+    from softgrip_interfaces.msg import ControllerStatus
     nodes, user, _, _ = suite
     periods = [t.timer_period_ns * 1e-9 for n in nodes.values() for t in n.timers]
     assert periods and min(periods) >= 0.5, periods
     assert all(nodes[name].periodic.thread is not None for name in ("estimator", "kinematics", "grasp_manager"))
     controller = nodes["pressure_controller"]
-    publisher = controller.sensor_pubs["chamber_a"]
-    published, taken = [], []
-    real_publish = publisher.publish
-    publisher.publish = lambda message: published.append(message) or real_publish(message)
-    controller.sensor_listeners.append(lambda *args: taken.append(args))
-    wait_for(lambda: len(taken) >= 50, message="readings taken in-process")
-    assert not published
-    received = []
-    user.create_subscription(FluidPressure, "pressure/sensor/chamber_a", received.append, 10)
-    wait_for(lambda: received, timeout=5.0, message="pressure/sensor/chamber_a once subscribed")
-    assert published
+    for publisher, listeners, message_type, topic in (
+            (controller.sensor_pubs["chamber_a"], controller.sensor_listeners, FluidPressure, "pressure/sensor/chamber_a"),
+            (controller.status_pub, controller.status_listeners, ControllerStatus, "controller/status")):
+        published, taken = [], []
+        real_publish = publisher.publish
+        publisher.publish = lambda message, real=real_publish, out=published: out.append(message) or real(message)
+        listeners.append(lambda *args, out=taken: out.append(args))
+        wait_for(lambda: len(taken) >= 20, message=f"{topic} taken in-process")
+        assert not published, topic
+        received = []
+        user.create_subscription(message_type, topic, received.append, 10)
+        wait_for(lambda: received, timeout=5.0, message=f"{topic} once subscribed")
+        assert published
 
 
 def test_pinch_a_sheet_by_action_with_feedback_and_result(suite):

@@ -264,7 +264,8 @@ class PressureControllerNode(LifecycleNode):
             valve_states=[int(v) for v in out.valves], frames_rx=link.frames_rx, frames_tx=link.frames_tx,
             frames_bad=link.frames_bad, last_sensor_frame_age_s=link.last_sensor_age_s(),
             fault_flags=int(out.fault_flags), message="; ".join(m for m in (out.message, self.last_note) if m))
-        publish(self, self.status_pub, status)
+        if listened(self, self.status_pub):     # 50 Hz; the composed nodes take it by direct call
+            publish(self, self.status_pub, status)
         notify(self.status_listeners, status)
 
     def _publish_diagnostics(self):
