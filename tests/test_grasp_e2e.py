@@ -195,6 +195,7 @@ def test_rejected_commands_say_why_over_the_topic_and_move_nothing(suite, comman
     from softgrip_interfaces.msg import GripperState as S
     nodes, user, publisher, states = suite
     before = nodes["sim_device"].device.valves()
+    command = dict(command)                      # not the parameter's own dict: a repeated run reuses it
     publisher.publish(grasp(command.pop("mode"), command_id="bad", **command))
     state = wait_for(lambda: next((s for s in reversed(states) if s.command_rejected and s.command_id == "bad"), None),
                      message="a rejection")
