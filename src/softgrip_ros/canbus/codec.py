@@ -67,7 +67,7 @@ class DecodedFrame:
 
 
 class FrameCodec:
-    """Encode and validate the softgrip CAN frames. Thread-safe: a Notifier thread may decode
+    """Encode and validate the softgrip CAN frames. Thread-safe: a reception thread may decode
     while the control loop encodes.
 
     dbc_path: the DBC (default: the packaged config/softgrip.dbc).
