@@ -13,11 +13,13 @@ from here, as an arm would:
   The pose's stamp is its fused sample's, which the pressure controller takes from the frame's
   own timestamp; its frame is the newest sensor frame sent by then (plus STAMP_MATCH_S for the
   microseconds that converting between clocks can put the stamp before the frame).
-* ``controller_cpu_pct_idle`` / ``_grasp``: the controller process's user + system CPU time
-  over wall time (100 = one core), in windows while IDLE and while grasping at the default
+* ``controller_cpu_pct_idle`` / ``_grasp``: the user + system CPU time of the controller process
+  and its child (the L2 rod solver) over wall time (100 = one core), in windows while IDLE and while grasping at the default
   500 Hz control rate; median over the windows. The device simulation runs in its own
   process and is not counted.
-* ``controller_rss_mb``: resident memory at the end (VmRSS), and its peak (VmHWM).
+* ``controller_rss_mb``: resident memory at the end (VmRSS), and its peak (VmHWM); the L2
+  solver child's VmRSS separately (``controller_children_rss_mb``: summing shared pages twice
+  would overstate the total).
 * ``controller_cpu_pct_device_paused``: idle CPU again with the device process stopped
   (SIGSTOP), so that no frame arrives: what the frames' reception, estimation and kinematics
   cost is the difference from ``_idle``.
@@ -106,10 +108,34 @@ class BusWatch:
         self.bus.shutdown()
 
 
+def process_tree(pid: int) -> list:
+    """``pid`` and its descendants (the controller's L2 rod-solver child), from /proc."""
+    pids = [pid]
+    try:
+        tasks = os.listdir(f"/proc/{pid}/task")
+    except FileNotFoundError:
+        return []
+    for tid in tasks:
+        try:
+            with open(f"/proc/{pid}/task/{tid}/children") as children:
+                for child in children.read().split():
+                    pids += process_tree(int(child))
+        except FileNotFoundError:
+            continue
+    return pids
+
+
 def cpu_seconds(pid: int) -> float:
-    with open(f"/proc/{pid}/stat") as stat:
-        fields = stat.read().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS     # utime, stime
+    """User + system CPU seconds of ``pid`` and its live descendants."""
+    total = 0.0
+    for member in process_tree(pid):
+        try:
+            with open(f"/proc/{member}/stat") as stat:
+                fields = stat.read().rsplit(")", 1)[1].split()
+        except FileNotFoundError:
+            continue
+        total += (int(fields[11]) + int(fields[12])) / CLOCK_TICKS     # utime, stime
+    return total
 
 
 def memory_mb(pid: int) -> dict:
@@ -201,6 +227,7 @@ def measure(idle_s: float, grasp_s: float, window_s: float) -> tuple[dict, dict]
             grasp = cpu_windows(controller.pid, grasp_s, window_s, during=one_grasp)
             grasp_pose_latencies = list(pose_latencies)    # not the predictions while the device is paused
             memory = memory_mb(controller.pid)
+            children_rss = sum(memory_mb(p).get("VmRSS", 0.0) for p in process_tree(controller.pid)[1:])
             progress(f"device paused: CPU over {idle_s:.0f} s without bus traffic")
             device.send_signal(signal.SIGSTOP)
             try:
@@ -228,6 +255,7 @@ def measure(idle_s: float, grasp_s: float, window_s: float) -> tuple[dict, dict]
         "controller_cpu_pct_device_paused": statistics.median(paused),
         "controller_rss_mb": memory.get("VmRSS", float("nan")),
         "controller_peak_rss_mb": memory.get("VmHWM", float("nan")),
+        "controller_children_rss_mb": children_rss,
     }
     details = {
         "cmd_to_valve_frame_ms": {k: {"n": len(v), "median": statistics.median(v) if v else None,
