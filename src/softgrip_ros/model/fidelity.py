@@ -15,9 +15,11 @@ and the median cost of one pose. ``auto`` picks the cheapest model whose bound m
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import multiprocessing
+import os
 import pathlib
 import threading
 import typing
@@ -95,6 +97,22 @@ class ErrorBounds:
 
 
 ROD_CONTINUATION_STEPS = 4
+# The solver's matrices are small: OpenBLAS's worker threads gain nothing on them and spin between
+# calls, which in the controller's child took 40 % of a core during grasps (solves 26 -> 8.5 ms of
+# CPU each with one thread; bench_e2e). A setting of the user's own is kept.
+SOLVER_PROCESS_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+
+
+@contextlib.contextmanager
+def _environment_defaults(values: dict):
+    """os.environ with ``values`` where unset, for a child started inside; restored after."""
+    added = [name for name in values if name not in os.environ]
+    os.environ.update({name: values[name] for name in added})
+    try:
+        yield
+    finally:
+        for name in added:
+            os.environ.pop(name, None)
 
 
 class RodSolverProcess:
@@ -107,7 +125,8 @@ class RodSolverProcess:
     def __init__(self, cavity_type: str = "type_II"):
         self._executor = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
                                              initializer=_start_rod_worker, initargs=(cavity_type,))
-        self._executor.submit(int)          # start the child now (about a second), not at the first solve
+        with _environment_defaults(SOLVER_PROCESS_ENVIRONMENT):   # the child copies it as it starts
+            self._executor.submit(int)      # start the child now (about a second), not at the first solve
 
     def __call__(self, pressure_pa: float, obstacle, from_pressure_pa: float):
         return self._executor.submit(_solve_in_rod_worker, pressure_pa, obstacle, from_pressure_pa).result()
