@@ -3,7 +3,7 @@
 
 - loop period: the pressure_controller and sim_device nodes in one process (virtual bus,
   a MultiThreadedExecutor), during a step; at 500 Hz and at 1 kHz;
-- codec: encode + decode of sensor frames with counter and CRC;
+- codec: encode + decode of sensor frames with counter and CRC, a different pressure in each;
 - step 0 -> 25 kPa through CAN on the simulated device: 10-90 % rise time over the
   time-optimal rise of the same plant (valve fully open to the regulator at its maximum),
   overshoot and steady-state error, medians over repeats;
@@ -132,11 +132,15 @@ def node_loop_periods(rate_hz: float, seconds: float) -> np.ndarray:
 
 
 def codec_frames_per_s(repeat: int) -> float:
+    """A different pressure in each frame, as a sensor sends: FrameCodec's cache of encoded
+    frames (for the controller's re-sent commands) never applies."""
     tx, rx = FrameCodec(), FrameCodec(max_counter_delta=15)
-    values = {"GaugePressure": -12_345.6, "SensorStatus": 0}
+    pressures = [-12_345.6 + 10.0 * k for k in range(997)]
+    state = {"k": 0}
 
     def round_trip():
-        rx.decode(tx.encode("PressureSensor1", values))
+        state["k"] = (state["k"] + 1) % len(pressures)
+        rx.decode(tx.encode("PressureSensor1", {"GaugePressure": pressures[state["k"]], "SensorStatus": 0}))
     return 1.0 / median_seconds(round_trip, 2000, repeat)
 
 
