@@ -310,7 +310,7 @@ def main(argv=None) -> int:
              "the control loop at its 100 Hz rest rate (`rest_rate_hz`) with controller/status at 50 Hz, the "
              "composed nodes' timer threads, and the estimator's predictions at 50 Hz while no sample comes. The "
              "rest of the idle figure is the device's ~700 sensor frames a second: reception and decoding (in "
-             "batches), the estimator taking each sample (fused together about every 5 ms while the chamber rests, "
+             "batches), the estimator taking each sample (fused together about every 10 ms while the chamber rests, "
              "`fusion_window`), and the estimate at its 20 Hz rest rate (`rest_frequency`) through kinematics, "
              "the grasp state machine and the pose to this process; all in one Python process whose threads "
              "share the GIL. On this VM a thread wake costs 45-80 us of CPU before any work, and Python code "

@@ -148,7 +148,7 @@ def test_silent_sensors_give_predictions_with_growing_variance_and_a_warning(wir
     ("process_noise_covariance:=[1.0,2.0,3.0]", "process noise needs 2 values"),
     ("sensors.noise_std_pa:=[300.0]", "one entry per sensor"),
     ("rest_frequency:=500.0", "rest_frequency (500 Hz) must not exceed frequency (200 Hz)"),
-    ("fusion_window:=0.01", "fusion_window"),
+    ("fusion_window:=0.05", "fusion_window"),
 ])
 def test_bad_startup_parameter_exits_1_with_its_reason(argument, message):
     run = subprocess.run([installed_executable("estimator"), "--ros-args", "-p", argument], capture_output=True, text=True, timeout=60)

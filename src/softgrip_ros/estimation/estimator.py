@@ -122,9 +122,9 @@ class EstimatorConfig:
                          "max_fusion_shift_pa")
         if not 0.0 <= self.input_timing_std_s <= 0.1:
             raise ValueError(f"input_timing_std_s must lie in [0, 0.1] s, got {self.input_timing_std_s}")
-        if not 0.0 <= self.fusion_window_s <= min(self.max_lag_s, self.max_step_s):
-            raise ValueError(f"fusion_window_s must lie in [0, min(max_lag_s, max_step_s) = "
-                             f"{min(self.max_lag_s, self.max_step_s):g}] s, got {self.fusion_window_s}")
+        if not 0.0 <= self.fusion_window_s <= self.max_lag_s:     # a waiting sample is no older than a taken one
+            raise ValueError(f"fusion_window_s must lie in [0, max_lag_s = {self.max_lag_s:g}] s, "
+                             f"got {self.fusion_window_s}")
         if self.nis_window < 10:
             raise ValueError(f"nis_window must be at least 10 samples, got {self.nis_window}")
         if not 0.5 < self.nis_confidence < 1.0:
