@@ -314,7 +314,7 @@ def main(argv=None) -> int:
              "controller rests it waits `rest_receive_period` (10 ms) between batches: one thread wake instead "
              "of ~7, and the estimator publishes at most one estimate per batch, at its newest sample (a first "
              "trial that published on a batch's older samples raised the pose p99 9.5 -> 11.1 ms)."
-             " Where the latency tails come from (traced once with temporary timestamps, 2026-11-22): mostly sensor frames waiting 5-17 ms before the reception thread reads them, while another thread is in a DDS publish that blocks for 1.5-6 ms (the tip pose's, 73 of ~3,000 in one run, ~0.4 ms of CPU each): rclpy's `rcl_publish` keeps the GIL, so every thread of the process waits with it. "
+             " Where the latency tails come from (traced with temporary timestamps, 2026-11-22): before batched reception, mostly sensor frames waiting 5-17 ms before the reception thread read them, while another thread was in a DDS publish that blocked for 1.5-6 ms (rclpy's `rcl_publish` keeps the GIL, so every thread of the process waits with it); since, the pose's tail comes mostly from the resting controller's 10 ms batches: the batch's read starting a few ms late while another thread holds the GIL, and 8-14 readings going through the estimator before the estimate. "
              f"Sensor frame to `tip_pose/left`: {details['sensor_to_tip_pose_samples']} poses, through the frame's "
              "reception, the estimator, kinematics and one DDS hop to this process. "
              f"CPU windows of {args.window_s:g} s: idle {', '.join(f'{v:.0f}' for v in details['cpu_windows_pct']['idle'])} %; "
