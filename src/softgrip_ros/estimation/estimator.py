@@ -9,7 +9,8 @@ a filter alone does not do:
   an older one is dropped and counted.
 - **Fusion window.** With ``fusion_window_s`` > 0, while the chamber rests (its modelled change
   over the window within ``max_fusion_shift_pa``) samples wait and are fused together, each
-  moved to the fusion instant by the model (:meth:`PressureEstimator.fuse_pending`); a fill or
+  moved to the fusion instant along the model's prediction across the window
+  (:meth:`PressureEstimator.fuse_pending`); repeated inputs change nothing; a fill or
   an evacuation, or a sample 3 sigma off the estimate, is fused sample by sample and ends the
   rest (``resting``). Asking for the estimate, new inputs or a prediction fuses what waits first.
 - **Gating.** Each sensor's sample is tested by its Mahalanobis distance, d^2 = y^2 / S, against
@@ -205,7 +206,7 @@ class PressureEstimator:
         self.fuse_pending()                   # under the inputs they were taken with
         if self.initialised and stamp_s > self.time_s:
             self._predict_to(stamp_s)
-        if self.initialised and inputs != self.inputs and self.config.input_timing_std_s > 0.0:
+        if self.initialised and self.config.input_timing_std_s > 0.0:
             self._widen_for_input_timing(inputs)
         self.inputs = inputs
 
