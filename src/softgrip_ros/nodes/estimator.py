@@ -117,13 +117,17 @@ class EstimatorNode(Node):
     def on_sensor_samples(self, samples: list) -> None:
         """Readings [(sensor name, gauge Pa, stamp s)], oldest first (a batch of the bus's, or one
         from a topic); then at most one estimate, when one is due: the newest, not one of a
-        batch's older samples. A sensor this estimator does not fuse raises ValueError, after
-        the others are taken."""
-        unknown = [name for name, _, _ in samples if name not in self.estimator.sensors]
+        batch's older samples. A sensor this estimator does not fuse raises the estimator's
+        ValueError, after the others are taken."""
+        refused = None
         with self._lock:
             newest = None
             for name, gauge_pa, stamp_s in samples:
-                if not self.closed and name not in unknown and self.estimator.add_measurement(name, gauge_pa, stamp_s):
+                try:
+                    taken = not self.closed and self.estimator.add_measurement(name, gauge_pa, stamp_s)
+                except ValueError as error:      # an unknown sensor: the rest of the batch still counts
+                    refused, taken = refused or error, False
+                if taken:
                     newest = stamp_s if newest is None else max(newest, stamp_s)
             if newest is not None:
                 self.last_sample_s = max(self.last_sample_s, newest)
@@ -131,8 +135,8 @@ class EstimatorNode(Node):
                 self.rest_period_s if self.estimator.resting else self.period_s)
             estimate = self._take_estimate() if due else None
         self._publish(estimate)
-        if unknown:
-            raise ValueError(f"unknown sensors {sorted(set(unknown))}; configured: {sorted(self.estimator.sensors)}")
+        if refused is not None:
+            raise refused
 
     def on_status(self, msg: ControllerStatus) -> None:
         """The process model's inputs: the regulator command and the valve state."""
