@@ -176,13 +176,18 @@ def test_plant_step_jacobian_matches_finite_differences():
             np.testing.assert_allclose(J[:, j], numeric / 1.0, rtol=1e-5, atol=1e-7)
 
 
+def counting_fusions(estimator) -> list:
+    """The sizes of ``estimator``'s filter updates from now on, one entry per update."""
+    fusions, fuse = [], estimator._fuse
+    estimator._fuse = lambda samples, stamp_s: fusions.append(len(samples)) or fuse(samples, stamp_s)
+    return fusions
+
+
 def published(trajectory, config, period_s=0.005):
     """The estimates a node would publish (after a sample, at most one per period) as (t, error)
     arrays, and the number of filter updates."""
     estimator = PressureEstimator(config)
-    fusions = []
-    fuse = estimator._fuse
-    estimator._fuse = lambda samples, stamp_s: fusions.append(len(samples)) or fuse(samples, stamp_s)
+    fusions = counting_fusions(estimator)
     feed, last, rows = sim.InputFeed(trajectory.input_changes), -math.inf, []
     for t, name, value in trajectory.samples:
         feed.until(estimator, t)
@@ -215,9 +220,7 @@ def paired_errors(trajectory, config, period_s=0.005, rest_period_s=0.05):
     period, per rest period while it rests) both are read at that instant: (t, error of the
     first, error of the second), and the first's number of filter updates."""
     windowed, each = PressureEstimator(config), PressureEstimator(dataclasses.replace(config, fusion_window_s=0.0))
-    fusions = []
-    fuse = windowed._fuse
-    windowed._fuse = lambda samples, stamp_s: fusions.append(len(samples)) or fuse(samples, stamp_s)
+    fusions = counting_fusions(windowed)
     feeds = [sim.InputFeed(trajectory.input_changes) for _ in range(2)]
     last, rows = -math.inf, []
     for t, name, value in trajectory.samples:
