@@ -5,7 +5,7 @@ regulator frames are decoded (invalid ones are counted and dropped by the codec)
 control core, a batch at a time. While the controller rests (venting, holding, inactive or
 faulted: the valves stay as they are) the frames are taken every ``rest_receive_period_s``
 instead of at once, which saves a thread wake per frame; a reading beyond the limits is then
-acted on within that period. A command ends the wait. The
+acted on within that period. A step that starts regulating (a command's) ends the wait. The
 owner calls :meth:`ControllerLink.step` once per control period; it runs the core and
 sends RegulatorSetpoint and ValveCommand in that period when their content changed, and else
 every ``command_frame_period_s`` (they are cyclic frames: the device's watchdog expects them),
@@ -147,7 +147,6 @@ class ControllerLink:
             active = self.controller.active
             if on_applied is not None:
                 on_applied(note)
-        self._reader.wake()                  # the readings matter at once from here on
         if self.wake is not None:            # a control loop runs this link
             if active:
                 # Step here, in the caller's thread: handing the step to the woken loop thread
@@ -168,7 +167,10 @@ class ControllerLink:
             now = self.clock()
             with self._lock:
                 output = self.controller.step(now)
-            self.resting = output.mode != Mode.REGULATE
+            resting = output.mode != Mode.REGULATE
+            if self.resting and not resting:
+                self._reader.wake()          # regulating: the readings matter at once from here on
+            self.resting = resting
             if now - self.last_frame_time > self.bus_silent_timeout_s:
                 output = dataclasses.replace(output, fault_flags=output.fault_flags | Fault.BUS_SILENT)
             self._send_output(output, now)
