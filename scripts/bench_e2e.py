@@ -313,7 +313,7 @@ def main(argv=None) -> int:
              "interval (no change). Reception takes every frame queued at a wake in one batch, and while the "
              "controller rests it waits `rest_receive_period` (10 ms) between batches: one thread wake instead "
              "of ~7, and the estimator publishes at most one estimate per batch, at its newest sample (a first "
-             "trial that published on a batch's older samples raised the pose p99 9.5 -> 11.1 ms)."
+             "trial, which published on each sample of a batch, raised the pose p99 9.5 -> 11.1 ms)."
              " Where the latency tails come from (traced with temporary timestamps, 2026-11-22): before batched reception, mostly sensor frames waiting 5-17 ms before the reception thread read them, while another thread was in a DDS publish that blocked for 1.5-6 ms (rclpy's `rcl_publish` keeps the GIL, so every thread of the process waits with it); since, the pose's tail comes mostly from the resting controller's 10 ms batches: the batch's read starting a few ms late while another thread holds the GIL, and 8-14 readings going through the estimator before the estimate. "
              f"Sensor frame to `tip_pose/left`: {details['sensor_to_tip_pose_samples']} poses, through the frame's "
              "reception, the estimator, kinematics and one DDS hop to this process. "
