@@ -2,6 +2,7 @@
 import math
 import signal
 import subprocess
+import sys
 import time
 
 import can
@@ -241,6 +242,46 @@ def test_sigterm_vents_and_exits_cleanly(tmp_path):
             log.close()
     assert device.returncode == 0
 
+
+RUN_NODE_SCRIPT = """
+import os, signal, sys, threading, time
+import rclpy
+from rclpy.node import Node
+from softgrip_ros.nodes.common import run_node
+
+class Quiet(Node):   # no timers, no subscriptions: nothing but a shutdown can wake its executor
+    def __init__(self):
+        super().__init__("quiet_" + str(os.getpid()))
+        print("spinning", flush=True)
+    def close(self):
+        print("closed", flush=True)
+
+def shut_down_without_a_wake():
+    time.sleep(1.0)
+    # what rclpy's signal thread does after its one wake was already spent
+    rclpy.get_default_context().handle.shutdown()
+
+def killed_while_starting():
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(0.5)
+    return Quiet()
+
+if sys.argv[1] == "missed-wake":
+    threading.Thread(target=shut_down_without_a_wake, daemon=True).start()
+    raise SystemExit(run_node(Quiet))
+raise SystemExit(run_node(killed_while_starting))
+"""
+
+
+@pytest.mark.parametrize("case, output", [("missed-wake", "closed"), ("during-start-up", "stopped during start-up")])
+def test_run_node_ends_on_a_shutdown_that_missed_its_wake_or_came_during_start_up(case, output):
+    """rclpy's signal thread wakes the executor before it shuts the context down; an executor that
+    waits again in between must still end (within run_node's SHUTDOWN_POLL_S), not wait forever.
+    A signal while the node is built ends the process with 0 and a line saying so."""
+    run = subprocess.run([sys.executable, "-c", RUN_NODE_SCRIPT, case], capture_output=True, text=True, timeout=30)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert output in run.stdout + run.stderr
+    assert "Traceback" not in run.stderr
 
 @pytest.mark.parametrize("argument, message", [
     ("command_timeout_action:=explode", "must be one of ['hold', 'vent']"),

@@ -17,6 +17,7 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, Si
 from softgrip_ros.realtime import TimerThread
 
 P_ATM_PA = 101_325.0
+SHUTDOWN_POLL_S = 0.5   # longest wait for a SIGINT/SIGTERM whose wake the executor missed (see run_node)
 
 
 def stamp_seconds(stamp) -> float:
@@ -105,9 +106,13 @@ def run_node(node_factory, args=None, executor_factory=None) -> int:
     ``node_factory()`` returns a node or a list of nodes (a factory that fails part-way closes
     what it made before raising); ``executor_factory`` (default: a
     SingleThreadedExecutor) spins them. rclpy (Jazzy) handles SIGTERM as it does Ctrl-C, waking
-    the executor, so close runs and no traceback is printed. (A Python-level handler would not
-    run while spin waits in C on a node without timers.) A node that fails to start prints its
-    reason and returns 1.
+    the executor, so close runs and no traceback is printed. A node that fails to start prints
+    its reason and returns 1; a signal during start-up ends it with 0.
+
+    rclpy's signal thread wakes the executor *before* it shuts the context down. An executor that
+    wakes, still finds the context valid and waits again is not woken a second time; with no
+    timer it would wait forever (seen under load, 1 SIGTERM in a few dozen). So the first node
+    carries a do-nothing timer every ``SHUTDOWN_POLL_S``: such a missed shutdown ends within it.
     """
     rclpy.init(args=args)   # rclpy's own handlers turn SIGINT and SIGTERM into a shutdown that wakes spin
     faulthandler.register(signal.SIGUSR1, all_threads=True)   # kill -USR1 <pid>: where is every thread?
@@ -117,9 +122,19 @@ def run_node(node_factory, args=None, executor_factory=None) -> int:
         print(f"{sys.argv[0]}: {error}", file=sys.stderr)
         rclpy.try_shutdown()
         return 1
+    except (KeyboardInterrupt, Exception) as error:
+        # SIGINT/SIGTERM during start-up: Ctrl-C raises here, and rclpy shuts the context down
+        # under the node being built, which fails on its next use of it
+        if not isinstance(error, KeyboardInterrupt) and rclpy.ok():
+            raise
+        print(f"{sys.argv[0]}: stopped during start-up", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 0
     nodes = made if isinstance(made, list) else [made]
-    executor = executor_factory() if executor_factory is not None else SingleThreadedExecutor()
+    executor = None
     try:
+        nodes[0].create_timer(SHUTDOWN_POLL_S, lambda: None)
+        executor = executor_factory() if executor_factory is not None else SingleThreadedExecutor()
         for node in nodes:
             executor.add_node(node)
         executor.spin()
@@ -133,11 +148,12 @@ def run_node(node_factory, args=None, executor_factory=None) -> int:
     finally:
         # the executor first: a callback still running in its pool while its node is destroyed
         # fails ("destruction was requested") in a task whose exception nobody retrieves
-        executor.shutdown(timeout_sec=1.0)
-        pool = getattr(executor, "_executor", None)   # Jazzy's shutdown() leaves its thread pool running
-        if pool is not None:
-            pool.shutdown(wait=True)
-        _read_errors_of_unfinished_callbacks(executor)
+        if executor is not None:
+            executor.shutdown(timeout_sec=1.0)
+            pool = getattr(executor, "_executor", None)   # Jazzy's shutdown() leaves its thread pool running
+            if pool is not None:
+                pool.shutdown(wait=True)
+            _read_errors_of_unfinished_callbacks(executor)
         close_all(nodes)
         rclpy.try_shutdown()
     return 0
