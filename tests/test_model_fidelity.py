@@ -83,18 +83,28 @@ def test_with_a_clock_l2_solves_at_most_once_per_interval_except_for_a_new_scene
         SceneModel("auto", 1e-3, min_solve_interval_s=-1.0)
 
 
+@pytest.mark.parametrize("increment", [-1, 20])
+def test_a_nice_increment_outside_0_to_19_is_refused(increment):
+    with pytest.raises(ValueError, match=r"nice_increment must lie in \[0, 19\]"):
+        RodSolverProcess("type_II", nice_increment=increment)
+
+
 def test_l2_in_a_process_of_its_own_gives_the_same_solution():
-    """... and that child runs BLAS on one thread (idle OpenBLAS workers spin), while this
-    process's environment is left as it was."""
+    """... and that child runs BLAS on one thread (idle OpenBLAS workers spin) at a nice value
+    raised by its increment (capped at 19), while this process's environment and nice value are
+    left as they were."""
     import os
     before = {name: os.environ.get(name) for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
-    solver = RodSolverProcess("type_II")
+    nice_here = os.nice(0)
+    solver = RodSolverProcess("type_II", nice_increment=7)
     try:
         apart = SceneModel("auto", 1e-3, rod_solver=solver).evaluate(-10e3, CLAMP_40MM)
         in_child = solver._executor.submit(os.getenv, "OPENBLAS_NUM_THREADS").result()
+        nice_in_child = solver._executor.submit(os.nice, 0).result()
     finally:
         solver.close()
     assert in_child == (before["OPENBLAS_NUM_THREADS"] or "1")
+    assert nice_in_child == min(nice_here + 7, 19) and os.nice(0) == nice_here
     assert {name: os.environ.get(name) for name in before} == before
     here = SceneModel("auto", 1e-3).evaluate(-10e3, CLAMP_40MM)
     assert apart.model == here.model == "l2"

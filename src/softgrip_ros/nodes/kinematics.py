@@ -30,7 +30,8 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from softgrip_interfaces.msg import GraspScene
-from softgrip_ros.model.fidelity import CHOICES, FREE, LatestSolveThread, RodSolverProcess, Scene, SceneModel
+from softgrip_ros.model.fidelity import (CHOICES, FREE, SOLVER_PROCESS_NICE_INCREMENT, LatestSolveThread, RodSolverProcess,
+                                         Scene, SceneModel)
 from softgrip_ros.model.rod import Circle, Sheet
 from softgrip_ros.nodes.common import P_ATM_PA, NodeTimers, listened, publish, run_node, stamp_msg, stamp_seconds
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
@@ -46,6 +47,8 @@ SPECS = [
               0.0, 5000.0),
     ParamSpec("min_solve_interval", 0.1, "... and at most once per this (its CPU would starve the pressure loop)", "s",
               0.0, 10.0),
+    ParamSpec("l2_nice_increment", SOLVER_PROCESS_NICE_INCREMENT, "added to the nice value of the L2 solver's child process, "
+              "so that its solves yield the CPU to the pressure loop, the CAN reception and the estimator", "", 0, 19),
     ParamSpec("cavity_type", "type_II", "finger type of config/gripper_geometry.yaml", choices=("type_I", "type_II", "type_III")),
     ParamSpec("frame_id", "softgrip_base", "frame of the tip poses and markers"),
 ]
@@ -64,7 +67,8 @@ class KinematicsNode(Node):
         self.add_on_set_parameters_callback(
             lambda params: check_all(specs, params, lambda _: "kinematics parameters apply at start-up: restart the node"))
         # L2 runs in a process of its own: in this one it would starve the controller's threads of the GIL
-        self.rod_solver = RodSolverProcess(self.values["cavity_type"]) if self.values["fidelity"] in ("l2", "auto") else None
+        self.rod_solver = (RodSolverProcess(self.values["cavity_type"], self.values["l2_nice_increment"])
+                           if self.values["fidelity"] in ("l2", "auto") else None)
         self.model = SceneModel(self.values["fidelity"], self.values["tolerance_m"], self.values["cavity_type"],
                                 resolve_pressure_pa=self.values["resolve_pressure_pa"],
                                 min_solve_interval_s=self.values["min_solve_interval"], rod_solver=self.rod_solver)
