@@ -103,7 +103,8 @@ ROD_CONTINUATION_STEPS = 4
 SOLVER_PROCESS_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
 # A solve holds a core for ~8.5 ms; at the default nice value the scheduler shares that core
 # evenly with the pressure loop, the CAN reception and the estimator, which wait behind it. Raised
-# by 10, the child yields to them (bench_e2e, 3 runs each: sensor-to-pose p99 4.7 -> 4.0 ms).
+# by 10, the child yields to them (bench_e2e: the sensor-to-pose p99 lower in each of 4 comparisons,
+# by 0.05-0.7 ms; see docs/benchmarks.md).
 SOLVER_PROCESS_NICE_INCREMENT = 10
 
 
