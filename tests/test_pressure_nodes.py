@@ -155,6 +155,31 @@ def test_a_failing_in_process_consumer_is_reported_and_control_goes_on(nodes):
     assert after                                    # a listener after the broken one still gets every reading
 
 
+def test_bus_read_errors_are_reported_and_reception_goes_on(nodes, monkeypatch):
+    """A bus whose reads fail (a CAN adapter gone bus-off) gives a diagnostic naming the error, at
+    least a WARN (an ERROR once the silent sensors time out), and reception takes frames again once
+    reads succeed."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+    controller, _, client = nodes
+    diagnostics = []
+    client.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, 10)
+    failing, read = [True], controller.bus.recv
+
+    def recv(timeout=None):
+        if failing[0]:
+            raise can.CanOperationError("bus off")
+        return read(timeout)
+
+    monkeypatch.setattr(controller.bus, "recv", recv)
+    wait_for(lambda: any(s.level >= DiagnosticStatus.WARN and "bus read error: CanOperationError: bus off" in s.message
+                         for d in diagnostics for s in d.status if s.name.endswith("pressure controller")),
+             timeout=5.0, message="a diagnostic naming the read error")
+    failing[0] = False
+    received = controller.link.frames_rx
+    wait_for(lambda: controller.link.frames_rx > received + 10, message="frames received again")
+    assert controller.link.receive_errors[0] > 0
+
 def test_bad_parameters_are_refused_with_a_reason(nodes):
     from rclpy.parameter import Parameter
 

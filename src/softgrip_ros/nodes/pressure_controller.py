@@ -279,12 +279,13 @@ class PressureControllerNode(LifecycleNode):
             status.message = out.message or ("ok" if not faults else f"faults: {faults!r}")
             loop = self.loop
             status_errors = loop.errors if loop is not None else 0
+            receive_errors, last_receive_error = link.receive_errors   # one read: the count and its text agree
             status.values = [KeyValue(key=k, value=str(v)) for k, v in (
                 ("mode", out.mode.name), ("fault_flags", int(faults)), ("frames_rx", link.frames_rx),
                 ("frames_tx", link.frames_tx), ("frames_bad", link.frames_bad),
                 ("rejected", dict(link.codec.rejected)), ("last_sensor_age_s", f"{link.last_sensor_age_s():.4f}"),
                 ("sensor_listener_errors", link.listener_errors), ("status_publish_errors", status_errors),
-                ("receive_errors", link.receive_errors[0]))]
+                ("receive_errors", receive_errors))]
             # a consumer of the readings or the status that raises (in the composed controller: the
             # estimator, kinematics, grasp manager) is caught so that control goes on; it must still be seen
             errors = [e for n, e in ((link.listener_errors, link.last_listener_error),
@@ -292,9 +293,9 @@ class PressureControllerNode(LifecycleNode):
             if errors:
                 status.level = max(status.level, DiagnosticStatus.WARN)
                 status.message = f"{status.message}; consumer error: {errors[-1]}"
-            if link.receive_errors[0]:
+            if receive_errors:
                 status.level = max(status.level, DiagnosticStatus.WARN)
-                status.message = f"{status.message}; bus read error: {link.receive_errors[1]}"
+                status.message = f"{status.message}; bus read error: {last_receive_error}"
         publish(self, self.diagnostics_pub, DiagnosticArray(header=self._header(), status=[status]))
 
 
