@@ -1,12 +1,20 @@
 """``softgrip_ipc``: a python-can interface that joins processes on this machine into one CAN bus.
 
-Like a kernel vcan, which the build machines lack, but in user space: every bus on a
-channel binds a Unix datagram socket in ``$TMPDIR/softgrip-can-<uid>/<channel>/`` and
-sends each frame to every other socket there. Nothing touches the network. It exists
-so that tests (and users without SocketCAN) can run the controller, the simulated device
-and a bus monitor as separate processes::
+Like a kernel vcan, which the build machines lack, but in user space: every bus on a channel
+binds a UDP socket on 127.0.0.1 (loopback only: nothing leaves the machine), announces it by a
+file ``<pid>-<port>.port`` in ``$TMPDIR/softgrip-can-<uid>/<channel>/``, and sends each frame to
+every other bus announced there. It exists so that tests (and users without SocketCAN) can run
+the controller, the simulated device and a bus monitor as separate processes::
 
     can.Bus(interface="softgrip_ipc", channel="softgrip")
+
+Why UDP and not Unix datagram sockets, which it used before: Linux queues at most
+``net.unix.max_dgram_qlen`` datagrams (10 by default) on a Unix socket, so a receiver that reads
+its frames in batches (the pressure controller at rest takes ~8 every 10 ms) lost frames,
+silently, whenever it ran a few milliseconds late. A UDP socket's queue is bounded by bytes
+(``SO_RCVBUF``): a few hundred frames at the kernel's default limit, as a SocketCAN socket holds.
+A frame that finds a receiver's queue full is dropped and counted (``frames_dropped``), as a real
+receiver's overflowing queue would drop it.
 """
 from __future__ import annotations
 
@@ -23,6 +31,8 @@ import can
 
 FRAME = struct.Struct("<dIB??8s")   # timestamp, arbitration id, dlc, extended, remote, data
 PEER_REFRESH_S = 0.05
+LOOPBACK = "127.0.0.1"
+RECEIVE_BUFFER_BYTES = 4 * 1024 * 1024   # asked for; the kernel caps it at net.core.rmem_max
 
 
 def channel_directory(channel: str) -> pathlib.Path:
@@ -31,20 +41,32 @@ def channel_directory(channel: str) -> pathlib.Path:
     return pathlib.Path(tempfile.gettempdir()) / f"softgrip-can-{os.getuid()}" / channel
 
 
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:       # alive, another user's
+        return True
+    return True
+
+
 class LocalSocketBus(can.BusABC):
     """A bus on ``channel`` shared by every process of this user on this machine."""
 
     def __init__(self, channel: str = "softgrip", receive_own_messages: bool = False, **kwargs):
         self._directory = channel_directory(str(channel))
         self._directory.mkdir(parents=True, exist_ok=True)
-        self._path = self._directory / f"{os.getpid()}-{id(self):x}.sock"
-        self._socket = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        self._socket.bind(str(self._path))
-        self._socket.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 * 1024 * 1024)
+        self._socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._socket.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
+        self._socket.bind((LOOPBACK, 0))
+        self._path = self._directory / f"{os.getpid()}-{self._socket.getsockname()[1]}.port"
+        self._path.touch()
         self._receive_own = receive_own_messages
         self._own: list = []
         self._peers: list = []
         self._peers_read = -1.0
+        self.frames_dropped = 0
         self._send_lock = threading.Lock()
         self.channel_info = f"softgrip_ipc {channel}"
         super().__init__(channel=channel, **kwargs)
@@ -54,11 +76,22 @@ class LocalSocketBus(can.BusABC):
         if now - self._peers_read < PEER_REFRESH_S:
             return
         self._peers_read = now
+        peers = []
         try:
-            self._peers = [entry.path for entry in os.scandir(self._directory)
-                           if entry.name.endswith(".sock") and entry.path != str(self._path)]
+            entries = [entry for entry in os.scandir(self._directory)
+                       if entry.name.endswith(".port") and entry.path != str(self._path)]
         except FileNotFoundError:
-            self._peers = []
+            entries = []
+        for entry in entries:
+            try:
+                pid, port = (int(part) for part in entry.name[:-len(".port")].split("-"))
+            except ValueError:
+                continue                          # not one of ours
+            if _alive(pid):
+                peers.append((LOOPBACK, port))
+            else:
+                self._unlink(entry.path)          # a process that died without cleaning up
+        self._peers = peers
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         data = bytes(msg.data)
@@ -68,35 +101,49 @@ class LocalSocketBus(can.BusABC):
                              msg.is_remote_frame, data.ljust(8, b"\0"))
         with self._send_lock:
             self._refresh_peers()
-            for peer in list(self._peers):
+            for peer in self._peers:
                 try:
                     self._socket.sendto(payload, socket.MSG_DONTWAIT, peer)
-                except (ConnectionRefusedError, FileNotFoundError):
-                    self._forget(peer)            # a peer that died without cleaning up
-                except BlockingIOError:
-                    pass                          # a full receiver drops the frame, as a real bus would
+                except BlockingIOError:           # its queue is full
+                    self.frames_dropped += 1
+                except ConnectionRefusedError:    # an earlier frame found no socket there: it closed
+                    pass
             if self._receive_own:
                 self._own.append(payload)
 
-    def _forget(self, peer: str) -> None:
+    @staticmethod
+    def _unlink(path) -> None:
         try:
-            os.unlink(peer)
+            os.unlink(path)
         except OSError:
             pass
-        if peer in self._peers:
-            self._peers.remove(peer)
 
     def _recv_internal(self, timeout: float | None):
         if self._own:
             return self._decode(self._own.pop(0)), False
-        readable, _, _ = select.select([self._socket], [], [], timeout)
-        if not readable:
-            return None, False
-        try:
-            payload = self._socket.recv(FRAME.size)
-        except OSError as error:
-            raise can.CanOperationError(f"softgrip_ipc receive failed: {error}") from error
-        return self._decode(payload), False
+        while True:
+            try:
+                if timeout is not None and timeout <= 0.0:
+                    # draining a batch: one system call per frame, not a select and a recv (each
+                    # lets another thread take the GIL, which can take a switch interval to return)
+                    try:
+                        payload = self._socket.recv(FRAME.size, socket.MSG_DONTWAIT)
+                    except BlockingIOError:
+                        return None, False
+                else:
+                    readable, _, _ = select.select([self._socket], [], [], timeout)
+                    if not readable:
+                        return None, False
+                    payload = self._socket.recv(FRAME.size, socket.MSG_DONTWAIT)
+            except BlockingIOError:
+                return None, False
+            except ConnectionRefusedError:
+                continue                          # a peer's port closed (an ICMP error queued here): not a frame
+            except OSError as error:
+                raise can.CanOperationError(f"softgrip_ipc receive failed: {error}") from error
+            if len(payload) == FRAME.size:
+                return self._decode(payload), False
+            return None, False                    # not a softgrip_ipc frame
 
     def _decode(self, payload: bytes) -> can.Message:
         timestamp, arbitration_id, dlc, extended, remote, data = FRAME.unpack(payload)
@@ -108,8 +155,5 @@ class LocalSocketBus(can.BusABC):
 
     def shutdown(self) -> None:
         super().shutdown()
+        self._unlink(self._path)
         self._socket.close()
-        try:
-            self._path.unlink()
-        except FileNotFoundError:
-            pass

@@ -1,0 +1,71 @@
+"""softgrip_ipc, the inter-process bus: frames reach every other bus on the channel, in order,
+also when a receiver reads late; buses that are gone are forgotten."""
+import subprocess
+import sys
+
+import can
+import pytest
+
+from softgrip_ros.canbus import ipc_bus
+
+from tests.helpers.ros import unique
+
+
+@pytest.fixture
+def channel():
+    return unique("ipc")
+
+
+def drain(bus) -> list:
+    frames = []
+    while (frame := bus.recv(0.0)) is not None:
+        frames.append(frame)
+    return frames
+
+
+def test_a_receiver_that_reads_late_still_gets_every_frame_in_order(channel):
+    """On Unix datagram sockets (before) the kernel queued 11 frames and dropped the rest."""
+    sender, receiver = (can.Bus(interface="softgrip_ipc", channel=channel) for _ in range(2))
+    try:
+        for i in range(300):
+            sender.send(can.Message(arbitration_id=i, data=bytes([i % 256, 1, 2]), is_extended_id=False))
+        frames = drain(receiver)
+        assert [f.arbitration_id for f in frames] == list(range(300))
+        assert frames[7].data == bytearray([7, 1, 2]) and frames[7].dlc == 3
+        assert sender.frames_dropped == 0
+        assert receiver.recv(0.05) is None                  # nothing else, and a timed wait ends
+    finally:
+        sender.shutdown()
+        receiver.shutdown()
+
+
+def test_every_other_bus_gets_each_frame_and_a_closed_one_is_forgotten(channel):
+    a, b, c = (can.Bus(interface="softgrip_ipc", channel=channel) for _ in range(3))
+    try:
+        a.send(can.Message(arbitration_id=0x10, data=b"\x01", is_extended_id=False))
+        assert [f.arbitration_id for f in drain(b)] == [0x10]
+        assert [f.arbitration_id for f in drain(c)] == [0x10]
+        assert drain(a) == []                               # not its own frames
+        c.shutdown()
+        assert len(list(ipc_bus.channel_directory(channel).glob("*.port"))) == 2
+        a._peers_read = -1.0                                # look at the channel again now
+        a.send(can.Message(arbitration_id=0x11, data=b"", is_extended_id=False))
+        assert len(a._peers) == 1 and [f.arbitration_id for f in drain(b)] == [0x11]
+    finally:
+        for bus in (a, b, c):
+            bus.shutdown()
+
+
+def test_the_announcement_of_a_process_that_died_is_removed(channel):
+    finished = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    directory = ipc_bus.channel_directory(channel)
+    directory.mkdir(parents=True, exist_ok=True)
+    stale = directory / f"{int(finished.stdout)}-9.port"
+    stale.touch()
+    bus = can.Bus(interface="softgrip_ipc", channel=channel)
+    try:
+        bus.send(can.Message(arbitration_id=1, data=b"", is_extended_id=False))
+        assert not stale.exists() and bus._peers == []
+    finally:
+        bus.shutdown()
+    assert list(directory.glob("*.port")) == []             # its own announcement goes at shutdown
