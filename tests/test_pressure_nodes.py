@@ -155,6 +155,30 @@ def test_a_failing_in_process_consumer_is_reported_and_control_goes_on(nodes):
     assert after                                    # a listener after the broken one still gets every reading
 
 
+def test_a_batch_of_readings_asks_once_per_sensor_whether_its_topic_is_subscribed(nodes, monkeypatch):
+    """Each reading goes to its topic only while someone subscribes; that is asked of DDS once per
+    sensor and batch, not once per reading."""
+    import threading
+    from softgrip_ros.nodes import pressure_controller
+
+    controller, _, _ = nodes
+    asked, here = [], threading.get_ident()
+    real = pressure_controller.listened
+
+    def counting(node, publisher):
+        if threading.get_ident() == here:     # not the reception thread's own batches
+            asked.append(publisher.topic_name)
+        return real(node, publisher)
+
+    monkeypatch.setattr(pressure_controller, "listened", counting)
+    now = controller.link.clock()
+    seen = []
+    controller.sensor_listeners.append(lambda samples: seen.append(samples) if threading.get_ident() == here else None)
+    controller._publish_readings([(name, 1e3 * i, now) for i in range(6) for name in ("chamber_a", "chamber_b")])
+    assert sorted(asked) == ["/pressure/sensor/chamber_a", "/pressure/sensor/chamber_b"]
+    assert len(seen) == 1 and len(seen[0]) == 12           # every reading still reaches the estimator
+
+
 def test_bus_read_errors_are_reported_and_reception_goes_on(nodes, monkeypatch):
     """A bus whose reads fail (a CAN adapter gone bus-off) gives a diagnostic naming the error, at
     least a WARN (an ERROR once the silent sensors time out), and reception takes frames again once

@@ -240,10 +240,12 @@ class PressureControllerNode(LifecycleNode):
         # stamped when measured, not when processed (they differ when this process is starved)
         ros_now_s, link_now_s = self.get_clock().now().nanoseconds * 1e-9, link.clock()
         samples = [(name, gauge_pa, ros_now_s - max(0.0, link_now_s - sent_at)) for name, gauge_pa, sent_at in readings]
-        wanted = {}
+        wanted = {}       # whether anyone subscribes: asked once per sensor and batch, not per reading
         for name, gauge_pa, measured_s in samples:
             publisher = self.sensor_pubs.get(name)
-            if publisher is not None and wanted.setdefault(name, listened(self, publisher)):
+            if publisher is not None and name not in wanted:
+                wanted[name] = listened(self, publisher)
+            if wanted.get(name):
                 publish(self, publisher, FluidPressure(header=Header(stamp=stamp_msg(measured_s), frame_id=name),
                                                        fluid_pressure=gauge_pa + P_ATM_PA, variance=self.noise_variance[name]))
         notify(self.sensor_listeners, samples)
