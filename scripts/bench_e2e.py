@@ -326,6 +326,21 @@ def main(argv=None) -> int:
              "of ~7, and the estimator publishes at most one estimate per batch, at its newest sample (a first "
              "trial, which published on each sample of a batch, raised the pose p99 9.5 -> 11.1 ms)."
              " Where the latency tails come from (traced with temporary timestamps, 2026-11-22): before batched reception, mostly sensor frames waiting 5-17 ms before the reception thread read them, while another thread was in a DDS publish that blocked for 1.5-6 ms (rclpy's `rcl_publish` keeps the GIL, so every thread of the process waits with it); since, the pose's tail comes mostly from the resting controller's 10 ms batches: the batch's read starting a few ms late while another thread holds the GIL, and 8-14 readings going through the estimator before the estimate. Traced again later that day (one run, 2324 estimates): the top 3 % of poses split between the frame's reception (read 1-9 ms after it was sent), the estimator (0.5-6 ms) and kinematics with the DDS publish (2-6.5 ms), in no fixed share: the thread waited for a core or the GIL. A 0.5 ms GIL switch interval did not help (pose p99 4.74 ms, 3 runs). The L2 solver's child, whose ~8.5 ms solves took a core at the controller's own nice value, now runs 10 above it (`l2_nice_increment`): in one session, 3 runs each, the pose p99 went 4.65, 4.73, 6.21 -> 4.33, 4.02, 3.75 ms and the command-to-valve p99 7.4 -> 6.5 ms (medians); in three later pairs of runs, interleaved on a noisier host, 5.67 -> 5.62, 4.75 -> 4.64 and 4.68 -> 3.97 ms (the command-to-valve p99 8.5 -> 6.3, 9.9 -> 9.7, 9.5 -> 8.3 ms): always lower, by 0.05-0.7 ms, less than the host's own swing between runs. "
+             'Later that day the simulated bus was found to drop frames: on Unix datagram sockets the kernel '
+             'queues at most about 10 datagrams per receiver (`net.unix.max_dgram_qlen`), so a resting batch '
+             '(about 8 frames) that started a few ms late lost the newest frames, silently (a trial of 20 ms '
+             'batches seemed to save 3.5 % of a core, but the controller had decoded a third fewer frames). '
+             "`softgrip_ipc` now runs on loopback UDP, whose queue holds hundreds of frames, and this benchmark's "
+             'bus watch reads every 20 ms and decodes only the valve frames (reading and decoding each frame, this'
+             ' process took 11 % of a core, now 7 %). In one session, 3 runs each: pose p99 4.99 ms before these '
+             "changes, 4.29 ms after; idle CPU 14.9 and 14.5 %. Before them, where the pose's tail came from (one run, temporary"
+             ' timestamps): 43 of the slowest 59 poses (3 %) came while the controller rested, from its 10 ms '
+             'batches (the newest frame waited about 0.6 ms for the wake, and about 9 readings went through the '
+             'estimator before the estimate: 2.2 ms median against 0.8 ms for a frame read while regulating). '
+             "Tried and not adopted: taking the resting batches in the control loop's tick instead of on a wake of"
+             ' their own (the same CPU: the cost is the work, not the wake), gc.freeze() after start-up (no change'
+             ' in one pair of runs), and a 50 ms fusion window at rest (1.5 % less CPU, but it changes the '
+             "estimator's lag rule). "
              f"Sensor frame to `tip_pose/left`: {details['sensor_to_tip_pose_samples']} poses, through the frame's "
              "reception, the estimator, kinematics and one DDS hop to this process. "
              f"CPU windows of {args.window_s:g} s: idle {', '.join(f'{v:.0f}' for v in details['cpu_windows_pct']['idle'])} %; "
