@@ -332,7 +332,7 @@ def main(argv=None) -> int:
              'batches seemed to save 3.5 % of a core, but the controller had decoded a third fewer frames). '
              "`softgrip_ipc` now runs on loopback UDP, whose queue holds hundreds of frames, and this benchmark's "
              'bus watch reads every 20 ms and decodes only the valve frames (reading and decoding each frame, this'
-             ' process took 11 % of a core, now 7 %). In one session, 3 runs each: pose p99 4.99 ms before these '
+             ' process took 11 % of a core, now 8 %). In one session, 3 runs each: pose p99 4.99 ms before these '
              "changes, 4.29 ms after; idle CPU 14.9 and 14.5 %. Before them, where the pose's tail came from (one run, temporary"
              ' timestamps): 43 of the slowest 59 poses (3 %) came while the controller rested, from its 10 ms '
              'batches (the newest frame waited about 0.6 ms for the wake, and about 9 readings went through the '
