@@ -69,3 +69,18 @@ def test_the_announcement_of_a_process_that_died_is_removed(channel):
     finally:
         bus.shutdown()
     assert list(directory.glob("*.port")) == []             # its own announcement goes at shutdown
+
+
+def test_a_datagram_that_is_not_a_frame_is_ignored(channel):
+    import socket
+    sender, receiver = (can.Bus(interface="softgrip_ipc", channel=channel) for _ in range(2))
+    stray = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        stray.sendto(b"not a frame", receiver._socket.getsockname())
+        assert receiver.recv(0.2) is None
+        sender.send(can.Message(arbitration_id=0x21, data=b"\x05", is_extended_id=False))
+        assert receiver.recv(1.0).arbitration_id == 0x21
+    finally:
+        stray.close()
+        sender.shutdown()
+        receiver.shutdown()

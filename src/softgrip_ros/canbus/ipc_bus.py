@@ -106,8 +106,6 @@ class LocalSocketBus(can.BusABC):
                     self._socket.sendto(payload, socket.MSG_DONTWAIT, peer)
                 except BlockingIOError:           # its queue is full
                     self.frames_dropped += 1
-                except ConnectionRefusedError:    # an earlier frame found no socket there: it closed
-                    pass
             if self._receive_own:
                 self._own.append(payload)
 
@@ -121,29 +119,21 @@ class LocalSocketBus(can.BusABC):
     def _recv_internal(self, timeout: float | None):
         if self._own:
             return self._decode(self._own.pop(0)), False
-        while True:
-            try:
-                if timeout is not None and timeout <= 0.0:
-                    # draining a batch: one system call per frame, not a select and a recv (each
-                    # lets another thread take the GIL, which can take a switch interval to return)
-                    try:
-                        payload = self._socket.recv(FRAME.size, socket.MSG_DONTWAIT)
-                    except BlockingIOError:
-                        return None, False
-                else:
-                    readable, _, _ = select.select([self._socket], [], [], timeout)
-                    if not readable:
-                        return None, False
-                    payload = self._socket.recv(FRAME.size, socket.MSG_DONTWAIT)
-            except BlockingIOError:
-                return None, False
-            except ConnectionRefusedError:
-                continue                          # a peer's port closed (an ICMP error queued here): not a frame
-            except OSError as error:
-                raise can.CanOperationError(f"softgrip_ipc receive failed: {error}") from error
-            if len(payload) == FRAME.size:
-                return self._decode(payload), False
+        try:
+            # a drain (timeout 0) makes one system call per frame, not a select and a recv: each
+            # lets another thread take the GIL, which can take a switch interval to come back
+            if timeout is None or timeout > 0.0:
+                readable, _, _ = select.select([self._socket], [], [], timeout)
+                if not readable:
+                    return None, False
+            payload = self._socket.recv(FRAME.size, socket.MSG_DONTWAIT)
+        except BlockingIOError:
+            return None, False
+        except OSError as error:
+            raise can.CanOperationError(f"softgrip_ipc receive failed: {error}") from error
+        if len(payload) != FRAME.size:
             return None, False                    # not a softgrip_ipc frame
+        return self._decode(payload), False
 
     def _decode(self, payload: bytes) -> can.Message:
         timestamp, arbitration_id, dlc, extended, remote, data = FRAME.unpack(payload)
