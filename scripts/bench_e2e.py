@@ -37,7 +37,6 @@ import signal
 import statistics
 import subprocess
 import sys
-import threading
 import time
 import uuid
 
@@ -54,6 +53,7 @@ from demo_grasp import command, wait_phase  # noqa: E402
 from softgrip_interfaces.msg import GraspCommand, GripperState  # noqa: E402
 from softgrip_ros.benchmarking import figure_rows, machine_line, update_section  # noqa: E402
 from softgrip_ros.canbus.codec import FrameCodec  # noqa: E402
+from softgrip_ros.canbus.reader import BatchReader  # noqa: E402
 from softgrip_ros.nodes.common import spinning, stamp_seconds  # noqa: E402
 from softgrip_ros.processes import installed_executable, stop_process  # noqa: E402
 
@@ -72,10 +72,11 @@ def progress(text: str) -> None:
 class BusWatch:
     """Every ValveCommand and sensor frame on the bus, by sender timestamp, from a reader thread.
 
-    The thread takes what is queued every ``WATCH_PERIOD_S`` and decodes only the valve frames
-    (the sensor frames are told by their ID): read and decoded one at a time, the ~1,600 frames
-    a second took about 6 % of a core of this 2-core machine from the controller under test.
-    The frames carry their sender's time, so reading them later changes no figure."""
+    The thread (the controller's own :class:`BatchReader`) takes what is queued every
+    ``WATCH_PERIOD_S`` and decodes only the valve frames (the sensor frames are told by their ID):
+    read and decoded one at a time, the ~1,600 frames a second took about 6 % of a core of this
+    2-core machine from the controller under test. The frames carry their sender's time, so
+    reading them later changes no figure."""
 
     def __init__(self, channel: str):
         self.bus = can.Bus(interface="softgrip_ipc", channel=channel)
@@ -85,18 +86,16 @@ class BusWatch:
         self.valve_times: list = []     # sender time of each ValveCommand, and its channel-0 state
         self.valve_states: list = []
         self.sensor_times: list = []
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._read, name="bench-bus", daemon=True)
-        self._thread.start()
+        self._reader = BatchReader(self.bus, self._on_frames, rest_period_s=WATCH_PERIOD_S, resting=lambda: True,
+                                   name="bench-bus")
 
-    def _read(self):
-        while not self._stop.wait(WATCH_PERIOD_S):
-            while (frame := self.bus.recv(0.0)) is not None:
-                if frame.arbitration_id in self._sensor_ids:
-                    self.sensor_times.append(frame.timestamp)
-                elif frame.arbitration_id == self._valve_id and (decoded := self.codec.decode(frame)):
-                    self.valve_times.append(frame.timestamp)
-                    self.valve_states.append(int(decoded.signals["Channel0"]))
+    def _on_frames(self, frames):
+        for frame in frames:
+            if frame.arbitration_id in self._sensor_ids:
+                self.sensor_times.append(frame.timestamp)
+            elif frame.arbitration_id == self._valve_id and (decoded := self.codec.decode(frame)):
+                self.valve_times.append(frame.timestamp)
+                self.valve_states.append(int(decoded.signals["Channel0"]))
 
     def first_valve_change_after(self, sent_s: float, timeout_s: float = 2.0):
         """Sender time of the first valve frame after ``sent_s`` whose state differs from the last one before it."""
@@ -117,8 +116,7 @@ class BusWatch:
         return self.sensor_times[index] if index >= 0 else None
 
     def close(self):
-        self._stop.set()
-        self._thread.join(timeout=2.0)
+        self._reader.stop(timeout_s=2.0)
         self.bus.shutdown()
 
 
