@@ -159,7 +159,7 @@ def run(trajectory: Trajectory, config: EstimatorConfig, plant: PneumaticPlant |
         estimator.add_measurement(name, value, t)
         if after_each is not None:
             after_each(estimator)
-        truth = trajectory.truth_at(t)
+        truth = trajectory.truth_at(estimator.time_s)     # the filter's time: samples may wait (fusion window)
         x, P = estimator.filter.x[:, 0], estimator.filter.P
         error = truth - x
         t_out.append(t)
@@ -171,9 +171,10 @@ def run(trajectory: Trajectory, config: EstimatorConfig, plant: PneumaticPlant |
     return Run(np.array(t_out), np.array(names), np.array(est), np.array(var), np.array(tru), np.array(nees), estimator)
 
 
-def anees(filter_type: str, runs: int = 50, grid=np.linspace(0.25, 2.15, 120)) -> tuple[np.ndarray, tuple]:
+def anees(filter_type: str, runs: int = 50, grid=np.linspace(0.25, 2.15, 120), **changes) -> tuple[np.ndarray, tuple]:
     """Average NEES over ``runs`` Monte Carlo runs at the times ``grid`` (truth with the filter's
     own process noise), and the two-sided 95 % interval chi2(2 runs)/runs for 2 states.
+    ``changes``: EstimatorConfig fields to set (``fusion_window_s``).
 
     The grid starts at 0.25 s: before the first fill the regulator is behind a closed valve,
     unobservable, and its prior (20 kPa) rightly exceeds its error."""
@@ -181,6 +182,6 @@ def anees(filter_type: str, runs: int = 50, grid=np.linspace(0.25, 2.15, 120)) -
     values = []
     for seed in range(runs):
         trajectory = simulate(seed=1000 + seed, process_noise_pa2_per_s=q)
-        result = run(trajectory, config_for(trajectory, filter_type))
+        result = run(trajectory, config_for(trajectory, filter_type, **changes))
         values.append(result.nees[np.minimum(np.searchsorted(result.t, grid), len(result.t) - 1)])
     return np.mean(values, axis=0), (chi2.ppf(0.025, 2 * runs) / runs, chi2.ppf(0.975, 2 * runs) / runs)
