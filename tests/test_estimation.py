@@ -241,8 +241,8 @@ def paired_errors(trajectory, config, period_s=0.005, rest_period_s=0.05):
 @pytest.mark.parametrize("window_s, most_updates", [(0.005, 0.52), (0.01, 0.47), (0.02, 0.45)])
 def test_at_the_nodes_cadence_a_fusion_window_is_as_accurate_as_fusing_each_sample(trajectory, filter_type,
                                                                                    window_s, most_updates):
-    """The estimates the node would publish with a 5, 10 or 20 ms window (20 ms: one fusion per bus
-    batch while the controller rests), against per-sample fusion read at the same instants: the
+    """The estimates the node would publish with a 5, 10 or 20 ms window (20 ms, the node's: one
+    fusion every other bus batch while the controller rests), against per-sample fusion read at the same instants: the
     RMSE within 5 % (+ 2 Pa) at rest and in the steps, with far fewer filter updates."""
     config = sim.config_for(trajectory, filter_type, fusion_window_s=window_s)
     t, windowed, each, updates = paired_errors(trajectory, config)

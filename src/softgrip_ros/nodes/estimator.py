@@ -34,7 +34,7 @@ SPECS = [
     ParamSpec("sensor_timeout", _DEFAULTS.sensor_timeout_s, "a sensor silent this long is dropped from fusion", "s", 0.001, 10.0),
     ParamSpec("filter_type", _DEFAULTS.filter_type, "the filter", choices=("kf", "ekf", "ukf")),
     ParamSpec("fusion_window", 0.02, "while the chamber rests, samples this close are fused in one filter step "
-              "(0: each at once; 20 ms: one fusion per bus batch while the controller rests)", "s", 0.0, 0.02),
+              "(0: each at once; 20 ms: one fusion every other bus batch while the controller rests)", "s", 0.0, 0.02),
     ParamSpec("input_timing_std", _DEFAULTS.input_timing_std_s, "how far an input's effect at the device may lie "
               "from its stamp (1 sigma); P grows by the change in rate times this at each input change", "s", 0.0, 0.1),
     ParamSpec("max_fusion_shift_pa", _DEFAULTS.max_fusion_shift_pa, "the chamber rests (see fusion_window) while its "

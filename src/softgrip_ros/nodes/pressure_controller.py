@@ -30,7 +30,7 @@ SPECS = CAN_SPECS + [
     ParamSpec("control_rate_hz", 500.0, "control loop rate", "Hz", 10.0, 1000.0),
     ParamSpec("rest_rate_hz", 50.0, "control loop rate while venting, holding or faulted (a command or a reading "
               "beyond the limits steps at once); <= control_rate_hz", "Hz", 10.0, 1000.0),
-    ParamSpec("rest_receive_period", 0.02, "while the controller rests (not regulating), received frames are taken "
+    ParamSpec("rest_receive_period", 0.01, "while the controller rests (not regulating), received frames are taken "
               "in batches this often, one thread wake each instead of one per frame; a reading beyond the limits "
               "is then acted on within it; 0 = each frame at once", "s", 0.0, 0.05),
     ParamSpec("status_rate_hz", 50.0, "controller/status publish rate", "Hz", 1.0, 200.0),
