@@ -170,6 +170,19 @@ class Report:
     values: dict
 
 
+def _shared_walk_variance(walks: list, total_weight: float) -> float:
+    """The variance of a weighted mean of samples from the random walk each shares with the
+    younger ones: q times the integral of A(t)^2, A(t) the weight of the samples taken before t.
+    ``walks``: [(walk variance, weight)] of the samples with a walk (sorted here, in place)."""
+    walks.sort(reverse=True)                       # the oldest (longest walk) first
+    variance, earlier_weight = 0.0, 0.0
+    for k, (walk, weight) in enumerate(walks):
+        earlier_weight += weight / total_weight
+        walk_after = walks[k + 1][0] if k + 1 < len(walks) else 0.0
+        variance += earlier_weight ** 2 * (walk - walk_after)
+    return variance
+
+
 class PressureEstimator:
     """Sensor fusion around one filter; see the module docstring."""
 
@@ -357,7 +370,7 @@ class PressureEstimator:
         instant that is 1 / sum(1 / r_i), and the update is the stacked one exactly, with h
         linear and the noises independent. The innovation covariance stays 1x1 (a larger one
         sent scipy's inverse into OpenBLAS's threads, which spin)."""
-        used, accepted = {}, []
+        used, total, weighted_sum, noise_part, walks = {}, 0.0, 0.0, 0.0, []
         x_chamber, p_chamber = float(self.filter.x[CHAMBER, 0]), float(self.filter.P[CHAMBER, CHAMBER])
         for name, value, walk_variance in samples:
             stats = self.stats[name]
@@ -371,18 +384,15 @@ class PressureEstimator:
             else:
                 stats.accepted += 1
                 stats.consecutive_rejections = 0
-                accepted.append((walk_variance, 1.0 / (noise_variance + walk_variance), value, noise_variance))
+                weight = 1.0 / (noise_variance + walk_variance)
+                total += weight
+                weighted_sum += weight * value
+                noise_part += weight * weight * noise_variance
+                if walk_variance > 0.0:
+                    walks.append((walk_variance, weight))
                 used[name] = True
-        if accepted:
-            total = sum(weight for _, weight, _, _ in accepted)
-            mean = sum(weight * value for _, weight, value, _ in accepted) / total
-            variance = sum((weight / total) ** 2 * noise for _, weight, _, noise in accepted)
-            accepted.sort(reverse=True)                       # the oldest (longest walk) first
-            earlier_weight = 0.0
-            for k, (walk, weight, _, _) in enumerate(accepted):
-                earlier_weight += weight / total
-                walk_after = accepted[k + 1][0] if k + 1 < len(accepted) else 0.0
-                variance += earlier_weight ** 2 * (walk - walk_after)
+        if total > 0.0:
+            mean, variance = weighted_sum / total, noise_part / total ** 2 + _shared_walk_variance(walks, total)
             self.filter.update(np.array([[mean]]), _H_CHAMBER, np.array([[variance]]))
         elif self._locked_out(stamp_s):
             self._initialise({name: value for name, value, _ in samples}, stamp_s)
