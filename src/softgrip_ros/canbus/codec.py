@@ -109,7 +109,7 @@ class FrameCodec:
         self._lock = threading.Lock()
         self._tx_counters = collections.defaultdict(int)
         # a frame is a pure function of its signals and counter: a controller at rest re-sends the
-        # same few every 10 ms, and cantools' encode costs more than the rest of a send
+        # same few every control tick, and cantools' encode costs more than the rest of a send
         self._encoded: dict = {}
         self._rx_counters: dict = {}
         self._rx_jumps = collections.defaultdict(int)
