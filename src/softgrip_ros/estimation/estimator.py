@@ -203,7 +203,7 @@ class PressureEstimator:
         self.reinitialisations = 0
         self._pending = []                   # [(name, gauge, stamp)] taken, not yet fused
         self.resting = False                 # samples wait for a fusion window (see add_measurement)
-        self._state_rests = False            # ... and the window is predicted in one step (see fuse_pending)
+        self._one_step = False               # ... and the window is predicted in one step (see fuse_pending)
 
     # ---- inputs and time ----------------------------------------------------------------------
     @property
@@ -260,7 +260,7 @@ class PressureEstimator:
         if not self._screen(name, gauge_pa, stamp_s):
             return False
         if not self._pending:
-            self.resting = self._at_rest()
+            self.resting, self._one_step = self._window_rests()
         if not self.resting or self._surprising(name, gauge_pa):
             self.resting = False
             return self.add_measurements({name: gauge_pa}, stamp_s)[name]
@@ -311,7 +311,7 @@ class PressureEstimator:
             return
         stamp_s = max(stamp for _, _, stamp in pending)
         start_s, start_gauge = self.time_s, float(self.filter.x[CHAMBER, 0])
-        self._predict_to(stamp_s, max(self.config.max_step_s, self.config.fusion_window_s) if self._state_rests else None)
+        self._predict_to(stamp_s, max(self.config.max_step_s, self.config.fusion_window_s) if self._one_step else None)
         change_pa, span_s = float(self.filter.x[CHAMBER, 0]) - start_gauge, stamp_s - start_s
         q_chamber = self.q_continuous[CHAMBER, CHAMBER]
         moved = []
@@ -320,16 +320,18 @@ class PressureEstimator:
             moved.append((name, value + still_to_come * change_pa, q_chamber * (stamp_s - max(stamp, start_s))))
         self._fuse(moved, stamp_s)
 
-    def _at_rest(self) -> bool:
-        """Whether the chamber's modelled change over a fusion window stays within
-        ``max_fusion_shift_pa``: then samples wait for one fusion together. In a fill or an
-        evacuation each sample is fused at once: the regulator's and the chamber's estimates move
-        with every sample there, which a batch's shift, modelled before its update, misses (RMSE
-        38 -> 68 Pa in the fills of the step scenario with 5 ms batches and no such rule)."""
+    def _window_rests(self) -> tuple[bool, bool]:
+        """(chamber, whole state): whether the model's change over a fusion window stays within
+        ``max_fusion_shift_pa`` for the chamber, and for the regulator too. The first lets samples
+        wait for one fusion together; the second lets that window be predicted in one step (see
+        :meth:`fuse_pending`). In a fill or an evacuation each sample is fused at once: the
+        regulator's and the chamber's estimates move with every sample there, which a batch's
+        shift, modelled before its update, misses (RMSE 38 -> 68 Pa in the fills of the step
+        scenario with 5 ms batches and no such rule)."""
         x = self.filter.x[:, 0]
         change = np.abs(plant_step(self.plant, x, self.config.fusion_window_s, self.inputs) - x)
-        self._state_rests = bool(change.max() <= self.config.max_fusion_shift_pa)   # the regulator too
-        return change[CHAMBER] <= self.config.max_fusion_shift_pa
+        limit = self.config.max_fusion_shift_pa
+        return bool(change[CHAMBER] <= limit), bool(change.max() <= limit)
 
     def _surprising(self, name: str, value: float) -> bool:
         """A sample beyond REST_GATE_D2 of the estimate: the chamber moves without the model
