@@ -117,7 +117,8 @@ def config_for(trajectory: Trajectory, filter_type: str, **changes) -> Estimator
 @dataclasses.dataclass
 class Run:
     """One estimator over one trajectory, evaluated after every sample: t (K,), sensor (K,) names,
-    estimate (K,), variance (K,), truth (K,), nees (K,) over the full state."""
+    estimate (K,), variance (K,), truth (K,) at the filter's time (samples may wait for a fusion
+    window), nees (K,) over the full state."""
 
     t: np.ndarray
     sensor: np.ndarray
