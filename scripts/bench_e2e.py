@@ -9,10 +9,13 @@ from here, as an arm would:
   frame whose channel-0 state differs from the one before the command (the CAN frame's
   sender timestamp). Commands: ENVELOP_CLAMP (vent -> supply), CLAMP (-> vacuum), STOP (-> vent).
 * ``sensor_to_tip_pose_ms``: from a PressureSensor frame (sender timestamp) to ``tip_pose/left``
-  received here (the rmw's reception timestamp), through the composed estimator and kinematics.
-  The pose's stamp is its fused sample's, which the pressure controller takes from the frame's
-  own timestamp; its frame is the newest sensor frame sent by then (plus STAMP_MATCH_S for the
-  microseconds that converting between clocks can put the stamp before the frame).
+  published by the controller (the DDS sample's source timestamp, which the writer takes as it
+  publishes), through the composed estimator and kinematics. The pose's stamp is its fused
+  sample's, which the pressure controller takes from the frame's own timestamp; its frame is the
+  newest sensor frame sent by then (plus STAMP_MATCH_S for the microseconds that converting
+  between clocks can put the stamp before the frame).
+* ``sensor_to_tip_pose_received_ms``: the same, to the pose's reception here (the rmw's reception
+  timestamp): one DDS hop more, what a subscriber in another process sees.
 * ``controller_cpu_pct_idle`` / ``_grasp``: the user + system CPU time of the controller process
   and its child (the L2 rod solver) over wall time (100 = one core), in windows while IDLE and while grasping at the default
   500 Hz control rate; median over the windows. The device simulation runs in its own
@@ -188,13 +191,13 @@ def measure(idle_s: float, grasp_s: float, window_s: float) -> tuple[dict, dict]
     controller = subprocess.Popen([installed_executable("controller"), *ros_args])
     rclpy.init()
     node = Node("softgrip_bench_e2e")
-    states, poses = [], []        # poses: (received, stamp), matched to their frames once the watch has read them
+    states, poses = [], []        # poses: (published, received, stamp), matched to their frames once the watch has read them
     clock_offsets = []
 
     def on_pose(msg, info):
         received_s = info["received_timestamp"] * 1e-9
         clock_offsets.append(time.time() - received_s)
-        poses.append((received_s, stamp_seconds(msg.header.stamp)))
+        poses.append((info["source_timestamp"] * 1e-9, received_s, stamp_seconds(msg.header.stamp)))
 
     node.create_subscription(GripperState, "grasp_state", states.append, 100)
     node.create_subscription(PoseWithCovarianceStamped, "tip_pose/left", on_pose, 100)
@@ -251,16 +254,21 @@ def measure(idle_s: float, grasp_s: float, window_s: float) -> tuple[dict, dict]
     if codes[0] != 0:
         raise RuntimeError(f"the controller exited with {codes[0]} (None: killed)")
     all_commands = [v for values in command_latencies.values() for v in values]
-    sent = [(received_s, watch.sensor_frame_before(stamp_s)) for received_s, stamp_s in grasp_poses]
-    grasp_pose_latencies = [received_s - sent_s for received_s, sent_s in sent if sent_s is not None]
-    if not all_commands or not grasp_pose_latencies:
+    matched = [(published_s, received_s, watch.sensor_frame_before(stamp_s))
+               for published_s, received_s, stamp_s in grasp_poses]
+    matched = [row for row in matched if row[2] is not None]
+    if not all_commands or not matched:
         raise RuntimeError("no latency samples: no valve change or no tip pose was seen")
-    to_pose = [1e3 * v for v in grasp_pose_latencies]
+    to_pose = [1e3 * (published_s - sent_s) for published_s, _, sent_s in matched]
+    to_received = [1e3 * (received_s - sent_s) for _, received_s, sent_s in matched]
+    hops = [b - a for a, b in zip(to_pose, to_received)]
     figures = {
         "cmd_to_valve_frame_ms_median": statistics.median(all_commands),
         "cmd_to_valve_frame_ms_p99": p99(all_commands),
         "sensor_to_tip_pose_ms_median": statistics.median(to_pose),
         "sensor_to_tip_pose_ms_p99": p99(to_pose),
+        "sensor_to_tip_pose_received_ms_median": statistics.median(to_received),
+        "sensor_to_tip_pose_received_ms_p99": p99(to_received),
         "controller_cpu_pct_idle": statistics.median(idle),
         "controller_cpu_pct_grasp": statistics.median(grasp),
         "controller_cpu_pct_device_paused": statistics.median(paused),
@@ -273,6 +281,7 @@ def measure(idle_s: float, grasp_s: float, window_s: float) -> tuple[dict, dict]
                                       "p99": p99(v) if v else None, "max": max(v) if v else None}
                                   for k, v in command_latencies.items()},
         "sensor_to_tip_pose_samples": len(to_pose),
+        "dds_hop_ms": {"median": statistics.median(hops), "p99": p99(hops), "max": max(hops)},
         "cpu_windows_pct": {"idle": idle, "grasp": grasp, "device_paused": paused},
         "grasp_cycles": cycles,
         "reception_clock_offset_ms_median": 1e3 * statistics.median(clock_offsets) if clock_offsets else None,
@@ -319,9 +328,13 @@ def main(argv=None) -> int:
         "machine, the direct call to the pressure controller (which steps in the calling thread and sends "
         "the frames at once) and the CAN send.\n"
         f"- Sensor frame to `tip_pose/left`: {details['sensor_to_tip_pose_samples']} poses, through the frame's "
-        "reception, the estimator, kinematics and one DDS hop to this process. Frames carry their sender's "
-        "time; this process's bus watch reads them in batches every 20 ms and matches poses to frames after "
-        "the run.\n"
+        "reception, the estimator and kinematics to the publish (the DDS sample's source timestamp), as the "
+        "target is defined; `_received` adds the DDS hop to this process (its reception timestamp), "
+        f"{details['dds_hop_ms']['median']:.2f} ms median and {details['dds_hop_ms']['p99']:.2f} ms p99 "
+        "in the last run. Frames carry their sender's time; this process's bus watch reads them in batches "
+        "every 20 ms and matches poses to frames after the run. The three timestamps come from this host's one clock.\n"
+        "- Until 2026-11-22 `sensor_to_tip_pose_ms` was taken to the reception here, which the "
+        "`_received` row now gives; the figures quoted below from before then are that one.\n"
         f"- CPU of the controller process (the L2 solver's child included), windows of {args.window_s:g} s: "
         f"idle {idle_windows} %; grasping {grasp_windows} %. Grasp cycles: {details['grasp_cycles']['done']} "
         f"complete, {details['grasp_cycles']['failed']} not. The simulated device runs in its own process and "
