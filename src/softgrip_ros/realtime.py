@@ -112,7 +112,7 @@ class TimerThread:
     An rclpy timer costs an executor wake per tick, and each wake rebuilds the wait set over
     every entity of every node (about a millisecond of Python for the composed controller's
     five nodes): the composed nodes' timers at 50, 20 and 10 Hz cost a fifth of a core that
-    way. Here a tick costs its callback. A callback that returns a number of seconds runs next
+    way. Here a tick costs its callback. A callback that returns a float, in seconds, runs next
     that much later (at least MIN_DELAY_S) instead of one period on: a check due only at a
     deadline it knows sleeps until then. A callback that falls behind is not burst to catch
     up; its exceptions go to ``on_error(name, error)`` and never stop the thread.
