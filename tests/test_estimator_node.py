@@ -127,34 +127,6 @@ def test_a_batch_of_readings_gives_one_estimate_at_its_newest_and_an_unknown_sen
         estimator.destroy_node()
 
 
-def test_the_silence_check_names_when_it_is_next_due_and_predicts_once_silent(rclpy_context):
-    """Composed, the estimator's timer thread sleeps until the silence deadline the check returns:
-    while samples flow it finds nothing to do and says how long until it could; once silent it
-    publishes the prediction and is next due one silence later."""
-    from softgrip_ros.nodes.estimator import EstimatorNode
-    estimator = EstimatorNode(in_process=True, context=rclpy_context)
-    published = []
-    estimator.estimate_listeners.append(lambda stamp_s, gauge_pa, variance_pa2: published.append((stamp_s, variance_pa2)))
-    silence_s = estimator.silence_s
-    try:
-        assert silence_s == pytest.approx(0.04)           # two periods of min(frequency, 50 Hz)
-        assert estimator._on_timer() is None              # no sample yet: one period on
-        now = estimator._now()
-        estimator.on_sensor_samples([("chamber_a", 10e3, now)])
-        assert len(published) == 1
-        delay_s = estimator._on_timer()
-        assert len(published) == 1 and 0.0 < delay_s <= silence_s
-        assert delay_s == pytest.approx(now + silence_s - estimator._now(), abs=0.01)
-        stale = estimator._now() - 0.5
-        estimator.last_sample_s = estimator.last_publish_s = stale                   # as if the sensors fell silent 0.5 s ago
-        assert estimator._on_timer() == pytest.approx(silence_s)
-        assert len(published) == 2 and published[-1][0] > stale + 0.4 and published[-1][1] > published[0][1]
-        assert 0.0 < estimator._on_timer() <= silence_s and len(published) == 2
-    finally:
-        estimator.close()
-        estimator.destroy_node()
-
-
 def test_silent_sensors_give_predictions_with_growing_variance_and_a_warning(wired):
     from diagnostic_msgs.msg import DiagnosticStatus
     feeder, publishers, status_pub, estimates, diagnostics = wired

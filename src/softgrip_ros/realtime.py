@@ -8,7 +8,6 @@ not. :class:`TimerThread` runs the composed nodes' slower periodic callbacks.
 from __future__ import annotations
 
 import collections
-import math
 import sys
 import threading
 import time
@@ -112,13 +111,9 @@ class TimerThread:
     An rclpy timer costs an executor wake per tick, and each wake rebuilds the wait set over
     every entity of every node (about a millisecond of Python for the composed controller's
     five nodes): the composed nodes' timers at 50, 20 and 10 Hz cost a fifth of a core that
-    way. Here a tick costs its callback. A callback that returns a float, in seconds, runs next
-    that much later (at least MIN_DELAY_S) instead of one period on: a check due only at a
-    deadline it knows sleeps until then. A callback that falls behind is not burst to catch
+    way. Here a tick costs its callback. A callback that falls behind is not burst to catch
     up; its exceptions go to ``on_error(name, error)`` and never stop the thread.
     """
-
-    MIN_DELAY_S = 1e-3
 
     def __init__(self, name: str, on_error=None):
         self.name = name
@@ -161,11 +156,8 @@ class TimerThread:
                     if timer[0] <= now:           # fell a period behind: skip, do not burst
                         timer[0] = now + timer[1]
                     try:
-                        delay_s = timer[2]()
+                        timer[2]()
                     except Exception as error:    # a failing callback must not stop the others
                         self.errors += 1
                         if self.on_error is not None:
                             self.on_error(getattr(timer[2], "__name__", repr(timer[2])), error)
-                        continue
-                    if isinstance(delay_s, float) and math.isfinite(delay_s):
-                        timer[0] = now + max(delay_s, self.MIN_DELAY_S)

@@ -7,8 +7,9 @@ model at once, ahead of the status that confirms it). Out: pressure/estimate, st
 time the estimate refers to, after a sample (at most ``frequency``; while the chamber rests, at
 most ``rest_frequency``: nothing moves, and every estimate costs the kinematics and the grasp
 manager work and its subscribers a message) and, while no sample has come, predicted forward
-every ``silence_s``: two periods of min(``frequency``, 50 Hz), 40 ms by default (an rclpy timer
-at hundreds of Hz would starve the sensor callbacks); /diagnostics at 2 Hz.
+once no sample and no estimate has come for two periods of a timer at min(``frequency``, 50 Hz):
+every 40 ms by default (an rclpy timer at hundreds of Hz would starve the sensor callbacks);
+/diagnostics at 2 Hz.
 Parameters follow robot_localization where they fit. The filters live in softgrip_ros.estimation.
 """
 from __future__ import annotations
@@ -101,8 +102,7 @@ class EstimatorNode(Node):
             self.create_subscription(ControllerStatus, "controller/status", self.on_status, 10)
         self.create_subscription(PressureCommand, "pressure/command", self._on_command, 10)
         self.periodic = NodeTimers(self, in_process)
-        self.silence_s = 2.0 * max(self.period_s, 1.0 / PREDICTION_RATE_LIMIT_HZ)
-        self.periodic.every(self.silence_s / 2.0, self._on_timer)
+        self.periodic.every(max(self.period_s, 1.0 / PREDICTION_RATE_LIMIT_HZ), self._on_timer)
         self.periodic.every(0.5, self._publish_diagnostics)
         self.periodic.start()
 
@@ -158,22 +158,15 @@ class EstimatorNode(Node):
                 self.estimator.set_inputs(inputs.regulator_setpoint_gauge_pa, inputs.regulator_enabled, valve,
                                           stamp_seconds(msg.header.stamp) or self._now())
 
-    def _on_timer(self) -> float | None:
-        """Once no sample has come and no estimate gone out for ``silence_s``, publish the
-        prediction. Returns the seconds until that can next be so (composed, the timer thread
-        sleeps until then: while samples flow, a check per silence_s instead of per period)."""
+    def _on_timer(self) -> None:
+        """While no sample has come (and no estimate gone out) for two timer periods, publish the prediction."""
         now = self._now()
         with self._lock:
-            if not self.estimator.initialised:
-                return None                       # nothing to predict before the first sample: one period on
             estimate = None
-            quiet_since_s = max(self.last_publish_s, self.last_sample_s)
-            if now - quiet_since_s >= self.silence_s:
+            if self.estimator.initialised and now - max(self.last_publish_s, self.last_sample_s) >= 2.0 / PREDICTION_RATE_LIMIT_HZ:
                 self.estimator.predict_to(now)    # committed: a sample older than this would be dropped as late anyway
                 estimate = self._take_estimate()
-                quiet_since_s = now
         self._publish(estimate)
-        return min(quiet_since_s + self.silence_s - now, self.silence_s)
 
     def _take_estimate(self):
         """The current estimate, marked as published (call with the lock held)."""
