@@ -198,3 +198,30 @@ def test_the_grasp_reports_the_model_of_its_scene():
     loop.command(GraspRequest(Mode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.01, command_id="p"))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     assert loop.fsm.scene() == Scene(Sheet(1e-4), 0.0) and loop.fsm.state.model_fidelity == "l2"
+
+
+@pytest.mark.parametrize("diameter_m", [0.02, 0.04])
+def test_a_held_cylinder_keeps_the_reported_tip_spacing_where_the_rod_puts_the_tips(diameter_m):
+    """Free bending closes the tips through a held object (D2 = 0 at a clamp pressure); the state
+    reports its size instead, which the L2 rod confirms to 0.5 mm. Released, D2 is free again."""
+    kinematics = build_kinematics("l1")
+    loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.1), scene_model=MODEL)
+    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=diameter_m, object_mass_kg=0.2, command_id="g"))
+    loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
+    state, scene = loop.fsm.state, loop.fsm.scene()
+    assert kinematics.pose(state.estimated_gauge_pa).tip_spacing_m < 1e-3 and state.tip_spacing_m == diameter_m
+    solution = MODEL.rod.solve(state.estimated_gauge_pa, obstacle=scene.obstacle, from_pressure_pa=scene.opening_gauge_pa)
+    face_x_m = solution.surface_m[MODEL.rod.chamber_face_node(4)][0]
+    assert solution.converged and solution.contact_force_n > 0.0
+    assert -2.0 * face_x_m == pytest.approx(diameter_m, abs=0.5e-3)
+    loop.command(GraspRequest(Mode.STOP, command_id="s"))
+    loop.run_until(lambda s: s.phase == Phase.IDLE, 2.0)
+    loop.run_for(0.5)
+    assert loop.fsm.state.tip_spacing_m < 2e-3                      # vented, nothing held: free bending
+
+
+def test_a_pinched_sheet_is_the_reported_tip_spacing():
+    loop = GraspLoop(build_kinematics("l0"), scene_model=MODEL)
+    loop.command(GraspRequest(Mode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.01, command_id="p"))
+    loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
+    assert loop.fsm.state.tip_spacing_m == 1e-4

@@ -120,7 +120,10 @@ class GraspConfig:
 
 @dataclasses.dataclass
 class GraspState:
-    """Everything GripperState reports, in SI units."""
+    """Everything GripperState reports, in SI units. The geometry (alpha, D2, D1) is the free
+    model's at the estimate, except that while an object is clamped or held D2 is at least its
+    size: free bending closes the tips through the object, which they rest on (see
+    :meth:`GraspStateMachine.held_object_m`)."""
 
     phase: Phase = Phase.IDLE
     mode: int = Mode.STOP
@@ -404,12 +407,21 @@ class GraspStateMachine:
             self._settled_since = now
         return now - self._settled_since >= self.config.settle_s
 
+    def held_object_m(self) -> float:
+        """The size of the commanded object while CLAMPING or HOLDING it (a cylinder's diameter,
+        or for PINCH a sheet's thickness); 0 otherwise. The tips rest on it: for 20 and 40 mm
+        cylinders from 0 to -20 kPa the L2 rod puts the tip-chamber faces 20.1 and 39.8 mm apart,
+        where free bending gives 0 (tests/test_control_grasp.py)."""
+        r = self._request
+        if r is None or self.state.phase not in (Phase.CLAMPING, Phase.HOLDING) or not math.isfinite(r.object_diameter_m):
+            return 0.0
+        return r.object_diameter_m
+
     def scene(self) -> Scene:
         """What the fingers meet: the commanded object while CLAMPING or HOLDING it (a cylinder
         level with the tip chambers at the opening pressure, or for PINCH a sheet), else free bending."""
         r = self._request
-        if (self.scene_model is None or r is None or self.state.phase not in (Phase.CLAMPING, Phase.HOLDING)
-                or not math.isfinite(r.object_diameter_m)):
+        if self.scene_model is None or not self.held_object_m() > 0.0:
             return FREE
         key = (Mode(r.mode), r.object_diameter_m, self._open_pa)
         if key not in self._scenes:
@@ -425,8 +437,8 @@ class GraspStateMachine:
             s.model_fidelity = self.scene_model.selector.choose(estimate, self.scene()).model
         k = self.kinematics
         pose = k.pose(min(max(estimate, k.MODEL_MIN_PRESSURE_PA), k.MODEL_MAX_PRESSURE_PA))
-        s.included_angle_rad, s.tip_spacing_m, s.root_spacing_m = (pose.included_angle_rad, pose.tip_spacing_m,
-                                                                   pose.root_spacing_m)
+        s.included_angle_rad, s.root_spacing_m = pose.included_angle_rad, pose.root_spacing_m
+        s.tip_spacing_m = max(pose.tip_spacing_m, self.held_object_m())
         s.in_validated_range = bool(pose.in_validated_range) and estimate <= k.MODEL_MAX_PRESSURE_PA
 
     def _pressure(self, target: float) -> PressureRequest:

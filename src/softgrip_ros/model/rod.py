@@ -145,13 +145,18 @@ class RodFinger:
         theta = np.asarray(self.law.angles(float(pressure_pa)), dtype=float)
         return (theta / self.geometry.segment_length_m)[self.element_segment]
 
+    def chamber_face_node(self, chamber_index: int) -> int:
+        """The node nearest the middle of chamber ``chamber_index``'s face (an index into
+        ``RodSolution.surface_m``)."""
+        if not 0 <= chamber_index < CHAMBER_COUNT:
+            raise ValueError(f"chamber_index must lie in [0, {CHAMBER_COUNT - 1}], got {chamber_index}")
+        return chamber_index * self.elements_per_segment + int(round(
+            0.5 * self.geometry.chamber_length_m / self.element_length_m))
+
     def chamber_face_point_m(self, pressure_pa: float, chamber_index: int) -> np.ndarray:
         """(x, z) of the chamber-side surface at the middle of chamber ``chamber_index``'s face, in
         free bending at ``pressure_pa`` (the nearest node)."""
-        if not 0 <= chamber_index < CHAMBER_COUNT:
-            raise ValueError(f"chamber_index must lie in [0, {CHAMBER_COUNT - 1}], got {chamber_index}")
-        node = chamber_index * self.elements_per_segment + int(round(
-            0.5 * self.geometry.chamber_length_m / self.element_length_m))
+        node = self.chamber_face_node(chamber_index)
         return self._shape(self.free_curvatures(pressure_pa))[3][node]
 
     # ---- geometry of a shape -----------------------------------------------------------------
