@@ -203,7 +203,8 @@ def test_the_grasp_reports_the_model_of_its_scene():
 @pytest.mark.parametrize("diameter_m", [0.02, 0.04])
 def test_a_held_cylinder_keeps_the_reported_tip_spacing_where_the_rod_puts_the_tips(diameter_m):
     """Free bending closes the tips through a held object (D2 = 0 at a clamp pressure); the state
-    reports its size instead, which the L2 rod confirms to 0.5 mm. Released, D2 is free again."""
+    reports its size instead, which the L2 rod confirms to 0.5 mm, and keeps it while RELEASE vents
+    and opens until the fingers clear the object. Stopped, nothing held, D2 is free again."""
     kinematics = build_kinematics("l1")
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.1), scene_model=MODEL)
     loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=diameter_m, object_mass_kg=0.2, command_id="g"))
@@ -214,10 +215,14 @@ def test_a_held_cylinder_keeps_the_reported_tip_spacing_where_the_rod_puts_the_t
     face_x_m = solution.surface_m[MODEL.rod.chamber_face_node(4)][0]
     assert solution.converged and solution.contact_force_n > 0.0
     assert -2.0 * face_x_m == pytest.approx(diameter_m, abs=0.5e-3)
+    releasing = []
+    loop.command(GraspRequest(Mode.RELEASE, command_id="r"))
+    loop.run_until(lambda s: s.phase == Phase.IDLE or releasing.append(s.tip_spacing_m), 5.0)
+    assert len(releasing) > 10 and min(releasing) == diameter_m and scene.contact
+    assert loop.fsm.state.tip_spacing_m > diameter_m                 # opened past it: free bending
     loop.command(GraspRequest(Mode.STOP, command_id="s"))
-    loop.run_until(lambda s: s.phase == Phase.IDLE, 2.0)
     loop.run_for(0.5)
-    assert loop.fsm.state.tip_spacing_m < 2e-3                      # vented, nothing held: free bending
+    assert loop.fsm.state.tip_spacing_m < 2e-3                      # vented, nothing held
 
 
 def test_a_pinched_sheet_is_the_reported_tip_spacing():

@@ -121,9 +121,9 @@ class GraspConfig:
 @dataclasses.dataclass
 class GraspState:
     """Everything GripperState reports, in SI units. The geometry (alpha, D2, D1) is the free
-    model's at the estimate, except that while an object is clamped or held D2 is at least its
-    size: free bending closes the tips through the object, which they rest on (see
-    :meth:`GraspStateMachine.held_object_m`)."""
+    model's at the estimate, except that while an object is between the fingers (clamped, held or
+    being released) D2 is at least its size: free bending closes the tips through the object,
+    which they rest on (see :meth:`GraspStateMachine.held_object_m`)."""
 
     phase: Phase = Phase.IDLE
     mode: int = Mode.STOP
@@ -408,18 +408,21 @@ class GraspStateMachine:
         return now - self._settled_since >= self.config.settle_s
 
     def held_object_m(self) -> float:
-        """The size of the commanded object while CLAMPING or HOLDING it (a cylinder's diameter,
-        or for PINCH a sheet's thickness); 0 otherwise. The tips rest on it: for 20 and 40 mm
-        cylinders from 0 to -20 kPa the L2 rod puts the tip-chamber faces 20.1 and 39.8 mm apart,
-        where free bending gives 0 (tests/test_control_grasp.py)."""
+        """The size of the commanded object while it is between the fingers: CLAMPING, HOLDING, or
+        RELEASING it until the fingers open past it (a cylinder's diameter, or for PINCH a sheet's
+        thickness); 0 otherwise. The tips rest on it: for 20 and 40 mm cylinders held at the clamp
+        pressure the L2 rod puts the tip-chamber faces within 0.5 mm of the diameter, where free
+        bending gives 0 (tests/test_model_fidelity.py)."""
         r = self._request
-        if r is None or self.state.phase not in (Phase.CLAMPING, Phase.HOLDING) or not math.isfinite(r.object_diameter_m):
+        if (r is None or self.state.phase not in (Phase.CLAMPING, Phase.HOLDING, Phase.RELEASING)
+                or not math.isfinite(r.object_diameter_m)):
             return 0.0
         return r.object_diameter_m
 
     def scene(self) -> Scene:
-        """What the fingers meet: the commanded object while CLAMPING or HOLDING it (a cylinder
-        level with the tip chambers at the opening pressure, or for PINCH a sheet), else free bending."""
+        """What the fingers meet: the commanded object while it is between them (see
+        :meth:`held_object_m`; a cylinder level with the tip chambers at the opening pressure, or
+        for PINCH a sheet), else free bending."""
         r = self._request
         if self.scene_model is None or not self.held_object_m() > 0.0:
             return FREE
