@@ -28,6 +28,21 @@ def median_seconds(function, number: int, repeat: int) -> float:
     return statistics.median(samples)
 
 
+def interleaved_seconds(functions: dict, repeat: int) -> dict:
+    """{name: [seconds of each of ``repeat`` calls]}, the functions called in turn, round after
+    round (after one untimed round): a busy moment of a shared host then falls on all of them
+    alike, where timing each one's calls in a row let it fall on one."""
+    for function in functions.values():
+        function()
+    samples = {name: [] for name in functions}
+    for _ in range(repeat):
+        for name, function in functions.items():
+            start = time.perf_counter()
+            function()
+            samples[name].append(time.perf_counter() - start)
+    return samples
+
+
 def repeat_count(text: str) -> int:
     """argparse type of every bench script's --repeat: a median needs at least 3 runs."""
     value = int(text)
