@@ -66,11 +66,11 @@ def plot(path, states, samples, start):
     top.step(t, [s.target_gauge_pressure_pa / 1e3 for s in states], where="post", color="k", lw=0.8, ls="--", label="target")
     top.set_ylabel("gauge pressure (kPa)")
     top.legend(fontsize=8, loc="lower left")
-    bottom.plot(t, [s.tip_spacing_m * 1e3 for s in states], color="C1", label="modelled tip spacing D2")
+    bottom.plot(t, [s.tip_spacing_m * 1e3 for s in states], color="C1", label="modelled tip spacing D2 (held: the object)")
     bottom.axhline(40.0, color="k", lw=0.8, ls=":", label="object (40 mm)")
     bottom.set_ylabel("D2 (mm)")
     bottom.set_xlabel("time (s)")
-    bottom.legend(fontsize=8, loc="upper right")
+    bottom.legend(fontsize=8, loc="lower right")
     for axis in (top, bottom):
         begin, current = t[0], PHASES[states[0].phase]
         for when, s in zip(t, states):
@@ -83,7 +83,7 @@ def plot(path, states, samples, start):
     for name, colour in COLOURS.items():
         if name != "FAULT":
             top.axvspan(0, 0, color=colour, label=name)
-    top.legend(fontsize=7, loc="lower left", ncol=2)
+    top.legend(fontsize=7, loc="center", ncol=2)
     top.set_title("softgrip grasp demo: ENVELOP_CLAMP 40 mm, 0.2 kg, then RELEASE (simulated gripper)")
     figure.tight_layout()
     figure.savefig(path, dpi=110)
