@@ -135,8 +135,9 @@ def main(argv=None) -> int:
              + "; ".join(f"{f} {q[0]:.0f}-{q[2]:.0f} us" for f, q in details["step_us_quartiles"].items())
              + ". The three filters' passes are interleaved, round after round, so that a busy moment of this "
              "shared host falls on all of them; timed as 7 passes of one filter in a row, the kf's median read "
-             "31.6, 33.7 and 51.6 us in three runs a minute apart (2026-11-22). Compare the filters within one run. Every filter widens P at each input change by the change in the state's rate "
-             "times `input_timing_std` (10 ms): on this trajectory, whose inputs are timed exactly, that costs about "
+             "31.6, 33.7 and 51.6 us in three runs a minute apart (2026-11-22). Compare the filters within one "
+             "run. Every filter widens P at each input change by the change in the state's rate times "
+             "`input_timing_std` (10 ms): on this trajectory, whose inputs are timed exactly, that costs about "
              "10 % of the RMSE (kf 44, ekf 43, ukf 42 Pa without it, in the run before it); with inputs 4 ms late it "
              "is what keeps the gate from rejecting a boosted fill (test_estimation). "
              "Chart: `docs/estimator_speed_accuracy.png`.")
