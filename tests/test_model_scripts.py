@@ -1,4 +1,4 @@
-"""The physics scripts as a user runs them: fit_yeoh, validate_model --json, bench_model --json."""
+"""The scripts as a user runs them: fit_yeoh, validate_model --json, the benchmarks' --json, the demo."""
 import json
 import pathlib
 import subprocess
@@ -52,6 +52,18 @@ def test_bench_model_json_reports_every_figure():
     figures = json.loads(result.stdout)
     assert set(figures) >= {"l0_single_us", "l0_batch_us_per_pressure", "l1_single_us", "inverse_us"}
     assert all(value > 0 for value in figures.values())
+
+
+def test_bench_estimator_json_reports_every_filter_with_its_interleaved_costs():
+    result = run("scripts/bench_estimator.py", "--json", "--repeat", "3", "--runs", "10")
+    assert result.returncode == 0, result.stderr
+    figures = json.loads(result.stdout)
+    quartiles = figures["details"]["step_us_quartiles"]
+    for name in ("kf", "ekf", "ukf"):
+        low, median, high = quartiles[name]
+        assert 0 < low <= median <= high and figures[f"{name}_step_us"] == pytest.approx(median), name
+        assert 0 < figures[f"rmse_ratio_{name}"] < 0.85, name         # better than the best sensor alone
+    assert isinstance(figures["nees_in_bounds"], bool)
 
 
 @pytest.mark.ros
