@@ -424,7 +424,7 @@ class GraspStateMachine:
         :meth:`held_object_m`; a cylinder level with the tip chambers at the opening pressure, or
         for PINCH a sheet), else free bending."""
         r = self._request
-        if self.scene_model is None or not self.held_object_m() > 0.0:
+        if self.scene_model is None or self.held_object_m() <= 0.0:
             return FREE
         key = (Mode(r.mode), r.object_diameter_m, self._open_pa)
         if key not in self._scenes:

@@ -6,10 +6,10 @@ and valve state, the process model's inputs); pressure/command (a VENT or HOLD i
 model at once, ahead of the status that confirms it). Out: pressure/estimate, stamped with the
 time the estimate refers to, after a sample (at most ``frequency``; while the chamber rests, at
 most ``rest_frequency``: nothing moves, and every estimate costs the kinematics and the grasp
-manager work and its subscribers a message) and, while no sample has come, predicted forward
-once no sample and no estimate has come for two periods of a timer at min(``frequency``, 50 Hz):
-every 40 ms by default (an rclpy timer at hundreds of Hz would starve the sensor callbacks);
-/diagnostics at 2 Hz.
+manager work and its subscribers a message) and, once neither a sample nor an estimate has come
+for two periods of a timer at min(``frequency``, 50 Hz), the prediction: every 40 ms by default
+while the sensors are silent (an rclpy timer at hundreds of Hz would starve the sensor
+callbacks); /diagnostics at 2 Hz.
 Parameters follow robot_localization where they fit. The filters live in softgrip_ros.estimation.
 """
 from __future__ import annotations
