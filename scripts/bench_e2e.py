@@ -259,9 +259,11 @@ def measure(idle_s: float, grasp_s: float, window_s: float) -> tuple[dict, dict]
     matched = [row for row in matched if row[2] is not None]
     if not all_commands or not matched:
         raise RuntimeError("no latency samples: no valve change or no tip pose was seen")
+    if any(published_s <= 0.0 for published_s, _, _ in matched):
+        raise RuntimeError("the rmw gave no source timestamp: the publish time cannot be measured")
     to_pose = [1e3 * (published_s - sent_s) for published_s, _, sent_s in matched]
     to_received = [1e3 * (received_s - sent_s) for _, received_s, sent_s in matched]
-    hops = [b - a for a, b in zip(to_pose, to_received)]
+    hops = [1e3 * (received_s - published_s) for published_s, received_s, _ in matched]
     figures = {
         "cmd_to_valve_frame_ms_median": statistics.median(all_commands),
         "cmd_to_valve_frame_ms_p99": p99(all_commands),
