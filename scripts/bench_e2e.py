@@ -83,7 +83,7 @@ class BusWatch:
 
     def __init__(self, channel: str):
         self.bus = can.Bus(interface="softgrip_ipc", channel=channel)
-        self.codec = FrameCodec(max_counter_delta=15)
+        self.codec = FrameCodec(max_counter_delta=15, sync_frames=0)
         self._sensor_ids = {self.codec.frame_ids[name] for name in SENSOR_FRAMES}
         self._valve_id = self.codec.frame_ids["ValveCommand"]
         self.valve_times: list = []     # sender time of each ValveCommand, and its channel-0 state

@@ -134,7 +134,7 @@ def node_loop_periods(rate_hz: float, seconds: float) -> np.ndarray:
 def codec_frames_per_s(repeat: int) -> float:
     """A different pressure in each frame, as a sensor sends: FrameCodec's cache of encoded
     frames (for the controller's re-sent commands) never applies."""
-    tx, rx = FrameCodec(), FrameCodec(max_counter_delta=15)
+    tx, rx = FrameCodec(), FrameCodec(max_counter_delta=15, sync_frames=0)
     pressures = [-12_345.6 + 10.0 * k for k in range(997)]
     state = {"k": 0}
 

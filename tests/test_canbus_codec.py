@@ -17,7 +17,7 @@ def sensor(codec, pressure=-12_345.6, status=0, counter=None):
 @settings(max_examples=200, deadline=None)
 @given(pressure=st.floats(-101_325, 700_000), status=st.integers(0, 15))
 def test_sensor_frame_round_trip(pressure, status):
-    tx, rx = FrameCodec(), FrameCodec()
+    tx, rx = FrameCodec(), FrameCodec(sync_frames=0)
     decoded = rx.decode(sensor(tx, pressure, status))
     assert decoded.name == "PressureSensor1"
     assert decoded.signals["GaugePressure"] == pytest.approx(pressure, abs=0.05 + 1e-9)  # 0.1 Pa resolution
@@ -28,7 +28,7 @@ def test_sensor_frame_round_trip(pressure, status):
 @given(setpoint=st.floats(-101_325, 600_000), enable=st.integers(0, 1), source=st.integers(0, 3),
        valves=st.lists(st.integers(0, 3), min_size=4, max_size=4), lifetime_ms=st.integers(0, 255))
 def test_command_frames_round_trip(setpoint, enable, source, valves, lifetime_ms):
-    tx, rx = FrameCodec(), FrameCodec()
+    tx, rx = FrameCodec(), FrameCodec(sync_frames=0)
     decoded = rx.decode(tx.encode("RegulatorSetpoint", {"SetpointGaugePressure": setpoint, "Enable": enable,
                                                          "Source": source}))
     assert decoded.signals["SetpointGaugePressure"] == pytest.approx(setpoint, abs=0.05 + 1e-9)
@@ -42,7 +42,7 @@ def test_command_frames_round_trip(setpoint, enable, source, valves, lifetime_ms
 @settings(max_examples=500, deadline=None)
 @given(arbitration_id=st.integers(0, 0x7FF), data=st.binary(min_size=0, max_size=8))
 def test_random_bytes_never_crash_the_decoder(arbitration_id, data):
-    codec = FrameCodec()
+    codec = FrameCodec(sync_frames=0)
     codec.decode(can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False))
     assert codec.accepted + codec.rejected_total == 1
 
@@ -59,23 +59,46 @@ def test_every_bit_flip_is_caught():
 
 
 def test_counter_rules():
-    tx, rx = FrameCodec(), FrameCodec(max_counter_delta=3, resync_after=3)
-    assert rx.decode(sensor(tx, counter=5))                 # the first frame starts the sequence
-    assert rx.decode(sensor(tx, counter=5)) is None         # repeated
+    tx, rx = FrameCodec(), FrameCodec(max_counter_delta=3, sync_frames=2)
+    assert rx.decode(sensor(tx, counter=5)) is None         # start-up: the first frame is the reference ...
+    assert rx.decode(sensor(tx, counter=6)) is None
+    assert rx.decode(sensor(tx, counter=7))                 # ... trusted after 2 frames in sequence
+    assert rx.synchronising == 2 and rx.rejected_total == 0  # not yet trusted is not bad
+    assert rx.decode(sensor(tx, counter=7)) is None         # repeated
     assert rx.rejected["repeated_counter"] == 1
-    assert rx.decode(sensor(tx, counter=7))                 # one lost frame is tolerated
-    assert rx.decode(sensor(tx, counter=3)) is None         # stale (a jump of 12)
-    assert rx.rejected["counter_jump"] == 1
-    assert rx.decode(sensor(tx, counter=8))                 # the live sequence goes on
-    assert rx.decode(sensor(tx, counter=15)) is None
-    assert rx.decode(sensor(tx, counter=0)) is None         # 15 -> 0 is a jump of 8 from the last valid 8
-    assert rx.decode(sensor(tx, counter=1))                 # third jump in a row: resynchronised
-    assert rx.decode(sensor(tx, counter=2))
-    assert rx.accepted == 5
+    assert rx.decode(sensor(tx, counter=9))                 # one lost frame is tolerated
+    assert rx.decode(sensor(tx, counter=3)) is None         # stale (a jump of 10): distrusted from here
+    assert rx.rejected["counter_jump"] == 1 and rx.receiver_states() == {"PressureSensor1": "INVALID"}
+    assert rx.decode(sensor(tx, counter=10)) is None        # the live sequence jumps from the stale frame too
+    assert rx.decode(sensor(tx, counter=11)) is None
+    assert rx.decode(sensor(tx, counter=12))                # two in sequence again: trusted
+    assert rx.receiver_states() == {"PressureSensor1": "VALID"}
+    assert rx.accepted == 3
+
+
+def test_a_replayed_burst_of_old_frames_is_never_acted_on():
+    """The adversary of #20: three old frames in their old order (in sequence among themselves,
+    jumping from the live stream) between two live frames. A receiver that resynchronised on a
+    jump accepted the third; with the E2E state machine none of them, and the live stream only
+    after sync_frames frames in sequence."""
+    tx, rx = FrameCodec(), FrameCodec()
+    stream = [sensor(tx, pressure=20_000.0 + i) for i in range(30)]       # frame i reads 20000 + i Pa
+    arrivals = stream[:16] + stream[8:11] + stream[16:]                  # frames 8-10 replayed after 15
+    taken = [rx.decode(frame) for frame in arrivals]
+    values = [round(d.signals["GaugePressure"] - 20_000.0) for d in taken if d is not None]
+    # start-up: frames 0-3 synchronise; the burst (8-10 again) and the live 16-19 after it are distrusted
+    assert values == list(range(4, 16)) + list(range(16 + rx.sync_frames, 30))
+    assert rx.rejected["counter_jump"] == 2      # into the burst, and out of it
+
+
+@pytest.mark.parametrize("bad", [-1, 65])
+def test_sync_frames_out_of_range_is_refused(bad):
+    with pytest.raises(ValueError, match="sync_frames"):
+        FrameCodec(sync_frames=bad)
 
 
 def test_counter_wraps_and_is_per_message():
-    tx, rx = FrameCodec(), FrameCodec(max_counter_delta=1)
+    tx, rx = FrameCodec(), FrameCodec(max_counter_delta=1, sync_frames=0)
     for _ in range(40):
         assert rx.decode(sensor(tx))
         assert rx.decode(tx.encode("RegulatorStatus", {"ActualGaugePressure": 1.0, "FaultBits": 0}))
@@ -128,7 +151,7 @@ def test_a_repeated_frame_is_taken_from_the_cache_and_equals_a_fresh_encode():
 
 def test_frame_ids_are_configurable():
     tx = FrameCodec(frame_ids={"PressureSensor1": 0x300})
-    rx = FrameCodec(frame_ids={"PressureSensor1": 0x300})
+    rx = FrameCodec(frame_ids={"PressureSensor1": 0x300}, sync_frames=0)
     frame = sensor(tx)
     assert frame.arbitration_id == 0x300
     assert rx.decode(frame).name == "PressureSensor1"

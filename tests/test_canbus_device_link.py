@@ -157,6 +157,9 @@ def test_a_command_steps_in_the_callers_thread_without_waiting_for_the_loop(rig)
     device, link = rig
     make_control_loop(link, 1.0, 1.0)          # sets link.wake; never started
     wait_for(lambda: link.frames_rx > 20, message="sensor frames")
+    for _ in range(link.codec.sync_frames + 1):     # a controller that has been running: the device trusts its frames
+        link.step()
+        time.sleep(link.command_frame_period_s)
     seen = []    # the note reaches on_applied before the step the command runs sends anything
     link.command(90e3, Source.SUPPLY, math.nan, on_applied=lambda note: seen.append((note, link.frames_tx)))
     assert "clamped" in seen[0][0] and seen[0][1] < link.frames_tx
@@ -262,7 +265,7 @@ def test_command_frames_go_out_on_change_and_else_once_per_frame_period():
     link = ControllerLink(controller_bus, PressureController(PressureControlConfig()), SENSORS,
                           clock=lambda: now[0], command_frame_period_s=0.01)
     link.controller.active = True
-    codec = FrameCodec(max_counter_delta=15)
+    codec = FrameCodec(max_counter_delta=15, sync_frames=0)
 
     def frames_over(steps):
         sent = []
@@ -302,7 +305,9 @@ def test_readings_are_as_old_as_their_frames_not_their_late_processing():
     channel = f"softgrip-test-{uuid.uuid4().hex[:8]}"
     sender = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
     receiver = can.Bus(interface="virtual", channel=channel)
-    link = ControllerLink(receiver, PressureController(PressureControlConfig(sensor_timeout_s=0.05)), SENSORS)
+    # hand-made frames one by one: a receiver that trusts at once (E2E: test_canbus_codec)
+    link = ControllerLink(receiver, PressureController(PressureControlConfig(sensor_timeout_s=0.05)), SENSORS,
+                          codec=FrameCodec(sync_frames=0))
     codec = FrameCodec()
     try:
         def send(gauge_pa, age_s):

@@ -221,7 +221,7 @@ def test_the_installed_controller_grasps_over_dds_and_exits_cleanly_on_sigterm(t
     channel = unique("e2e-proc")
     ros_args = ["--ros-args", "-p", "can.interface:=softgrip_ipc", "-p", f"can.channel:={channel}"]
     monitor = can.Bus(interface="softgrip_ipc", channel=channel)
-    codec, valve_frames = FrameCodec(max_counter_delta=15), []
+    codec, valve_frames = FrameCodec(max_counter_delta=15, sync_frames=0), []
     notifier = can.Notifier(monitor, [lambda f: (lambda d: d and d.name == "ValveCommand" and valve_frames.append(d))(
         codec.decode(f))], timeout=0.05)
     log = open(tmp_path / "controller.log", "w+")

@@ -264,7 +264,7 @@ def test_sigterm_vents_and_exits_cleanly(tmp_path):
     device = subprocess.Popen([installed_executable("sim_device"), *ros_args], stdout=logs["device"], stderr=subprocess.STDOUT, text=True)
     controller = subprocess.Popen([installed_executable("pressure_controller"), *ros_args], stdout=logs["controller"],
                                   stderr=subprocess.STDOUT, text=True)
-    codec = FrameCodec(max_counter_delta=15)
+    codec = FrameCodec(max_counter_delta=15, sync_frames=0)
     valve_frames = []
     notifier = can.Notifier(monitor, [lambda frame: (lambda d: d and d.name == "ValveCommand" and valve_frames.append(d))(
         codec.decode(frame))], timeout=0.05)

@@ -12,6 +12,15 @@ rejects, counting the reason: an unknown ID, a wrong DLC, a bad CRC, a repeated 
 a counter jump beyond ``max_counter_delta`` (stale or lost frames), or a value outside
 its DBC range. A rejected frame is never returned, so it can never be acted on.
 
+Each received message runs the receive state machine of AUTOSAR's E2E profiles, simplified:
+its sender is trusted (VALID) only after ``sync_frames`` consecutive in-sequence frames (counter
+steps of 1 to ``max_counter_delta``), at start-up (INIT) and again after every counter jump
+(INVALID), and no frame is returned until then. So a burst of up to ``sync_frames`` stale
+frames (a gateway flushing its buffer, a replay) is never acted on, and neither is the live
+stream until it has shown ``sync_frames`` frames in sequence again. A repeated counter (the
+same frame twice) is dropped and changes no state. These checks detect faults and stale
+data; they are not authentication: whoever can write on the bus can send well-formed frames.
+
 Frame IDs can be remapped per message name (``frame_ids``) without editing the DBC.
 """
 from __future__ import annotations
@@ -32,6 +41,18 @@ CRC_BYTE = 7
 ENCODED_CACHE_SIZE = 512     # (message, signals, counter) -> payload; cleared when full
 
 REJECT_REASONS = ("unknown_id", "bad_dlc", "bad_crc", "repeated_counter", "counter_jump", "out_of_range", "undecodable")
+DEFAULT_SYNC_FRAMES = 4      # a stale burst of up to this many frames is never acted on
+
+
+@dataclasses.dataclass
+class ReceiverState:
+    """The E2E receive state of one message: INIT until its first run of in-sequence frames,
+    VALID while it is trusted, INVALID after a counter jump until a new run."""
+
+    state: str = "INIT"
+    counter: int | None = None      # the last counter seen in sequence (the reference)
+    run: int = 0                    # in-sequence frames since the reference
+    errors: int = 0                 # counter jumps
 
 
 def _crc8_table() -> tuple:
@@ -73,19 +94,22 @@ class FrameCodec:
     dbc_path: the DBC (default: the packaged config/softgrip.dbc).
     frame_ids: optional {message name: arbitration ID} overrides.
     max_counter_delta: the largest accepted counter step (1 = no frame may be lost).
-    resync_after: consecutive counter jumps after which the receiver accepts the new sequence.
+    sync_frames: consecutive in-sequence frames after which a sender is trusted, at start-up and
+        after a counter jump (0: at once).
     """
 
     def __init__(self, dbc_path=None, frame_ids: dict | None = None, max_counter_delta: int = 3,
-                 resync_after: int = 3):
+                 sync_frames: int = DEFAULT_SYNC_FRAMES):
         if dbc_path is None:
             from softgrip_ros.config_paths import config_file
             dbc_path = config_file("softgrip.dbc")
         self.database = cantools.database.load_file(str(pathlib.Path(dbc_path)))
         if not 1 <= max_counter_delta < COUNTER_MODULO:
             raise ValueError(f"max_counter_delta must lie in [1, {COUNTER_MODULO - 1}], got {max_counter_delta}")
+        if not 0 <= sync_frames <= 64:
+            raise ValueError(f"sync_frames must lie in [0, 64], got {sync_frames}")
         self.max_counter_delta = max_counter_delta
-        self.resync_after = resync_after
+        self.sync_frames = sync_frames
         self._messages = {m.name: m for m in self.database.messages}
         for name, message in self._messages.items():
             missing = {COUNTER_SIGNAL, CRC_SIGNAL} - {s.name for s in message.signals}
@@ -111,9 +135,9 @@ class FrameCodec:
         # a frame is a pure function of its signals and counter: a controller at rest re-sends the
         # same few every control tick, and cantools' encode costs more than the rest of a send
         self._encoded: dict = {}
-        self._rx_counters: dict = {}
-        self._rx_jumps = collections.defaultdict(int)
+        self._receivers = collections.defaultdict(ReceiverState)
         self.rejected = collections.Counter({reason: 0 for reason in REJECT_REASONS})
+        self.synchronising = 0        # in-sequence frames not yet trusted (INIT or INVALID), not counted as bad
         self.accepted = 0
 
     @property
@@ -179,21 +203,33 @@ class FrameCodec:
         counter = int(signals.pop(COUNTER_SIGNAL))
         signals.pop(CRC_SIGNAL)
         with self._lock:
-            last = self._rx_counters.get(name)
-            if last is not None:
-                delta = (counter - last) % COUNTER_MODULO
+            receiver = self._receivers[name]
+            if receiver.counter is None:
+                receiver.counter = counter            # the first frame: the reference of a first run
+            else:
+                delta = (counter - receiver.counter) % COUNTER_MODULO
                 if delta == 0:
                     self.rejected["repeated_counter"] += 1
                     return None
-                if delta > self.max_counter_delta:
-                    self._rx_jumps[name] += 1
-                    if self._rx_jumps[name] < self.resync_after:
-                        self.rejected["counter_jump"] += 1
-                        return None
-            self._rx_counters[name] = counter
-            self._rx_jumps[name] = 0
+                receiver.counter = counter
+                if delta > self.max_counter_delta:    # stale or lost: distrust until a new run
+                    receiver.state, receiver.run = "INVALID", 0
+                    receiver.errors += 1
+                    self.rejected["counter_jump"] += 1
+                    return None
+                receiver.run += 1
+            if receiver.state != "VALID":
+                if receiver.run < self.sync_frames:
+                    self.synchronising += 1
+                    return None
+                receiver.state = "VALID"
             self.accepted += 1
         return DecodedFrame(name, signals, frame.timestamp)
+
+    def receiver_states(self) -> dict:
+        """{message name: its E2E state (INIT, VALID, INVALID)} of every message received so far."""
+        with self._lock:
+            return {name: receiver.state for name, receiver in self._receivers.items()}
 
     @property
     def rejected_total(self) -> int:
