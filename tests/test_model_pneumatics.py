@@ -174,3 +174,19 @@ def test_bad_step_is_rejected():
         PneumaticPlant(PneumaticParameters(channels=2)).step(
             PneumaticPlant(PneumaticParameters(channels=2)).initial_state(),
             PlantInputs(valves=(Valve.SUPPLY, Valve.VENT, Valve.VENT)), 1e-3)
+
+
+def test_a_disabled_regulator_cuts_both_sources():
+    """Enable = 0 is the device's safe state: the regulator's output goes to 0 whatever its fault,
+    and the vacuum valve path leads to a vented line, so no valve state can pump."""
+    plant = PneumaticPlant()
+    disabled = PlantInputs(regulator_setpoint_gauge_pa=40e3, regulator_enabled=False, valves=(Valve.VACUUM,),
+                           regulator_overshoot_pa=100e3)
+    assert plant.regulator_target_gauge_pa(disabled) == 0.0
+    state = plant.initial_state(-30e3)
+    for _ in range(500):
+        state = plant.step(state, disabled, 2e-3)
+    assert abs(state.chamber_pa[0] - P_ATM_PA) < 100.0 and abs(state.regulator_gauge_pa) < 100.0
+    live = PlantInputs(regulator_enabled=True, valves=(Valve.VACUUM,))
+    assert plant.chamber_rate(P_ATM_PA, Valve.VACUUM, 0.0) < 0.0 == plant.chamber_rate(P_ATM_PA, Valve.VACUUM, 0.0, False)
+    assert plant.step(plant.initial_state(), live, 0.01).chamber_pa[0] < P_ATM_PA - 1e3

@@ -8,10 +8,21 @@ with sensor noise, quantisation and bias. Faults can be injected at any time
 Like a real device it has a watchdog: without a valid ValveCommand for
 ``command_watchdog_s`` it closes its valves and drives the regulator to 0. Before that, a
 channel in SUPPLY or VACUUM closes when the OpenLifetime of the last ValveCommand runs out
-(within a plant step: the step is split at that instant).
+(within a plant step: the step is split at that instant). A RegulatorSetpoint with Enable = 0
+cuts both sources (see :mod:`softgrip_ros.model.pneumatics`): the second path to safety, which
+holds even when a valve is stuck open.
+
+The plant runs on real elapsed time: each tick integrates exactly the time since the last one
+(a tick late by a few ms integrates those; the quick catch-up ticks after it integrate
+almost nothing), so that the simulated chamber keeps real time.
+
+:meth:`SimulatedDevice.true_extremes` gives the lowest and highest true chamber pressure since
+the last :meth:`SimulatedDevice.reset_true_extremes`, over every plant step: what a fault test
+judges, rather than what any sensor said.
 """
 from __future__ import annotations
 
+import collections
 import dataclasses
 import logging
 import math
@@ -72,22 +83,37 @@ class SimDeviceConfig:
 
 SOURCE_VALVES = (Valve.SUPPLY, Valve.VACUUM)   # the states that expire with OpenLifetime
 
+# What a stuck sensor reads (fault sensor_stuck_at): "present" freezes its last reading; "low"
+# and "high" are fixed readings inside the pressure limits, so that only a plausibility check,
+# not the limits, can catch them.
+STUCK_READINGS_PA = {"low": -40e3, "high": 40e3}
+REPLAY_BURST_FRAMES = 3        # a replay burst: this many old frames of a sensor, in their old order
+REPLAY_AGE_FRAMES = 8          # ... sent this many frames ago (their counters jump from the live ones)
+
 FAULTS = {
     "sensor_dropout": "",        # a sensor name, or "all": those sensors fall silent
-    "sensor_stuck": "",          # a sensor name, or "all": those sensors repeat their last value
+    "sensor_stuck": "",          # a sensor name, or "all": those sensors read sensor_stuck_at
+    "sensor_stuck_at": "present",   # "present" (the last reading, frozen), "low" or "high" (STUCK_READINGS_PA)
     "sensor_bias_pa": 0.0,       # added to every sensor reading
+    "sensor_noise_scale": 1.0,   # multiplies every sensor's noise
     "regulator_overshoot_pa": 0.0,  # the regulator settles this far above its setpoint
     "valve_stuck": False,        # the valves ignore commands and keep their state
+    "valve_stuck_open": False,   # the valves ignore commands and stay open to SUPPLY
     "bus_silent": False,         # the device sends nothing at all
     "corrupt_rate": 0.0,         # fraction of sent frames with a bad CRC or a repeated counter
+    "replay_rate_hz": 0.0,       # bursts per second of replayed old frames (see SimulatedDevice.replay_burst)
 }
+FAULT_CHOICES = {"sensor_stuck_at": ("present", *STUCK_READINGS_PA)}
+FAULT_RANGES = {"corrupt_rate": (0.0, 1.0), "sensor_noise_scale": (0.0, 100.0), "replay_rate_hz": (0.0, 100.0)}
 
 
 class SimulatedDevice:
     """The device on ``bus``. Call :meth:`start`, then :meth:`stop` (it does not close the bus)."""
 
-    def __init__(self, bus: can.BusABC, config: SimDeviceConfig | None = None, codec: FrameCodec | None = None):
+    def __init__(self, bus: can.BusABC, config: SimDeviceConfig | None = None, codec: FrameCodec | None = None,
+                 clock=time.monotonic):
         self.bus = bus
+        self.clock = clock
         self.config = config or SimDeviceConfig()
         self.codec = codec or FrameCodec()
         self.plant = PneumaticPlant(self.config.plant)
@@ -100,6 +126,11 @@ class SimulatedDevice:
         self._stuck_values: dict = {}
         self._last_valve_command = -math.inf
         self._valves_open_until = math.inf
+        self._sent_history = {s.message: collections.deque(maxlen=REPLAY_AGE_FRAMES + REPLAY_BURST_FRAMES)
+                              for s in self.config.sensors}
+        self._received_valve_frames = collections.deque(maxlen=REPLAY_AGE_FRAMES + 1)
+        self._next_replay = math.inf
+        self._true_low = self._true_high = 0.0
         self._loop = PeriodicThread(self._tick, self.config.plant_rate_hz, "softgrip-sim-device")
         self._notifier = None
         self._started_at = 0.0
@@ -110,7 +141,7 @@ class SimulatedDevice:
     def start(self) -> None:
         if self._loop.running:
             return
-        self._started_at = self._last_tick = time.monotonic()
+        self._started_at = self._last_tick = self.clock()
         self._last_valve_command = self._started_at
         self._next_sensor = {s.name: 0.0 for s in self.config.sensors}
         self._next_status = self._next_heartbeat = 0.0
@@ -133,10 +164,15 @@ class SimulatedDevice:
             value = float(value)
             if not math.isfinite(value):
                 raise ValueError(f"fault {name} must be finite")
-            if name == "corrupt_rate" and not 0.0 <= value <= 1.0:
-                raise ValueError("corrupt_rate must lie in [0, 1]")
+            low, high = FAULT_RANGES.get(name, (-math.inf, math.inf))
+            if not low <= value <= high:
+                raise ValueError(f"fault {name} must lie in [{low:g}, {high:g}], got {value:g}")
         elif kind is bool:
             value = bool(value)
+        elif name in FAULT_CHOICES:
+            value = str(value)
+            if value not in FAULT_CHOICES[name]:
+                raise ValueError(f"fault {name} must be one of {list(FAULT_CHOICES[name])}, got {value!r}")
         else:
             value = str(value)
             known = {s.name for s in self.config.sensors} | {"all", ""}
@@ -144,8 +180,10 @@ class SimulatedDevice:
                 raise ValueError(f"fault {name}: unknown sensor {value!r}; known: {sorted(known - {''})}")
         with self._lock:
             self._faults[name] = value
-            if name == "sensor_stuck":
+            if name in ("sensor_stuck", "sensor_stuck_at"):
                 self._stuck_values.clear()
+            if name == "replay_rate_hz":
+                self._next_replay = self.clock() if value > 0.0 else math.inf
 
     @property
     def faults(self) -> dict:
@@ -160,8 +198,25 @@ class SimulatedDevice:
         with self._lock:
             return tuple(self._inputs.valves)
 
+    def regulator_enabled(self) -> bool:
+        with self._lock:
+            return bool(self._inputs.regulator_enabled)
+
+    def true_extremes(self) -> tuple[float, float]:
+        """(lowest, highest) true gauge pressure of any channel since :meth:`reset_true_extremes`, Pa."""
+        with self._lock:
+            return self._true_low, self._true_high
+
+    def reset_true_extremes(self) -> None:
+        with self._lock:
+            gauge = self._state.chamber_pa - P_ATM_PA
+            self._true_low, self._true_high = float(gauge.min()), float(gauge.max())
+
     # ---- reception (Notifier thread) -----------------------------------------------------------
     def _on_frame(self, frame: can.Message) -> None:
+        if self.codec.frame_ids.get("ValveCommand") == frame.arbitration_id:
+            with self._lock:
+                self._received_valve_frames.append(frame)
         decoded = self.codec.decode(frame)
         if decoded is None:
             return
@@ -172,8 +227,8 @@ class SimulatedDevice:
                     self._inputs, regulator_setpoint_gauge_pa=decoded.signals["SetpointGaugePressure"],
                     regulator_enabled=bool(decoded.signals["Enable"]))
             elif decoded.name == "ValveCommand":
-                self._last_valve_command = time.monotonic() - frame_age_s(frame)   # from its arrival on the bus
-                if not self._faults["valve_stuck"]:
+                self._last_valve_command = self.clock() - frame_age_s(frame)   # from its arrival on the bus
+                if not (self._faults["valve_stuck"] or self._faults["valve_stuck_open"]):
                     self._valves_open_until = self._last_valve_command + decoded.signals["OpenLifetime"]
                     channels = self.config.plant.channels
                     self._inputs = dataclasses.replace(
@@ -185,13 +240,20 @@ class SimulatedDevice:
         return self._loop.ticks
 
     def _tick(self) -> None:
-        """One plant step of the real elapsed time (bounded after a stall), then the frames due."""
-        now = time.monotonic()
-        elapsed = min(max(now - self._last_tick, 1.0 / self.config.plant_rate_hz), 0.05)
+        """One plant step of exactly the real time elapsed since the last tick (bounded after a
+        stall), then the frames due."""
+        now = self.clock()
+        elapsed = min(now - self._last_tick, 0.05)
         self._last_tick = now
         sim_time = now - self._started_at
         try:
-            self._advance(elapsed, now)
+            if elapsed > 0.0:
+                self._advance(elapsed, now)
+            if now >= self._next_replay:
+                with self._lock:
+                    rate_hz = self._faults["replay_rate_hz"]
+                self._next_replay = now + 1.0 / rate_hz if rate_hz > 0.0 else math.inf
+                self.replay_burst()
             for sensor in self.config.sensors:
                 if sim_time >= self._next_sensor[sensor.name]:
                     self._next_sensor[sensor.name] = max(self._next_sensor[sensor.name] + 1.0 / sensor.rate_hz, sim_time)
@@ -210,9 +272,14 @@ class SimulatedDevice:
             inputs = self._inputs
             if now - self._last_valve_command > self.config.command_watchdog_s:
                 inputs = PlantInputs(regulator_enabled=False, valves=(Valve.CLOSED,) * self.config.plant.channels)
+            stuck = self._faults["valve_stuck"] or self._faults["valve_stuck_open"]
+            if stuck:     # a stuck valve obeys neither the commands nor the watchdog
+                stuck_valves = (Valve.SUPPLY,) * self.config.plant.channels if self._faults["valve_stuck_open"] \
+                    else self._inputs.valves
+                inputs = dataclasses.replace(inputs, valves=stuck_valves)
             inputs = dataclasses.replace(inputs, regulator_overshoot_pa=self._faults["regulator_overshoot_pa"])
             open_for = self._valves_open_until - (now - dt)
-            expires = open_for < dt and not self._faults["valve_stuck"]
+            expires = open_for < dt and not stuck
             if expires and any(v in SOURCE_VALVES for v in inputs.valves):
                 if open_for > 0.0:
                     self._state = self.plant.step(self._state, inputs, open_for)
@@ -221,6 +288,10 @@ class SimulatedDevice:
                 inputs = dataclasses.replace(inputs, valves=valves)
                 self._inputs = dataclasses.replace(self._inputs, valves=valves)
             self._state = self.plant.step(self._state, inputs, dt)
+            if stuck:
+                self._inputs = dataclasses.replace(self._inputs, valves=inputs.valves)   # what the valves really do
+            gauge = self._state.chamber_pa - P_ATM_PA
+            self._true_low, self._true_high = min(self._true_low, float(gauge.min())), max(self._true_high, float(gauge.max()))
 
     def _send_sensor(self, sensor: SensorSpec) -> None:
         with self._lock:
@@ -229,17 +300,42 @@ class SimulatedDevice:
                 return
             true_gauge = self._state.chamber_pa[sensor.channel] - P_ATM_PA
             stuck = faults["sensor_stuck"] in (sensor.name, "all")
-            bias = faults["sensor_bias_pa"]
-        if stuck and sensor.name in self._stuck_values:
+            stuck_at = STUCK_READINGS_PA.get(faults["sensor_stuck_at"])
+            bias, noise_scale = faults["sensor_bias_pa"], faults["sensor_noise_scale"]
+        if stuck and stuck_at is not None:
+            reading = stuck_at
+        elif stuck and sensor.name in self._stuck_values:
             reading = self._stuck_values[sensor.name]
         else:
-            reading = true_gauge + sensor.bias_pa + bias + sensor.noise_std_pa * self._rng.standard_normal()
+            reading = (true_gauge + sensor.bias_pa + bias
+                       + noise_scale * sensor.noise_std_pa * self._rng.standard_normal())
             if sensor.quantisation_pa > 0.0:
                 reading = round(reading / sensor.quantisation_pa) * sensor.quantisation_pa
             low, high = self.codec.signal_range(sensor.message, "GaugePressure")
             reading = min(max(reading, low), high)
             self._stuck_values[sensor.name] = reading
-        self._send(sensor.message, {"GaugePressure": reading, "SensorStatus": 0})
+        frame = self._send(sensor.message, {"GaugePressure": reading, "SensorStatus": 0})
+        if frame is not None:
+            with self._lock:
+                self._sent_history[sensor.message].append(frame)
+
+    def replay_burst(self) -> None:
+        """Replay old frames, as a faulty gateway or an adversary on the bus would: the first
+        sensor's REPLAY_BURST_FRAMES frames of REPLAY_AGE_FRAMES ago, in their old order (in
+        sequence among themselves, their counters jump from the live stream), and the
+        ValveCommand received REPLAY_AGE_FRAMES ago, into this device's own receiver. The E2E
+        checks must keep both from being acted on."""
+        message = self.config.sensors[0].message
+        with self._lock:
+            history = list(self._sent_history[message])
+            valve_frames = list(self._received_valve_frames)
+        if len(history) == REPLAY_AGE_FRAMES + REPLAY_BURST_FRAMES:
+            for frame in history[:REPLAY_BURST_FRAMES]:
+                self._send_frame(frame)
+        if len(valve_frames) > REPLAY_AGE_FRAMES:
+            old = valve_frames[0]
+            self._on_frame(can.Message(arbitration_id=old.arbitration_id, data=old.data, is_extended_id=False,
+                                       timestamp=time.time()))
 
     def _send_status(self) -> None:
         with self._lock:
@@ -247,18 +343,27 @@ class SimulatedDevice:
         low, high = self.codec.signal_range("RegulatorStatus", "ActualGaugePressure")
         self._send("RegulatorStatus", {"ActualGaugePressure": min(max(actual, low), high), "FaultBits": 0})
 
-    def _send(self, message: str, signals: dict) -> None:
+    def _send(self, message: str, signals: dict) -> can.Message | None:
+        """Encode and send; the frame as encoded (before any corruption), None when the bus is silent."""
         with self._lock:
             silent, corrupt_rate = self._faults["bus_silent"], self._faults["corrupt_rate"]
         if silent:
-            return
-        frame = self.codec.encode(message, signals)
+            return None
+        frame = sent = self.codec.encode(message, signals)
         if corrupt_rate > 0.0 and self._corrupt_rng.random() < corrupt_rate:
             data = bytearray(frame.data)
             if self._corrupt_rng.random() < 0.5:
                 data[self._corrupt_rng.randrange(7)] ^= 1 << self._corrupt_rng.randrange(8)   # bad CRC
-                frame = can.Message(arbitration_id=frame.arbitration_id, data=bytes(data), is_extended_id=False)
+                sent = can.Message(arbitration_id=frame.arbitration_id, data=bytes(data), is_extended_id=False)
             else:
                 self.bus.send(frame)                                                          # repeated counter
-        self.bus.send(frame)
+        self.bus.send(sent)
         self.frames_sent += 1
+        return frame
+
+    def _send_frame(self, frame: can.Message) -> None:
+        with self._lock:
+            silent = self._faults["bus_silent"]
+        if not silent:
+            self.bus.send(can.Message(arbitration_id=frame.arbitration_id, data=frame.data, is_extended_id=False))
+            self.frames_sent += 1

@@ -46,7 +46,8 @@ def plant_step(plant: PneumaticPlant, x: np.ndarray, dt: float, inputs: PlantInp
     chamber_gauge, regulator_gauge = float(x[CHAMBER]), float(x[REGULATOR])
     regulator_next, d_regulator = plant.regulator_step(regulator_gauge, inputs, dt)
     chamber_pa = max(chamber_gauge + P_ATM_PA, _MIN_ABSOLUTE_PA)
-    chamber_next, d_chamber, d_chamber_d_regulator = plant.chamber_step(chamber_pa, _valve(inputs), regulator_next, dt)
+    chamber_next, d_chamber, d_chamber_d_regulator = plant.chamber_step(chamber_pa, _valve(inputs), regulator_next, dt,
+                                                                        inputs.regulator_enabled)
     state = np.array([chamber_next - P_ATM_PA, regulator_next])
     if not jacobian:
         return state
@@ -140,7 +141,7 @@ class LinearFilter(PressureFilter):
         if valve == Valve.SUPPLY:   # s = a r + c
             a, c = 0.5 * (1.0 + decay_regulator), 0.5 * regulator_input
         else:
-            a, c = 0.0, self.plant.source(valve, 0.0)[0] - P_ATM_PA
+            a, c = 0.0, self.plant.source(valve, 0.0, inputs.regulator_enabled)[0] - P_ATM_PA
         source_gauge = a * regulator_gauge + c
         conductance = self.plant.source(valve, 0.0)[1]
         decay = 1.0

@@ -25,6 +25,11 @@ source and settles exactly at equilibrium for any step.
 The regulator follows its setpoint with a first-order lag and a rate limit, integrated
 exactly (stable for any step). Its flow demand is not modelled: it is assumed large
 enough to hold its output.
+
+Disabling the regulator (``PlantInputs.regulator_enabled`` false, the CAN RegulatorSetpoint's
+Enable = 0) is the device's safe state: the regulator's inlet is cut, so its output goes to
+0 Pa gauge whatever its setpoint or fault, and the vacuum source is isolated from the valve
+block, its line vented. No valve state can then pump, not even a valve stuck open.
 """
 from __future__ import annotations
 
@@ -127,8 +132,9 @@ class PlantState:
 
 @dataclasses.dataclass
 class PlantInputs:
-    """regulator_setpoint_gauge_pa (clamped to the sources), regulator_enabled, valves per channel,
-    regulator_overshoot_pa (a fault: the output settles this far above its setpoint)."""
+    """regulator_setpoint_gauge_pa (clamped to the sources), regulator_enabled (false: both sources
+    cut, see the module docstring), valves per channel, regulator_overshoot_pa (a fault: the output
+    settles this far above its setpoint while enabled)."""
 
     regulator_setpoint_gauge_pa: float = 0.0
     regulator_enabled: bool = True
@@ -157,13 +163,14 @@ class PneumaticPlant:
         swelling = np.where(self.volume_m3(chamber_pa) > par.min_chamber_volume_m3, par.chamber_compliance_m3_per_pa, 0.0)
         return self.volume_m3(chamber_pa) + np.asarray(chamber_pa) * swelling
 
-    def source(self, valve: Valve, regulator_gauge_pa: float) -> tuple[float, float]:
-        """(absolute pressure, conductance) a valve state connects the chamber to; conductance 0 = closed."""
+    def source(self, valve: Valve, regulator_gauge_pa: float, sources_live: bool = True) -> tuple[float, float]:
+        """(absolute pressure, conductance) a valve state connects the chamber to; conductance 0 = closed.
+        ``sources_live`` false (the regulator disabled): the vacuum line is isolated and vented."""
         par = self.parameters
         if valve == Valve.SUPPLY:
             return P_ATM_PA + regulator_gauge_pa, par.supply_conductance
         if valve == Valve.VACUUM:
-            return P_ATM_PA + par.vacuum_source_gauge_pa, par.vacuum_conductance
+            return P_ATM_PA + (par.vacuum_source_gauge_pa if sources_live else 0.0), par.vacuum_conductance
         if valve == Valve.VENT:
             return P_ATM_PA, par.vent_conductance
         return P_ATM_PA, 0.0
@@ -176,9 +183,9 @@ class PneumaticPlant:
         return orifice_mass_flow(source_pa, chamber_pa, conductance, self.parameters.critical_ratio,
                                  self.parameters.temperature_k)
 
-    def chamber_rate(self, chamber_pa: float, valve: Valve, regulator_gauge_pa: float) -> float:
+    def chamber_rate(self, chamber_pa: float, valve: Valve, regulator_gauge_pa: float, sources_live: bool = True) -> float:
         """dp/dt of one chamber (Pa/s)."""
-        source_pa, conductance = self.source(valve, regulator_gauge_pa)
+        source_pa, conductance = self.source(valve, regulator_gauge_pa, sources_live)
         return self.rate_and_slopes(float(chamber_pa), source_pa, conductance)[0]
 
     def rate_and_slopes(self, chamber_pa: float, source_pa: float, conductance: float) -> tuple[float, float, float]:
@@ -215,8 +222,9 @@ class PneumaticPlant:
 
     def regulator_target_gauge_pa(self, inputs: PlantInputs) -> float:
         par = self.parameters
-        target = inputs.regulator_setpoint_gauge_pa if inputs.regulator_enabled else 0.0
-        target = min(max(target, par.vacuum_source_gauge_pa), par.supply_gauge_pa)
+        if not inputs.regulator_enabled:
+            return 0.0                       # the inlet cut: no setpoint or fault can raise the output
+        target = min(max(inputs.regulator_setpoint_gauge_pa, par.vacuum_source_gauge_pa), par.supply_gauge_pa)
         return min(target + inputs.regulator_overshoot_pa, par.supply_gauge_pa)
 
     def chamber_mass_kg(self, chamber_pa):
@@ -228,18 +236,19 @@ class PneumaticPlant:
         if not (math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be positive and finite, got {dt}")
         regulator = self.regulator_step(state.regulator_gauge_pa, inputs, dt)[0]
-        chambers = np.array([self.chamber_step(p, valve, regulator, dt)[0]
+        chambers = np.array([self.chamber_step(p, valve, regulator, dt, inputs.regulator_enabled)[0]
                              for p, valve in zip(state.chamber_pa, self._valves(inputs))])
         return PlantState(regulator, chambers)
 
-    def chamber_step(self, chamber_pa: float, valve: Valve, regulator_gauge_pa: float, dt: float) -> tuple[float, float, float]:
+    def chamber_step(self, chamber_pa: float, valve: Valve, regulator_gauge_pa: float, dt: float,
+                     sources_live: bool = True) -> tuple[float, float, float]:
         """One backward-Euler step of one chamber: (p_next, dp_next/dp, dp_next/d regulator).
 
         p_next solves g(p) = p - p_n - dt f(p) = 0, which rises strictly from p_n to the source,
         so a Newton iteration kept inside that bracket (bisection when it leaves) converges.
         The derivatives follow from the implicit function theorem: 1/(1 - dt f_p) and
         dt f_s/(1 - dt f_p), with f_s = 0 unless the valve joins the regulator."""
-        source_pa, conductance = self.source(valve, regulator_gauge_pa)
+        source_pa, conductance = self.source(valve, regulator_gauge_pa, sources_live)
         p_n = float(chamber_pa)
         if conductance == 0.0 or source_pa == p_n:
             return p_n, 1.0, 0.0
@@ -297,7 +306,7 @@ class PneumaticPlant:
     def explicit_euler_step(self, state: PlantState, inputs: PlantInputs, dt: float) -> PlantState:
         """The naive scheme, kept to show where it fails (tests and the integrator benchmark)."""
         regulator = self.regulator_step(state.regulator_gauge_pa, inputs, dt)[0]
-        chambers = np.array([p + dt * self.chamber_rate(p, valve, state.regulator_gauge_pa)
+        chambers = np.array([p + dt * self.chamber_rate(p, valve, state.regulator_gauge_pa, inputs.regulator_enabled)
                              for p, valve in zip(state.chamber_pa, self._valves(inputs))])
         return PlantState(regulator, chambers)
 
@@ -308,7 +317,8 @@ class PneumaticPlant:
         target = self.regulator_target_gauge_pa(inputs)
         regulator_rate = min(max((target - regulator) / par.regulator_time_constant_s,
                                  -par.regulator_rate_limit_pa_per_s), par.regulator_rate_limit_pa_per_s)
-        rates = [self.chamber_rate(p, valve, regulator) for p, valve in zip(chambers, self._valves(inputs))]
+        rates = [self.chamber_rate(p, valve, regulator, inputs.regulator_enabled)
+                 for p, valve in zip(chambers, self._valves(inputs))]
         return np.array([regulator_rate, *rates])
 
     # ---- closed forms ----------------------------------------------------------------------------

@@ -1,0 +1,170 @@
+"""The simulated device on its own: its clock, its faults and its safe state, ticked by hand."""
+import uuid
+
+import can
+import numpy as np
+import pytest
+
+from softgrip_ros.canbus.codec import FrameCodec
+from softgrip_ros.canbus.sim_device import (REPLAY_AGE_FRAMES, REPLAY_BURST_FRAMES, STUCK_READINGS_PA, SimDeviceConfig,
+                                            SimulatedDevice)
+from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
+
+
+class FakeClock:
+    def __init__(self):
+        self.now = 100.0
+
+    def __call__(self):
+        return self.now
+
+
+@pytest.fixture
+def bench():
+    """A device on a private virtual channel with a hand-driven clock, a listener bus and a codec
+    for both directions; the device is never started (its ticks are called here)."""
+    channel = f"simdev-{uuid.uuid4().hex[:8]}"
+    device_bus, peer_bus = can.Bus(interface="virtual", channel=channel), can.Bus(interface="virtual", channel=channel)
+    clock = FakeClock()
+    # a receiver that trusts at once: these tests hand it frames one by one (E2E: test_canbus_codec)
+    device = SimulatedDevice(device_bus, SimDeviceConfig(seed=4), codec=FrameCodec(sync_frames=0), clock=clock)
+    device._started_at = device._last_tick = clock.now
+    device._last_valve_command = clock.now
+    device._next_sensor = {s.name: 0.0 for s in device.config.sensors}
+    device._next_status = device._next_heartbeat = 0.0
+    try:
+        yield device, clock, peer_bus, FrameCodec(max_counter_delta=15, sync_frames=0)
+    finally:
+        peer_bus.shutdown()
+        device_bus.shutdown()
+
+
+def command(device, codec, valve, setpoint_pa=0.0, enable=True, lifetime_s=0.2):
+    """Hand the device a RegulatorSetpoint and a ValveCommand, as if received."""
+    device._on_frame(codec.encode("RegulatorSetpoint", {"SetpointGaugePressure": setpoint_pa, "Enable": int(enable),
+                                                         "Source": 0}))
+    device._on_frame(codec.encode("ValveCommand", {"Channel0": int(valve), "Channel1": 0, "Channel2": 0, "Channel3": 0,
+                                                    "OpenLifetime": lifetime_s}))
+
+
+def tick_for(device, clock, seconds, period_s=1e-3, burst=1):
+    """Tick the device as its thread would: every ``period_s``, or in bursts of ``burst`` ticks at
+    one instant after a late wake (what a deadline scheduler does to catch up)."""
+    end = clock.now + seconds
+    while clock.now < end - 1e-12:
+        clock.now += period_s * burst
+        for _ in range(burst):
+            device._tick()
+
+
+def readings(peer_bus, codec, message="PressureSensor1"):
+    """Drain the bus; the readings of ``message`` (a str) or {message: readings} (a tuple of names)."""
+    names = (message,) if isinstance(message, str) else message
+    values = {name: [] for name in names}
+    while (frame := peer_bus.recv(0.0)) is not None:
+        decoded = codec.decode(frame)
+        if decoded is not None and decoded.name in values:
+            values[decoded.name].append(decoded.signals["GaugePressure"])
+    return values[message] if isinstance(message, str) else values
+
+
+def test_the_plant_integrates_exactly_the_real_elapsed_time_even_when_ticks_come_in_bursts(bench):
+    """A late tick followed by catch-up ticks at the same instant used to integrate a full plant
+    period each, so the simulated chamber ran ahead of real time during transients (it filled
+    about 20 % faster than the estimator's model of the same plant, whose innovations then
+    raised false NIS alarms). The reference is the plant stepped over the same real time."""
+    device, clock, _, codec = bench
+    command(device, codec, Valve.SUPPLY, setpoint_pa=40e3, lifetime_s=0.25)
+    tick_for(device, clock, 0.06, period_s=1e-3, burst=3)          # 60 ms of real time, ticks in threes
+    plant = PneumaticPlant()
+    state = plant.initial_state()
+    inputs = PlantInputs(40e3, True, (Valve.SUPPLY,))
+    for _ in range(20):
+        state = plant.step(state, inputs, 3e-3)
+    assert device.chamber_gauge_pa() == pytest.approx(state.chamber_pa[0] - P_ATM_PA, rel=1e-6)
+
+
+def test_a_disabled_regulator_cuts_both_sources_even_through_valves_stuck_open(bench):
+    device, clock, _, codec = bench
+    device.set_fault("valve_stuck_open", True)
+    command(device, codec, Valve.VENT, setpoint_pa=30e3)
+    tick_for(device, clock, 0.5)
+    assert device.valves() == (Valve.SUPPLY,)
+    assert device.chamber_gauge_pa() == pytest.approx(30e3, abs=500.0)      # pumped through the stuck valve
+    command(device, codec, Valve.VENT, setpoint_pa=30e3, enable=False)     # the second path: Enable = 0
+    tick_for(device, clock, 0.5)
+    assert abs(device.chamber_gauge_pa()) < 300.0
+    device.set_fault("valve_stuck_open", False)
+    command(device, codec, Valve.VACUUM, enable=True)
+    tick_for(device, clock, 0.05)
+    device.set_fault("valve_stuck", True)                                    # stuck open to the vacuum pump
+    command(device, codec, Valve.CLOSED, enable=True)
+    tick_for(device, clock, 0.1)
+    assert device.valves() == (Valve.VACUUM,) and device.chamber_gauge_pa() < -20e3
+    command(device, codec, Valve.VENT, enable=False)
+    tick_for(device, clock, 1.0)
+    assert abs(device.chamber_gauge_pa()) < 300.0                            # the isolated vacuum line vents
+
+
+def test_true_extremes_cover_every_plant_step_since_the_reset(bench):
+    device, clock, _, codec = bench
+    command(device, codec, Valve.SUPPLY, setpoint_pa=30e3)
+    tick_for(device, clock, 0.3)
+    command(device, codec, Valve.VENT)
+    tick_for(device, clock, 0.5)
+    low, high = device.true_extremes()
+    assert high == pytest.approx(30e3, abs=600.0) and low == pytest.approx(0.0, abs=50.0)
+    device.reset_true_extremes()
+    assert device.true_extremes()[1] < 300.0
+
+
+@pytest.mark.parametrize("stuck_at", ["present", "low", "high"])
+def test_a_stuck_sensor_reads_its_last_value_or_a_fixed_one_while_the_other_moves(bench, stuck_at):
+    device, clock, peer, codec = bench
+    command(device, codec, Valve.SUPPLY, setpoint_pa=10e3)
+    tick_for(device, clock, 0.3)
+    readings(peer, codec)
+    device.set_fault("sensor_stuck_at", stuck_at)
+    device.set_fault("sensor_stuck", "chamber_a")
+    command(device, codec, Valve.SUPPLY, setpoint_pa=30e3)
+    tick_for(device, clock, 0.3)
+    both = readings(peer, codec, ("PressureSensor1", "PressureSensor2"))
+    stuck, live = both["PressureSensor1"], both["PressureSensor2"]
+    assert len(set(stuck)) == 1, "a stuck sensor repeats one value"
+    expected = STUCK_READINGS_PA.get(stuck_at, 10e3)
+    assert stuck[0] == pytest.approx(expected, abs=1.5e3)
+    assert max(live) == pytest.approx(30e3, abs=1e3)
+    with pytest.raises(ValueError, match="must be one of"):
+        device.set_fault("sensor_stuck_at", "sideways")
+
+
+def test_the_noise_scale_multiplies_the_sensor_noise(bench):
+    device, clock, peer, codec = bench
+    command(device, codec, Valve.CLOSED)
+    tick_for(device, clock, 0.5)
+    quiet = np.std(readings(peer, codec))
+    device.set_fault("sensor_noise_scale", 10.0)
+    tick_for(device, clock, 0.5)
+    loud = np.std(readings(peer, codec))
+    # 250 samples each: the sample standard deviation is within ~10 % of the true one
+    assert quiet == pytest.approx(300.0, rel=0.2) and loud == pytest.approx(3000.0, rel=0.2)
+
+
+def test_a_replay_burst_sends_old_sensor_frames_with_jumping_counters_and_feeds_an_old_valve_command(bench):
+    device, clock, peer, _ = bench
+    sync_codec = FrameCodec(max_counter_delta=15, sync_frames=0)
+    for valve in (Valve.VENT, *[Valve.CLOSED] * REPLAY_AGE_FRAMES):     # the oldest one kept: VENT
+        command(device, sync_codec, valve)
+        tick_for(device, clock, 0.005)
+    while peer.recv(0.0) is not None:
+        pass
+    before = device.valves()
+    device.replay_burst()
+    frames = []
+    while (frame := peer.recv(0.0)) is not None:
+        frames.append(frame)
+    counters = [frame.data[6] & 0x0F for frame in frames]
+    assert len(frames) == REPLAY_BURST_FRAMES
+    assert all((b - a) % 16 == 1 for a, b in zip(counters, counters[1:]))       # in sequence among themselves
+    # ... and old: the device's own codec saw the old ValveCommand's counter jump and ignored it
+    assert device.codec.rejected["counter_jump"] >= 1 and device.valves() == before
