@@ -176,9 +176,12 @@ def test_regulator_overshoot_vents_below_limit_plus_margin(rig):
     device.set_fault("regulator_overshoot_pa", 30e3)
     link.command(45e3, Source.SUPPLY, math.nan)
     _, pressures, outputs = run(link, device, 1.5)
-    assert any(o.mode == Mode.FAULT for o in outputs) and Fault.OVERPRESSURE in outputs[-1].fault_flags
-    assert pressures.max() <= config.max_gauge_pa + config.overpressure_margin_pa + 1.5e3  # + reaction time
-    assert device.valves() == (Valve.VENT,)
+    # the regulator's model check names it (its output far above what it was told), or the trip,
+    # which extrapolates over the reaction time: the true peak stays within the limit plus margin
+    assert any(o.mode == Mode.FAULT for o in outputs)
+    assert outputs[-1].fault_flags & (Fault.OVERPRESSURE | Fault.REGULATOR)
+    assert pressures.max() <= config.max_gauge_pa + config.overpressure_margin_pa
+    assert device.valves() == (Valve.VENT,) and not device.regulator_enabled()
 
 
 def test_vent_frames_reach_the_device(rig):
@@ -334,12 +337,17 @@ def test_readings_are_as_old_as_their_frames_not_their_late_processing():
         receiver.shutdown()
 
 
-def test_a_stamped_command_at_or_before_the_last_one_is_ignored(rig):
+def test_a_copy_of_an_applied_command_is_ignored_and_no_stamp_locks_out_the_next(rig):
+    """#20: a command stamped far ahead used to lock out every later one. Now only a copy (the same
+    stamp and content: the composed controller's DDS copy of a direct call) is ignored; every
+    other command applies in the order it comes, whatever its stamp."""
     _, link = rig
     assert link.command(10e3, Source.SUPPLY, math.nan, stamp_s=5.0) == ""
     assert link.command(20e3, Source.SUPPLY, math.nan, stamp_s=5.1) == ""
     assert link.command(10e3, Source.SUPPLY, math.nan, stamp_s=5.0) is None      # a late copy
-    assert link.command(30e3, Source.SUPPLY, math.nan, stamp_s=5.1) is None      # a repeated one
     assert link.controller._target == 20e3
+    assert link.command(30e3, Source.SUPPLY, math.nan, stamp_s=3600.0) == ""     # far ahead ...
+    assert link.command(15e3, Source.SUPPLY, math.nan, stamp_s=5.2) == ""        # ... locks nothing out
+    assert link.controller._target == 15e3
     assert link.command(5e3, Source.SUPPLY, math.nan) == ""                      # unstamped: applies
     assert link.controller._target == 5e3

@@ -75,16 +75,29 @@ def test_setpoint_above_the_limit_is_clamped_and_reported():
     assert controller._target == -60e3
 
 
-def test_overpressure_vents_and_latches_until_a_new_command_within_limits():
+def test_overpressure_vents_and_latches_until_a_new_command_once_the_evidence_is_gone():
+    """The safe state holds until a command comes after the evidence has been gone for
+    safety.clear_time_s (0.5 s); the readings here fall as the vent makes them."""
     controller = active(pressure=56e3)
     controller.command(40e3, Source.SUPPLY, math.nan, 0.0)
     out = controller.step(0.001)
     assert out.mode == Mode.FAULT and out.valves == (Valve.VENT,) and not out.regulator_enabled
     assert Fault.OVERPRESSURE in out.fault_flags
-    controller.update_sensor("s", 10e3, 0.01)                    # pressure back, but no new command
-    assert controller.step(0.011).mode == Mode.FAULT
-    controller.command(20e3, Source.SUPPLY, math.nan, 0.02)
-    out = controller.step(0.021)
+    rng, now = np.random.default_rng(0), 0.001
+
+    def vent_for(seconds):                                        # readings as a vent makes them
+        nonlocal now
+        for _ in range(int(seconds / 0.002)):
+            now += 0.002
+            controller.update_sensor("s", 56e3 * math.exp(-now / 0.08) + 300.0 * rng.standard_normal(), now)
+            assert controller.step(now).mode == Mode.FAULT      # pressure back, but no new command
+
+    vent_for(0.1)
+    assert "still in the safe state" in controller.command(20e3, Source.SUPPLY, math.nan, now)
+    assert controller.step(now + 0.001).mode == Mode.FAULT      # too soon after the evidence
+    vent_for(controller.config.safety.clear_time_s)
+    assert controller.command(20e3, Source.SUPPLY, math.nan, now) == ""
+    out = controller.step(now + 0.001)
     assert out.mode == Mode.REGULATE and Fault.OVERPRESSURE not in out.fault_flags
 
 
@@ -113,11 +126,12 @@ def test_sensor_timeout_holds_then_recovers():
 
 @pytest.mark.parametrize("action, mode, valve", [("hold", Mode.HOLD, Valve.CLOSED), ("vent", Mode.VENT, Valve.VENT)])
 def test_command_timeout_takes_the_safe_action(action, mode, valve):
-    controller = active(PressureControlConfig(command_timeout_s=0.5, command_timeout_action=action))
+    controller = active(PressureControlConfig(command_timeout_s=0.5, command_timeout_action=action), pressure=9e3)
     controller.command(10e3, Source.SUPPLY, math.nan, 0.0)
-    for i in range(400):
-        now = i * 0.002
-        controller.update_sensor("s", 9e3, now)
+    rng = np.random.default_rng(1)
+    for i in range(260):                 # 20 ms past the timeout (a chamber that does not vent is
+        now = i * 0.002                  # the response check's fault some 0.1 s later)
+        controller.update_sensor("s", 9e3 + 300.0 * rng.standard_normal(), now)
         out = controller.step(now)
     assert out.mode == mode and out.valves == (valve,) and Fault.COMMAND_TIMEOUT in out.fault_flags
     controller.command(10e3, Source.SUPPLY, math.nan, 0.8)

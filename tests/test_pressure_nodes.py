@@ -76,8 +76,9 @@ def test_commands_over_dds_move_the_gripper_and_topics_report_it(nodes):
 
 
 def test_a_late_copy_of_a_command_cannot_undo_a_newer_one(nodes):
-    """Composed, the grasp manager's commands arrive twice: directly, then by the topic. A command
-    stamped at or before the last one applied is ignored; an unstamped one always applies."""
+    """Composed, the grasp manager's commands arrive twice: directly, then by the topic. A copy of
+    a command already applied (its stamp and content) is ignored; any other command applies in
+    the order it comes, whatever its stamp; an unstamped one always applies."""
     from softgrip_interfaces.msg import PressureCommand
     from softgrip_ros.nodes.common import stamp_msg
 
@@ -96,12 +97,40 @@ def test_a_late_copy_of_a_command_cannot_undo_a_newer_one(nodes):
     command(20e3, now + 0.01)
     command(10e3, now)                                    # the first one's DDS copy, late
     assert setpoint() == 20e3
-    command(30e3, now + 0.01)                             # same stamp: a copy
-    assert setpoint() == 20e3
+    command(30e3, now - 0.5)                              # another command, stamped earlier: applies
+    assert setpoint() == 30e3
     command(5e3)                                          # unstamped (a hand-written command)
     assert setpoint() == 5e3
     command(15e3, now + 0.02)
     assert setpoint() == 15e3
+
+
+def test_a_command_stamped_in_the_future_is_refused_and_locks_nothing_out(nodes):
+    """#20: a PressureCommand stamped 30 s ahead locked out every later command (the grasp
+    manager's RELEASE was ignored). Now it is refused with its reason in controller/status, and
+    the next command applies; the status keeps flowing."""
+    from softgrip_interfaces.msg import ControllerStatus, PressureCommand
+    from softgrip_ros.nodes.common import stamp_msg
+
+    controller, device, client = nodes
+    statuses = []
+    client.create_subscription(ControllerStatus, "controller/status", statuses.append, 50)
+    publisher = client.create_publisher(PressureCommand, "pressure/command", 10)
+    wait_for(lambda: publisher.get_subscription_count() > 0 and statuses, message="the controller")
+    ahead = PressureCommand(target_gauge_pressure_pa=30e3, max_rate_pa_per_s=math.nan, source=PressureCommand.SUPPLY)
+    ahead.header.stamp = stamp_msg(client.get_clock().now().nanoseconds * 1e-9 + 30.0)
+    publisher.publish(ahead)
+    refused = wait_for(lambda: next((s for s in reversed(statuses) if s.fault_flags & ControllerStatus.FAULT_COMMAND_REJECTED),
+                                    None), message="the refusal in the status")
+    assert "in the future" in refused.message and controller.controller._target != 30e3
+    now = PressureCommand(target_gauge_pressure_pa=12e3, max_rate_pa_per_s=math.nan, source=PressureCommand.SUPPLY)
+    now.header.stamp = client.get_clock().now().to_msg()
+    publisher.publish(now)
+    wait_for(lambda: abs(device.device.chamber_gauge_pa() - 12e3) < 1e3, timeout=3.0, message="12 kPa")
+    count = len(statuses)
+    time.sleep(0.3)
+    assert len(statuses) - count >= 5                     # status at 50 Hz, still flowing
+    assert not statuses[-1].fault_flags & ControllerStatus.FAULT_COMMAND_REJECTED
 
 
 def test_dropout_gives_hold_and_a_diagnostic_error_then_recovers(nodes):
@@ -380,3 +409,32 @@ def test_shutdown_reads_the_errors_of_callbacks_it_cut_short_and_reports_any_oth
     assert cut_short._exception_fetched and failed._exception_fetched
     err = capsys.readouterr().err
     assert "ValueError: boom" in err and "Destroyable" not in err
+
+
+def test_the_vent_service_vents_a_blind_controller_and_says_it_cannot_confirm_it(nodes):
+    """#20.6: with the bus silent, ~/vent answered "venting" while every ValveCommand said CLOSED."""
+    from softgrip_interfaces.msg import ControllerStatus
+    from softgrip_ros.model.pneumatics import Valve
+    from std_srvs.srv import Trigger
+
+    controller, device, client = nodes
+    statuses = []
+    client.create_subscription(ControllerStatus, "controller/status", statuses.append, 50)
+    controller.link.command(15e3, 0, math.nan)
+    wait_for(lambda: device.device.chamber_gauge_pa() > 13e3, message="15 kPa")
+    device.device.set_fault("bus_silent", True)
+    try:
+        wait_for(lambda: controller.last_output is not None and controller.last_output.valves == (Valve.CLOSED,)
+                 and controller.last_output.fault_flags & ControllerStatus.FAULT_SENSOR_TIMEOUT, message="held closed")
+        assert "held closed" in controller.last_output.message and "venting" not in controller.last_output.message
+        vent = client.create_client(Trigger, "pressure_controller/vent")
+        assert vent.wait_for_service(timeout_sec=5.0)
+        future = vent.call_async(Trigger.Request())
+        reply = wait_for(lambda: future.done() and future.result(), message="the vent reply")
+        assert reply.success and "cannot be confirmed" in reply.message and reply.message != "venting"
+        wait_for(lambda: device.device.valves() == (Valve.VENT,), message="the device venting")
+        time.sleep(0.2)                                         # and it stays so: the loop keeps sending VENT
+        assert device.device.valves() == (Valve.VENT,) and controller.last_output.valves == (Valve.VENT,)
+        assert "unconfirmed" in controller.last_output.message
+    finally:
+        device.device.set_fault("bus_silent", False)

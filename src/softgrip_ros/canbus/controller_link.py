@@ -18,6 +18,7 @@ chamber is held instead of running on towards the vacuum pump or the boosted reg
 """
 from __future__ import annotations
 
+import collections
 import dataclasses
 import math
 import threading
@@ -33,6 +34,12 @@ from softgrip_ros.realtime import PeriodicThread
 
 HEARTBEAT_PERIOD_S = 0.1
 CONTROLLER_STATE = {Mode.INACTIVE: 0, Mode.FAULT: 2}
+FRAMES_REJECTED_HOLD_S = 1.0     # FRAMES_REJECTED is reported this long after the last rejected frame
+
+
+def _same(value: float):
+    """A float as a key that equals itself when NaN."""
+    return None if math.isnan(value) else float(value)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,7 +79,8 @@ class ControllerLink:
         self.regulator_actual_gauge_pa = math.nan
         self.last_frame_time = -math.inf
         self._last_heartbeat = -math.inf
-        self._last_command_stamp = 0.0
+        self._applied = collections.deque(maxlen=64)   # recent commands applied, to know their copies
+        self._rejected_total, self._rejected_at = 0, -math.inf
         if not 0.0 <= command_frame_period_s <= 0.1:
             raise ValueError(f"command_frame_period_s must lie in [0, 0.1] s, got {command_frame_period_s}")
         self.command_frame_period_s = command_frame_period_s
@@ -121,7 +129,8 @@ class ControllerLink:
                         readings.append((name, signals["GaugePressure"], sent_at))
                 elif decoded.name == "RegulatorStatus":
                     self.regulator_actual_gauge_pa = signals["ActualGaugePressure"]
-                    self.controller.update_regulator_status(signals["ActualGaugePressure"], int(signals["FaultBits"]))
+                    self.controller.update_regulator_status(signals["ActualGaugePressure"], int(signals["FaultBits"]),
+                                                            sent_at)
         if urgent and self.wake is not None:
             self.wake()
         if readings and self.on_readings is not None:
@@ -134,16 +143,20 @@ class ControllerLink:
     # ---- the control period ---------------------------------------------------------------------
     def command(self, target_gauge_pa: float, source: Source, max_rate_pa_per_s: float, stamp_s: float = 0.0,
                 on_applied=None) -> str | None:
-        """Apply a command; None when it is ignored as stale. A command stamped (``stamp_s``, any clock
-        the sender keeps monotonic; 0 = unstamped) at or before the last one applied is a late copy
-        (in the composed controller each command comes both directly and by DDS) and must not undo
-        a newer one. An unstamped command always applies. ``on_applied(note)`` runs once it has
-        applied, before any step reports on it (so that a status can carry the note)."""
+        """Apply a command; None when it is a copy of one already applied. In the composed
+        controller each command comes both directly and by DDS: a stamped command (``stamp_s`` > 0)
+        equal, stamp and content, to one of the last 64 applied is that copy, and must not undo a
+        newer one. Any other command applies, in the order it arrives: no stamp can lock out the
+        ones after it (a stamp in the future is for the caller to refuse, see :meth:`reject_command`).
+        An unstamped command always applies. ``on_applied(note)`` runs once it has applied, before
+        any step reports on it (so that a status can carry the note)."""
+        key = (float(stamp_s), _same(target_gauge_pa), int(source), _same(max_rate_pa_per_s))
         with self._lock:
-            if stamp_s and stamp_s <= self._last_command_stamp:
+            if stamp_s and key in self._applied:
                 return None
-            self._last_command_stamp = max(self._last_command_stamp, stamp_s)
             note = self.controller.command(target_gauge_pa, source, max_rate_pa_per_s, self.clock())
+            if stamp_s:
+                self._applied.append(key)
             active = self.controller.active
             if on_applied is not None:
                 on_applied(note)
@@ -155,6 +168,17 @@ class ControllerLink:
                 self.step()
             self.wake()
         return note
+
+    def reject_command(self, reason: str) -> None:
+        """A command the caller refused: flagged in the next outputs, with ``reason``, until one applies."""
+        with self._lock:
+            self.controller.reject_command(reason)
+        if self.wake is not None:
+            self.wake()
+
+    def update_consistency(self, name: str, mean_nis: float, bound: float) -> None:
+        with self._lock:
+            self.controller.update_consistency(name, mean_nis, bound, self.clock())
 
     def update_estimate(self, gauge_pa: float) -> None:
         with self._lock:
@@ -171,8 +195,18 @@ class ControllerLink:
             if self.resting and not resting:
                 self._reader.wake()          # regulating: the readings matter at once from here on
             self.resting = resting
+            extra = Fault.NONE
             if now - self.last_frame_time > self.bus_silent_timeout_s:
-                output = dataclasses.replace(output, fault_flags=output.fault_flags | Fault.BUS_SILENT)
+                extra |= Fault.BUS_SILENT
+            rejected = self.codec.rejected_total
+            if rejected != self._rejected_total:
+                self._rejected_total, self._rejected_at = rejected, now
+            message = output.message
+            if now - self._rejected_at < FRAMES_REJECTED_HOLD_S:
+                extra |= Fault.FRAMES_REJECTED
+                message = "; ".join(m for m in (message, f"frames rejected by the E2E checks ({rejected} so far)") if m)
+            if extra:
+                output = dataclasses.replace(output, fault_flags=output.fault_flags | extra, message=message)
             self._send_output(output, now)
             if now - self._last_heartbeat >= HEARTBEAT_PERIOD_S:
                 self._last_heartbeat = now
@@ -232,8 +266,9 @@ def make_control_loop(link: ControllerLink, rate_hz: float, status_rate_hz: floa
 
 class StatusOnChange:
     """Pass a ControlOutput on when ``period_s`` has passed since the last one passed, and at once
-    when the valves, the mode, the regulator enable or (by more than ``regulator_band_pa``) the
-    regulator command change."""
+    when the valves, the mode, the regulator enable, the fault flags or (by more than
+    ``regulator_band_pa``) the regulator command change: a flag that lasts less than a period
+    (a refused command, cleared by the next one) must still reach controller/status."""
 
     def __init__(self, callback, period_s: float, regulator_band_pa: float = 1e3, clock=time.monotonic):
         self.callback, self.period_s, self.regulator_band_pa, self.clock = callback, period_s, regulator_band_pa, clock
@@ -241,8 +276,8 @@ class StatusOnChange:
 
     def __call__(self, output) -> None:
         last, now = self._last, self.clock()
-        changed = (last is None or (output.valves, output.mode, output.regulator_enabled)
-                   != (last.valves, last.mode, last.regulator_enabled)
+        changed = (last is None or (output.valves, output.mode, output.regulator_enabled, output.fault_flags)
+                   != (last.valves, last.mode, last.regulator_enabled, last.fault_flags)
                    or abs(output.regulator_setpoint_gauge_pa - last.regulator_setpoint_gauge_pa) > self.regulator_band_pa)
         if changed or now - self._sent_at >= self.period_s - 1e-4:
             self._sent_at, self._last = now, output

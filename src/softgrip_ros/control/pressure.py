@@ -9,11 +9,12 @@ Control law (source SUPPLY or VACUUM, target r* in Pa gauge):
   the command gives none), after clamping r* to [min_gauge_pa, max_gauge_pa];
 - **boost**: on a rise of more than ``boost_min_step_pa``, while the chamber is more than
   ``boost_band_pa`` below r, the
-  regulator is driven towards its maximum (capped at the target + ``boost_headroom_pa``, so a
-  late close stays bounded) with the valve open (the time-optimal rise is the valve fully
-  open to supply); ``boost_lead_s`` before the chamber would reach r at its
-  current rate the valve closes (**settle**) until the regulator's reported output has
-  come down to the regulated value, so its lag cannot overshoot the chamber;
+  regulator is driven towards its maximum (capped at the target + ``boost_headroom_pa``, and
+  at the **boost ceiling**: the highest output with which even a valve stuck open keeps the
+  chamber within the limit plus margin, see :func:`boost_ceiling_pa`) with the valve open (the
+  time-optimal rise is the valve fully open to supply); ``boost_lead_s`` before the chamber
+  would reach r at its current rate the valve closes (**settle**) until the regulator's
+  reported output has come down to the regulated value, so its lag cannot overshoot the chamber;
 - **regulation**: regulator setpoint = r (feed-forward) + PI trim on the feedback
   (the estimate when fresh, else the mean of the fresh sensors), the trim clamped to
   +-``trim_limit_pa``; the integral runs only within ``integral_band_pa`` of the setpoint
@@ -25,20 +26,32 @@ Control law (source SUPPLY or VACUUM, target r* in Pa gauge):
 Safety (design.md), independent of the grasp manager:
 
 - setpoints beyond the hard limits are clamped, and flagged until a valid command;
-- measured pressure beyond a limit by ``overpressure_margin_pa`` vents at once and latches
-  FAULT, cleared by a new command once the pressure is back inside the limits;
+- :class:`~softgrip_ros.control.safety.SafetyMonitor` checks every source of the chamber
+  pressure against the limits (before they are crossed, on the highest credible reading),
+  against each other and against the plant; a finding latches its named fault and the
+  **safe state**: valves VENT, the regulator setpoint 0 and disabled (the device then cuts both
+  sources, so a valve stuck open cannot pump either). A new command clears it once the
+  evidence has been gone for ``safety.clear_time_s``;
 - no valid sensor reading for ``sensor_timeout_s``: valves closed (hold), flagged, and
-  regulation resumes by itself when readings return;
+  regulation resumes by itself when readings return. An explicit VENT is still obeyed then,
+  and said to be unconfirmed;
 - no command for ``command_timeout_s`` while regulating: the configured safe action
   (``hold`` or ``vent``).
+- at a steady target, ``hold_cycles`` boosts or evacuations within ``hold_cycle_window_s``
+  (the first one, which reaches the target, not counted): the regulated line cannot hold the
+  chamber where the sensors say (biased sensors, a leak, a regulator offset), and the valves
+  toggling defeat the monitor's single-valve response check; a RESPONSE fault.
 """
 from __future__ import annotations
 
+import collections
 import dataclasses
 import enum
+import functools
 import math
 
-from softgrip_ros.model.pneumatics import Valve
+from softgrip_ros.control.safety import SAFETY_FAULTS, Fault, SafetyConfig, SafetyMonitor, fault_names
+from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 
 
 class Source(enum.IntEnum):
@@ -60,26 +73,15 @@ class Mode(enum.IntEnum):
     FAULT = 4
 
 
-class Fault(enum.IntFlag):
-    """ControllerStatus.fault_flags."""
-
-    NONE = 0
-    OVERPRESSURE = 1
-    SENSOR_TIMEOUT = 2
-    COMMAND_TIMEOUT = 4
-    BUS_SILENT = 8
-    REGULATOR = 16
-    SETPOINT_CLAMPED = 32
-    BUS_ERROR = 64
-
-
 class Severity(enum.IntEnum):
     OK = 0
     WARN = 1
     ERROR = 2
 
 
-ERROR_FAULTS = Fault.OVERPRESSURE | Fault.SENSOR_TIMEOUT | Fault.BUS_SILENT
+ERROR_FAULTS = SAFETY_FAULTS | Fault.SENSOR_TIMEOUT | Fault.BUS_SILENT
+__all__ = ["ControlOutput", "ERROR_FAULTS", "Fault", "Mode", "PressureControlConfig", "PressureController",
+           "SafetyConfig", "Severity", "Source", "fault_names", "severity"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,14 +107,21 @@ class PressureControlConfig:
     boost_lead_s: float = 0.005
     rate_filter_s: float = 0.01
     settle_timeout_s: float = 0.2
-    regulator_tracking_limit_pa: float = 10e3
-    regulator_tracking_time_s: float = 0.3
     valve_band_pa: float = 5e3
     channels: int = 1
+    boost_ceiling_pa: float = math.nan          # NaN: boost_ceiling_pa() of the plant
+    hold_cycles: int = 3
+    hold_cycle_window_s: float = 1.0
+    safety: SafetyConfig = SafetyConfig()      # its limits are replaced by the ones above
 
     def __post_init__(self):
+        object.__setattr__(self, "safety", dataclasses.replace(
+            self.safety, max_gauge_pa=self.max_gauge_pa, min_gauge_pa=self.min_gauge_pa,
+            margin_pa=self.overpressure_margin_pa))
         for field in dataclasses.fields(self):
             value = getattr(self, field.name)
+            if field.name == "boost_ceiling_pa" and math.isnan(value):
+                continue
             if isinstance(value, float) and not math.isfinite(value):
                 raise ValueError(f"{field.name} must be finite, got {value}")
         checks = [
@@ -133,6 +142,8 @@ class PressureControlConfig:
             (0.0 <= self.rate_filter_s <= 1.0, "rate_filter_s must lie in [0, 1] s"),
             (0.0 < self.valve_band_pa, "valve_band_pa must be > 0"),
             (1 <= self.channels <= 4, "channels must lie in 1..4"),
+            (1 <= self.hold_cycles <= 1000 and 0.0 < self.hold_cycle_window_s <= 60.0,
+             "hold_cycles must lie in 1..1000 and hold_cycle_window_s in (0, 60] s"),
         ]
         for ok, message in checks:
             if not ok:
@@ -153,10 +164,19 @@ class ControlOutput:
 
 
 class PressureController:
-    """The control core; feed it readings and commands, call :meth:`step` every period."""
+    """The control core; feed it readings and commands, call :meth:`step` every period.
 
-    def __init__(self, config: PressureControlConfig | None = None):
-        self.config = config or PressureControlConfig()
+    plant: the plant model the safety checks compare the chamber with (default: the defaults').
+    sensor_noise_pa: {sensor name: rated 1-sigma noise, Pa}, for the noise check."""
+
+    def __init__(self, config: PressureControlConfig | None = None, plant: PneumaticPlant | None = None,
+                 sensor_noise_pa: dict | None = None):
+        config = config or PressureControlConfig()
+        self.plant = plant or PneumaticPlant()
+        if math.isnan(config.boost_ceiling_pa):
+            config = dataclasses.replace(config, boost_ceiling_pa=boost_ceiling_pa(self.plant.parameters, config))
+        self._config = config
+        self.monitor = SafetyMonitor(self._config.safety, self.plant, sensor_noise_pa)
         self._sensors: dict = {}                  # name -> (gauge_pa, time)
         self._estimate = (math.nan, -math.inf)
         self._target = 0.0
@@ -173,10 +193,25 @@ class PressureController:
         self._rate_estimate = 0.0
         self._evacuating = False
         self._latched = Fault.NONE
+        self._fault_message = ""                  # the finding that latched the safe state
+        self._steady_target = math.nan
+        self._rejection = ""                      # why the last refused command was refused
         self._regulator_faults = 0
-        self._regulator_off_since = None
+        self._corrections = collections.deque()  # boosts and evacuations since the target last changed
         self.active = False
         self.last_output: ControlOutput | None = None
+
+    @property
+    def config(self) -> PressureControlConfig:
+        return self._config
+
+    @config.setter
+    def config(self, config: PressureControlConfig) -> None:
+        """A new configuration (live parameters): the monitor's thresholds follow it."""
+        if math.isnan(config.boost_ceiling_pa):
+            config = dataclasses.replace(config, boost_ceiling_pa=boost_ceiling_pa(self.plant.parameters, config))
+        self._config = config
+        self.monitor.config = config.safety
 
     # ---- inputs -----------------------------------------------------------------------------
     def command(self, target_gauge_pa: float, source: Source, max_rate_pa_per_s: float, now: float) -> str:
@@ -185,7 +220,7 @@ class PressureController:
         if source in (Source.SUPPLY, Source.VACUUM) and not math.isfinite(target_gauge_pa):
             raise ValueError(f"target pressure must be finite for {source.name}, got {target_gauge_pa}")
         note = ""
-        self._latched &= ~(Fault.SETPOINT_CLAMPED | Fault.COMMAND_TIMEOUT)
+        self._latched &= ~(Fault.SETPOINT_CLAMPED | Fault.COMMAND_TIMEOUT | Fault.COMMAND_REJECTED)
         if source in (Source.SUPPLY, Source.VACUUM):
             clamped = min(max(target_gauge_pa, self.config.min_gauge_pa), self.config.max_gauge_pa)
             if clamped != target_gauge_pa:
@@ -195,30 +230,52 @@ class PressureController:
             self._target = clamped
         rate = max_rate_pa_per_s
         self._rate = rate if (math.isfinite(rate) and rate > 0.0) else self.config.default_rate_pa_per_s
+        if source != self._source or (source in (Source.SUPPLY, Source.VACUUM) and self._target != self._steady_target):
+            self._corrections.clear()            # a new target: its first boost or evacuation is the way there
+        self._steady_target = self._target if source in (Source.SUPPLY, Source.VACUUM) else math.nan
         if source != self._source:
             self._integral = 0.0
         self._source = source
         self._command_time = now
-        if Fault.OVERPRESSURE in self._latched and self._within_limits(self.feedback(now)):
-            self._latched &= ~Fault.OVERPRESSURE
+        cleared = self.monitor.clearable(self._latched & SAFETY_FAULTS, now)
+        if cleared:
+            self._latched &= ~cleared
+            if not self._latched & SAFETY_FAULTS:
+                self._fault_message = ""
+        still = fault_names(self._latched & SAFETY_FAULTS)
+        if still:
+            note = f"{note}; " if note else ""
+            note += f"still in the safe state: {still} ({self._fault_message})"
         return note
 
+    def reject_command(self, reason: str) -> None:
+        """A command the caller refused (a stamp in the future): flagged until the next one applies."""
+        self._latched |= Fault.COMMAND_REJECTED
+        self._rejection = reason
+
     def update_sensor(self, name: str, gauge_pa: float, now: float) -> bool:
-        """Take a reading; True when it lies beyond the limits plus margin and the controller has
-        not yet vented for that (step now)."""
+        """Take a reading taken at ``now``; True when it lies beyond the limits plus margin and the
+        controller is not yet in its safe state (step now)."""
         if math.isfinite(gauge_pa):
             self._sensors[name] = (gauge_pa, now)
-            return not self._within_limits(gauge_pa) and Fault.OVERPRESSURE not in self._latched
+            self.monitor.add_reading(name, gauge_pa, now)
+            return not self._within_limits(gauge_pa) and not self._latched & SAFETY_FAULTS
         return False
 
     def update_estimate(self, gauge_pa: float, now: float) -> None:
         if math.isfinite(gauge_pa):
             self._estimate = (gauge_pa, now)
 
-    def update_regulator_status(self, actual_gauge_pa: float, fault_bits: int) -> None:
+    def update_regulator_status(self, actual_gauge_pa: float, fault_bits: int, now: float | None = None) -> None:
+        """The regulator's report (taken at ``now``; default: the last step's time)."""
         if math.isfinite(actual_gauge_pa):
             self._regulator_actual = actual_gauge_pa
+            self.monitor.add_regulator(actual_gauge_pa, now if now is not None else (self._last_step or 0.0))
         self._regulator_faults = int(fault_bits)
+
+    def update_consistency(self, name: str, mean_nis: float, bound: float, now: float) -> None:
+        """The estimator's windowed NIS of a sensor and its upper bound (see SafetyMonitor)."""
+        self.monitor.update_consistency(name, mean_nis, bound, now)
 
     def vent(self, now: float) -> None:
         """Vent now (service call, shutdown, deactivate)."""
@@ -260,28 +317,31 @@ class PressureController:
         c = self.config
         dt = 0.0 if self._last_step is None else max(0.0, now - self._last_step)
         self._last_step = now
+        if not self.active:
+            return self._output(0.0, False, Source.VENT, Valve.CLOSED, Mode.INACTIVE, self._latched,
+                                self.feedback(now), "inactive")
+        regulating = self._source in (Source.SUPPLY, Source.VACUUM)
+        for finding in self.monitor.check(now, c.sensor_timeout_s, regulating and self._phase == "track"):
+            if finding.flag in SAFETY_FAULTS and not self._latched & SAFETY_FAULTS:
+                self._fault_message = finding.message          # the first evidence names the fault
+            self._latched |= finding.flag & SAFETY_FAULTS
         faults = self._latched
-        if self._regulator_faults or self._regulator_off_track(now):
+        if self._regulator_faults:
             faults |= Fault.REGULATOR
         measured = self.measured(now)
         feedback = self.feedback(now)
-
-        if not self.active:
-            return self._output(0.0, False, Source.VENT, Valve.CLOSED, Mode.INACTIVE, faults, feedback, "inactive")
-        if math.isfinite(measured) and not self._within_limits(measured):
-            self._latched |= Fault.OVERPRESSURE
-            faults |= Fault.OVERPRESSURE
-        if Fault.OVERPRESSURE in self._latched:
-            self.vent(now)
-            return self._output(0.0, False, Source.VENT, Valve.VENT, Mode.FAULT, faults, feedback,
-                                f"pressure {measured:.0f} Pa beyond the limits: venting")
+        if self._latched & SAFETY_FAULTS:
+            return self._safe_state(now, faults, feedback)
         if math.isnan(measured):
             self._integral = 0.0
             self._phase = "track"
             self._previous_feedback = None    # the first reading after recovery starts a new rate estimate
+            if self._source == Source.VENT:   # asked for explicitly: obeyed, but nothing can confirm it
+                return self._output(0.0, True, Source.VENT, Valve.VENT, Mode.VENT, faults | Fault.SENSOR_TIMEOUT,
+                                    feedback, "venting, unconfirmed: no valid pressure reading")
             return self._output(self._setpoint, True, self._regulator_source(), Valve.CLOSED, Mode.HOLD,
                                 faults | Fault.SENSOR_TIMEOUT, feedback,
-                                "no valid pressure reading: valves closed")
+                                "no valid pressure reading: valves held closed")
         regulating = self._source in (Source.SUPPLY, Source.VACUUM)
         if regulating and self._command_time is not None and now - self._command_time > c.command_timeout_s:
             self._latched |= Fault.COMMAND_TIMEOUT
@@ -295,7 +355,8 @@ class PressureController:
             self._setpoint = 0.0
             return self._output(0.0, True, Source.VENT, Valve.VENT, Mode.VENT, faults, feedback, "venting")
         if self._source == Source.HOLD or not regulating:
-            return self._output(self._setpoint, True, Source.HOLD, Valve.CLOSED, Mode.HOLD, faults, feedback, "holding")
+            return self._output(self._setpoint, True, Source.HOLD, Valve.CLOSED, Mode.HOLD, faults, feedback,
+                                "holding: valves closed")
 
         # slew the setpoint towards the target
         step_limit = self._rate * dt if dt > 0 else math.inf
@@ -309,18 +370,14 @@ class PressureController:
         return self._output(regulator, True, self._regulator_source(), valve, Mode.REGULATE,
                             faults, feedback, self._phase if self._phase != "track" else "")
 
-    def _regulator_off_track(self, now: float) -> bool:
-        """The regulator's reported output away from what it was last told, by more than
-        regulator_tracking_limit_pa for regulator_tracking_time_s (its lag is tens of ms): a
-        regulator that overshoots or sticks. Judged only while regulating with it enabled."""
-        c, last = self.config, self.last_output
-        if last is None or last.mode != Mode.REGULATE or not last.regulator_enabled or \
-                abs(self._regulator_actual - last.regulator_setpoint_gauge_pa) <= c.regulator_tracking_limit_pa:
-            self._regulator_off_since = None
-            return False
-        if self._regulator_off_since is None:
-            self._regulator_off_since = now
-        return now - self._regulator_off_since >= c.regulator_tracking_time_s
+    def _safe_state(self, now: float, faults: Fault, feedback: float) -> ControlOutput:
+        """Valves VENT and the regulator disabled at 0 (the device cuts both sources), until a new
+        command clears the fault."""
+        self.vent(now)
+        self._phase = "track"
+        return self._output(0.0, False, Source.VENT, Valve.VENT, Mode.FAULT, faults, feedback,
+                            f"fault: {fault_names(self._latched & SAFETY_FAULTS)}: {self._fault_message}; "
+                            f"venting with the regulator disabled")
 
     def _regulation(self, error: float, feedback: float, dt: float, now: float) -> tuple:
         """(regulator setpoint, valve override or None) for one REGULATE period."""
@@ -329,11 +386,13 @@ class PressureController:
         if (self._phase == "track" and self._setpoint > 0.0 and error > c.boost_band_pa
                 and self._target - feedback > c.boost_min_step_pa):
             self._phase = "boost"
+            self._count_correction(now, "boosts")
         if self._phase == "boost":
             time_to_setpoint = error / rate if rate > 0.0 else math.inf
             if error > 0.0 and time_to_setpoint > c.boost_lead_s:
-                # fill hard, but no harder than the headroom: a late close then stays bounded
-                return min(c.regulator_max_gauge_pa, self._target + c.boost_headroom_pa), Valve.SUPPLY
+                # fill hard, but no harder than the headroom and the ceiling: a late or stuck
+                # valve then stays bounded
+                return min(c.regulator_max_gauge_pa, self._target + c.boost_headroom_pa, c.boost_ceiling_pa), Valve.SUPPLY
             self._phase, self._settle_started = "settle", now
         command = self._trimmed(error, dt, integrate=self._phase == "track")
         if self._phase == "settle":
@@ -344,6 +403,18 @@ class PressureController:
             else:
                 return command, Valve.CLOSED
         return command, None
+
+    def _count_correction(self, now: float, what: str) -> None:
+        """A boost or an evacuation at the steady target; too many of them latch RESPONSE."""
+        c, corrections = self.config, self._corrections
+        corrections.append(now)
+        while corrections and corrections[0] < now - c.hold_cycle_window_s:
+            corrections.popleft()
+        if len(corrections) > c.hold_cycles and not self._latched & SAFETY_FAULTS:   # the first one reaches the target
+            self._latched |= Fault.RESPONSE
+            self._fault_message = (f"the regulated line cannot hold the chamber where the sensors say: {len(corrections)} "
+                                   f"{what} within {c.hold_cycle_window_s:g} s at a steady {self._target / 1e3:.1f} kPa "
+                                   f"(biased sensors, a leak or a regulator offset)")
 
     def _update_rate(self, feedback: float, dt: float) -> float:
         """dp/dt of the feedback, low-passed (time constant rate_filter_s): raw differences of
@@ -374,6 +445,8 @@ class PressureController:
             setpoint_ahead = max(self._target, self._setpoint - self._rate * c.boost_lead_s)
             error_ahead = min(error, error + setpoint_ahead - self._setpoint)
             if error_ahead < -c.valve_band_pa:
+                if not self._evacuating:
+                    self._count_correction(self._last_step, "evacuations")
                 self._evacuating = True
             crossing_soon = rate < 0.0 and error / rate <= c.boost_lead_s
             if error_ahead > -0.5 * c.valve_band_pa or crossing_soon:
@@ -386,6 +459,9 @@ class PressureController:
         return Source.VACUUM if self._setpoint < 0.0 else Source.SUPPLY
 
     def _output(self, regulator, enabled, source, valve, mode, faults, feedback, message) -> ControlOutput:
+        if Fault.COMMAND_REJECTED in faults and self._rejection:
+            message = f"{message}; {self._rejection}" if message else self._rejection
+        self.monitor.record_output(self._last_step if self._last_step is not None else 0.0, valve, regulator, enabled)
         self.last_output = ControlOutput(
             regulator_setpoint_gauge_pa=float(regulator), regulator_enabled=enabled, regulator_source=source,
             valves=(valve,) * self.config.channels, mode=mode, fault_flags=Fault(faults),
@@ -393,11 +469,55 @@ class PressureController:
         return self.last_output
 
 
+@functools.lru_cache(maxsize=16)
+def boost_ceiling_pa(plant_parameters, config: PressureControlConfig, guard_pa: float = 1e3) -> float:
+    """The highest regulator output a boost may ask for, on this plant: with it, even a valve stuck
+    open to the supply keeps the chamber ``guard_pa`` (sensor noise) inside the limit plus margin.
+
+    Simulated, not assumed: this controller, on the plant, fills towards the upper limit with its
+    valve stuck open. Its settle then cannot close the valve, and only the trip's second path
+    (the regulator disabled, falling at its lag and rate limit) stops the chamber. The ceiling is
+    bisected between the limit and the regulator's maximum (about 0.2 s of computing, once per
+    plant and configuration)."""
+    plant = PneumaticPlant(plant_parameters)
+    limit = config.max_gauge_pa + config.overpressure_margin_pa - guard_pa
+
+    def peak(ceiling_pa: float) -> float:
+        controller = PressureController(dataclasses.replace(config, boost_ceiling_pa=ceiling_pa), plant)
+        controller.active = True
+        state = plant.initial_state()
+        controller.command(config.max_gauge_pa, Source.SUPPLY, math.nan, 0.0)
+        inputs, highest = PlantInputs(valves=(Valve.SUPPLY,)), -math.inf
+        for tick in range(1, 1000):                     # 1 s at 1 kHz: the fill, the trip, the fall
+            now, gauge = tick * 1e-3, float(state.chamber_pa[0] - P_ATM_PA)
+            if tick % 2 == 0:                           # sensors at 500 Hz, the regulator's report at 100 Hz
+                controller.update_sensor("sensor", gauge, now)
+                if tick % 10 == 0:
+                    controller.update_regulator_status(state.regulator_gauge_pa, 0, now)
+                out = controller.step(now)
+                inputs = PlantInputs(out.regulator_setpoint_gauge_pa, out.regulator_enabled, (Valve.SUPPLY,))
+            state = plant.step(state, inputs, 1e-3)
+            highest = max(highest, float(state.chamber_pa[0] - P_ATM_PA))
+            if controller.last_output is not None and controller.last_output.mode == Mode.FAULT \
+                    and state.regulator_gauge_pa < gauge:
+                break                                   # the regulator is below the chamber: it falls from here
+        return highest
+
+    low, high = config.max_gauge_pa, config.regulator_max_gauge_pa
+    if peak(high) <= limit:
+        return high
+    while high - low > 1e3:
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if peak(middle) <= limit else (low, middle)
+    return low
+
+
 def severity(output: ControlOutput) -> Severity:
-    """How bad an output is, for diagnostics: the gripper unsafe or blind is an error; holding
-    or a recoverable fault (clamped setpoint, command timeout, regulator report) is a warning."""
+    """How bad an output is, for diagnostics: a safety fault or a blind controller is an error; a
+    recoverable fault (clamped setpoint, command timeout, regulator report, a refused command,
+    rejected frames) is a warning. Holding and venting as asked are normal operation."""
     if output.fault_flags & ERROR_FAULTS or output.mode == Mode.FAULT:
         return Severity.ERROR
-    if output.fault_flags or output.mode == Mode.HOLD:
+    if output.fault_flags:
         return Severity.WARN
     return Severity.OK

@@ -20,11 +20,14 @@ from std_srvs.srv import Trigger
 from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 from softgrip_ros.canbus.codec import FrameCodec
 from softgrip_ros.canbus.controller_link import make_control_loop, ControllerLink, SensorBinding
-from softgrip_ros.control.pressure import PressureControlConfig, PressureController, Severity, severity
-from softgrip_ros.nodes.common import P_ATM_PA, listened, notify, open_bus, publish, run_node, stamp_msg, stamp_seconds
+from softgrip_ros.control.pressure import (Fault, PressureControlConfig, PressureController, Severity, fault_names,
+                                          severity)
+from softgrip_ros.nodes.common import (P_ATM_PA, future_stamp_reason, listened, notify, open_bus, publish, run_node,
+                                       stamp_msg, stamp_seconds)
 from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, check_all, declare
 
 _DEFAULTS = PressureControlConfig()
+_SAFETY = _DEFAULTS.safety
 SPECS = CAN_SPECS + [
     ParamSpec("autostart", True, "configure and activate on start-up"),
     ParamSpec("control_rate_hz", 500.0, "control loop rate", "Hz", 10.0, 1000.0),
@@ -51,13 +54,61 @@ SPECS = CAN_SPECS + [
     ParamSpec("use_estimate", False, "regulate on pressure/estimate while it is fresh (its latency makes the boost overshoot)"),
     ParamSpec("sensors.names", ["chamber_a", "chamber_b"], "sensor names: topics pressure/sensor/<name>"),
     ParamSpec("sensors.messages", ["PressureSensor1", "PressureSensor2"], "the DBC message of each sensor"),
-    ParamSpec("sensors.noise_std_pa", [300.0, 150.0], "1-sigma noise of each sensor, for FluidPressure.variance", "Pa"),
+    ParamSpec("sensors.noise_std_pa", [300.0, 150.0], "1-sigma noise of each sensor, for FluidPressure.variance "
+              "and the noise check", "Pa"),
+    ParamSpec("stamp_tolerance", 0.5, "a command stamped further ahead of this node's clock than this is refused",
+              "s", 0.0, 60.0),
+    ParamSpec("safety.reaction_time", _SAFETY.reaction_time_s, "the limit trip extrapolates each pressure over this: "
+              "a control period, the bus and the valve's response", "s", 0.001, 0.2),
+    ParamSpec("safety.disagreement_pa", _SAFETY.disagreement_pa, "two sensors further apart than this ...", "Pa",
+              500.0, 50e3),
+    ParamSpec("safety.disagreement_time", _SAFETY.disagreement_time_s, "... for this long: SENSOR_DISAGREE", "s",
+              0.005, 5.0),
+    ParamSpec("safety.stuck_time", _SAFETY.stuck_time_s, "a reading unchanged this long ...", "s", 0.01, 10.0),
+    ParamSpec("safety.stuck_motion_pa", _SAFETY.stuck_motion_pa, "... while another sensor or the plant moved the "
+              "pressure by this: SENSOR_STUCK", "Pa", 100.0, 50e3),
+    ParamSpec("safety.noise_ratio", _SAFETY.noise_ratio, "a sensor's noise above this times its rated noise ...", "",
+              1.5, 1000.0),
+    ParamSpec("safety.noise_time", _SAFETY.noise_time_s, "... for this long: SENSOR_NOISE", "s", 0.01, 10.0),
+    ParamSpec("safety.jump_sigmas", _SAFETY.jump_sigmas, "every sensor stepping, in one sample, by more than the "
+              "plant's fastest rate allows plus this many noise sigmas: SENSOR_IMPLAUSIBLE", "", 3.0, 1000.0),
+    ParamSpec("safety.response_window", _SAFETY.response_window_s, "the chamber's response to a valve state is "
+              "judged over this", "s", 0.01, 1.0),
+    ParamSpec("safety.response_settle", _SAFETY.response_settle_s, "... from this long after the valve state was "
+              "commanded", "s", 0.0, 1.0),
+    ParamSpec("safety.response_min_change_pa", _SAFETY.response_min_change_pa, "a change judged against the plant "
+              "must be predicted this large; a chamber moving this much with the valves closed is a fault", "Pa",
+              100.0, 50e3),
+    ParamSpec("safety.response_tolerance", _SAFETY.response_tolerance, "the measured change may differ from the "
+              "plant's by this fraction of it (the model's rates within about 2x of the hardware's)", "", 0.05, 0.95),
+    ParamSpec("safety.response_time", _SAFETY.response_time_s, "a response off the plant in every check this long: "
+              "RESPONSE", "s", 0.005, 5.0),
+    ParamSpec("safety.regulator_deviation_pa", _SAFETY.regulator_deviation_pa, "the regulator's output further "
+              "from its model than this ...", "Pa", 1e3, 200e3),
+    ParamSpec("safety.regulator_deviation_time", _SAFETY.regulator_deviation_time_s, "... for this long: "
+              "REGULATOR", "s", 0.005, 5.0),
+    ParamSpec("safety.nis_ratio", _SAFETY.nis_ratio, "the estimator's windowed NIS of a sensor above this times "
+              "its bound ...", "", 1.0, 1e6),
+    ParamSpec("safety.nis_time", _SAFETY.nis_time_s, "... for this long: SENSOR_INCONSISTENT", "s", 0.01, 60.0),
+    ParamSpec("safety.clear_time", _SAFETY.clear_time_s, "a safety fault clears on a new command once its evidence "
+              "has been gone this long", "s", 0.05, 60.0),
 ]
 LIVE = {"max_gauge_pressure_pa": "max_gauge_pa", "min_gauge_pressure_pa": "min_gauge_pa",
         "overpressure_margin_pa": "overpressure_margin_pa", "sensor_timeout": "sensor_timeout_s",
         "command_timeout": "command_timeout_s", "command_timeout_action": "command_timeout_action",
         "default_rate_pa_per_s": "default_rate_pa_per_s", "kp": "kp", "ki_per_s": "ki_per_s",
         "trim_limit_pa": "trim_limit_pa"}
+SAFETY_LIVE = {"safety.reaction_time": "reaction_time_s", "safety.disagreement_pa": "disagreement_pa",
+               "safety.disagreement_time": "disagreement_time_s", "safety.stuck_time": "stuck_time_s",
+               "safety.stuck_motion_pa": "stuck_motion_pa", "safety.noise_ratio": "noise_ratio",
+               "safety.noise_time": "noise_time_s", "safety.jump_sigmas": "jump_sigmas",
+               "safety.response_window": "response_window_s", "safety.response_settle": "response_settle_s",
+               "safety.response_min_change_pa": "response_min_change_pa",
+               "safety.response_tolerance": "response_tolerance", "safety.response_time": "response_time_s",
+               "safety.regulator_deviation_pa": "regulator_deviation_pa",
+               "safety.regulator_deviation_time": "regulator_deviation_time_s", "safety.nis_ratio": "nis_ratio",
+               "safety.nis_time": "nis_time_s", "safety.clear_time": "clear_time_s"}
+ESTIMATOR_STATUS = "softgrip: estimator"     # the estimator's /diagnostics status (its NIS per sensor)
 LEVELS = {Severity.OK: DiagnosticStatus.OK, Severity.WARN: DiagnosticStatus.WARN, Severity.ERROR: DiagnosticStatus.ERROR}
 
 
@@ -68,7 +119,10 @@ def _check_rest_rate(values) -> None:
 
 
 class PressureControllerNode(LifecycleNode):
-    def __init__(self, **kwargs):
+    """in_process: composed with the estimator, which hands its NIS evidence over by direct calls to
+    :meth:`on_consistency`; alone, that evidence comes from the estimator's /diagnostics."""
+
+    def __init__(self, in_process: bool = False, **kwargs):
         super().__init__("pressure_controller", **kwargs)
         self.specs = {s.name: s for s in SPECS}
         self.values = declare(self, SPECS)
@@ -78,7 +132,8 @@ class PressureControllerNode(LifecycleNode):
         self.specs.update({s.name: s for s in frame_specs})
         self.values.update(declare(self, frame_specs))
         _check_rest_rate(self.values)        # at start-up: exit 1 with the reason
-        self.controller = PressureController(self._control_config(self.values))
+        self.controller = PressureController(self._control_config(self.values), sensor_noise_pa=dict(
+            zip(self.values["sensors.names"], self.values["sensors.noise_std_pa"])))
         self.add_on_set_parameters_callback(self._on_set)
         self.status_pub = self.create_publisher(ControllerStatus, "controller/status", 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -86,6 +141,8 @@ class PressureControllerNode(LifecycleNode):
         self.sensor_listeners = []       # in-process consumers of the readings: f([(name, gauge_pa, stamp_s)]) per batch
         self.status_listeners = []       # in-process consumers of each controller/status: f(ControllerStatus)
         self.create_subscription(PressureCommand, "pressure/command", self.on_command, 10)
+        if not in_process:
+            self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
         self.estimate_subscription = None
         self._subscribe_estimate(self.values["use_estimate"])
         self.create_service(Trigger, "~/vent", self._on_vent)
@@ -98,7 +155,8 @@ class PressureControllerNode(LifecycleNode):
 
     # ---- parameters ---------------------------------------------------------------------------
     def _control_config(self, values) -> PressureControlConfig:
-        return dataclasses.replace(_DEFAULTS, **{field: values[name] for name, field in LIVE.items()})
+        safety = dataclasses.replace(_SAFETY, **{field: values[name] for name, field in SAFETY_LIVE.items()})
+        return dataclasses.replace(_DEFAULTS, safety=safety, **{field: values[name] for name, field in LIVE.items()})
 
     def _on_set(self, parameters):
         def extra(params):
@@ -106,7 +164,7 @@ class PressureControllerNode(LifecycleNode):
             if any(n.startswith(("can.", "sensors.", "control_rate_hz", "rest_rate_hz", "rest_receive_period",
                                                 "command_frame_period", "valve_lifetime")) for n in changed) and self.link is not None:
                 return "CAN, sensor and rate parameters apply at configure: deactivate and clean up first"
-            if any(n in LIVE for n in changed):
+            if any(n in LIVE or n in SAFETY_LIVE for n in changed):
                 try:
                     config = self._control_config({**self.values, **changed})
                 except ValueError as error:
@@ -205,18 +263,44 @@ class PressureControllerNode(LifecycleNode):
 
     def on_command(self, msg: PressureCommand):
         """A pressure command, from the topic or (composed) by a direct call from the grasp manager,
-        which saves a trip through DDS and the executor; its later DDS copy is ignored by its stamp
-        (see :meth:`ControllerLink.command`)."""
+        which saves a trip through DDS and the executor; its later DDS copy is recognised and ignored
+        (see :meth:`ControllerLink.command`). A command stamped further ahead than
+        ``stamp_tolerance`` is refused, with its reason in the status."""
         if self.link is None:
             self.get_logger().warn("pressure command ignored: the controller is not configured")
             return
-        try:
-            note = self.link.command(msg.target_gauge_pressure_pa, msg.source, msg.max_rate_pa_per_s,
-                                     stamp_seconds(msg.header.stamp), on_applied=self._set_note)
-        except ValueError as error:
-            note = self.last_note = f"command rejected: {error}"
+        stamp_s = stamp_seconds(msg.header.stamp)
+        refused = future_stamp_reason(stamp_s, self.get_clock().now().nanoseconds * 1e-9, self.values["stamp_tolerance"])
+        if refused:
+            note = f"pressure command {refused}"
+            self.link.reject_command(note)          # the status carries it until a command applies
+        else:
+            try:
+                note = self.link.command(msg.target_gauge_pressure_pa, msg.source, msg.max_rate_pa_per_s, stamp_s,
+                                         on_applied=self._set_note)
+            except ValueError as error:
+                note = self.last_note = f"command rejected: {error}"
         if note:
-            self.get_logger().warn(note)
+            self.get_logger().warn(note, throttle_duration_sec=1.0)
+
+    def on_consistency(self, name: str, mean_nis: float, bound: float) -> None:
+        """The estimator's evidence on a sensor (composed: a direct call; else from /diagnostics)."""
+        if self.link is not None:
+            self.link.update_consistency(name, mean_nis, bound)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        """The estimator's NIS per sensor, from its /diagnostics status (a separate estimator node)."""
+        for status in msg.status:
+            if status.name != ESTIMATOR_STATUS:
+                continue
+            values = {kv.key: kv.value for kv in status.values}
+            try:
+                bound = float(values["nis_upper_bound"])
+                for name in self.values["sensors.names"]:
+                    if f"{name}.mean_nis" in values:
+                        self.on_consistency(name, float(values[f"{name}.mean_nis"]), bound)
+            except (KeyError, ValueError):
+                continue
 
     def _set_note(self, note: str) -> None:
         self.last_note = note     # before the step the command triggers publishes the status
@@ -226,11 +310,16 @@ class PressureControllerNode(LifecycleNode):
             self.link.update_estimate(msg.fluid_pressure - P_ATM_PA)
 
     def _on_vent(self, request, response):
+        """VENT frames go out at once and the controller keeps venting. The reply says "venting"
+        only when a fresh reading can confirm it; blind, it says so."""
         if self.link is None:
             response.success, response.message = False, "not configured: no bus to vent through"
-        else:
-            self.link.send_vent()
-            response.success, response.message = True, "venting"
+            return response
+        self.link.send_vent()
+        age_s = self.link.last_sensor_age_s()
+        response.success = True
+        response.message = ("venting" if age_s <= self.controller.config.sensor_timeout_s else
+                            f"VENT sent, but it cannot be confirmed: no valid sensor reading for {age_s:.2f} s")
         return response
 
     def _publish_readings(self, readings: list):
@@ -278,7 +367,14 @@ class PressureControllerNode(LifecycleNode):
         else:
             faults = out.fault_flags
             status.level = LEVELS[severity(out)]
-            status.message = out.message or ("ok" if not faults else f"faults: {faults!r}")
+            status.message = out.message or ("ok" if not faults else f"faults: {fault_names(faults)}")
+            silent = [n for n in self.values["sensors.names"] if n not in self.controller.fresh_sensors(link.clock())]
+            if silent and not faults & Fault.SENSOR_TIMEOUT:         # some sensors carry on without these
+                status.level = max(status.level, DiagnosticStatus.WARN)
+                status.message += f"; sensors silent: {', '.join(silent)}"
+            if faults & Fault.FRAMES_REJECTED:
+                rejected = ", ".join(f"{k} {v}" for k, v in link.codec.rejected.items() if v)
+                status.message += f"; frames rejected by the E2E checks (so far: {rejected})"
             loop = self.loop
             status_errors = loop.errors if loop is not None else 0
             receive_errors, last_receive_error = link.receive_errors   # one read: the count and its text agree

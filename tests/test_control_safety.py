@@ -1,0 +1,248 @@
+"""Single-fault safety of the control core (#20), closed around the plant in simulated time.
+
+Every limit is judged on the plant's true pressure, not on what a sensor said. The limits are
+the defaults: 50 kPa and -60 kPa, with a 5 kPa margin (LIMITS below). Each test names the
+defect of #20 it reproduces; with the code before #20 each of them failed.
+"""
+import math
+
+import numpy as np
+import pytest
+
+from softgrip_ros.control.pressure import Fault, Mode, PressureControlConfig, PressureController, Source, boost_ceiling_pa
+from softgrip_ros.control.safety import SAFETY_FAULTS, SafetyConfig
+from softgrip_ros.model.pneumatics import PneumaticPlant, Valve
+from tests.helpers.closed_loop import FaultyLoop
+
+LIMITS = (-65e3, 55e3)       # min - margin, max + margin
+
+
+def within_limits(loop, since=0.0):
+    low, high = loop.true_extremes(since)
+    return LIMITS[0] <= low and high <= LIMITS[1]
+
+
+def in_safe_state(output):
+    return output.mode == Mode.FAULT and output.valves == (Valve.VENT,) and not output.regulator_enabled
+
+
+def held_at(target_pa, seconds=0.6, seed=0):
+    loop = FaultyLoop(seed=seed)
+    loop.command(target_pa)
+    return loop.run_for(seconds)
+
+
+@pytest.mark.parametrize("target_pa, seconds", [(50e3, 1.0), (25e3, 1.0), (-50e3, 1.0), (-10e3, 1.5)])
+@pytest.mark.parametrize("seed", range(3))
+def test_fault_free_steps_raise_no_finding(target_pa, seconds, seed):
+    loop = held_at(target_pa, seconds, seed)
+    loop.command(19e3)                                        # and from there a step the other way
+    loop.run_for(0.8)
+    assert loop.first_fault() is None, loop.first_fault()[1].message
+    assert not any(o.fault_flags & SAFETY_FAULTS for _, o in loop.outputs)
+
+
+def test_one_stuck_sensor_cannot_drive_the_chamber_past_its_limit():
+    """#20.1: chamber_a stuck near 0 kPa, then OPEN fully: the mean of the two sensors read half
+    the truth and chamber_b reached ~100 kPa. Now the two disagree, and the gripper vents long
+    before the limit."""
+    loop = FaultyLoop()
+    loop.stuck["chamber_a"] = None
+    loop.run_for(0.1)
+    loop.command(50e3)
+    loop.run_for(1.0)
+    when, output = loop.first_fault()
+    assert output.fault_flags & (Fault.SENSOR_DISAGREE | Fault.SENSOR_STUCK) and "chamber_a" in output.message
+    assert when < 0.3 and within_limits(loop) and in_safe_state(loop.outputs[-1][1])
+
+
+def test_a_sensor_frozen_at_its_reading_is_named_once_the_pressure_moves():
+    loop = held_at(10e3)
+    loop.stuck["chamber_b"] = None
+    loop.run_for(0.3)
+    assert loop.first_fault() is None                       # frozen while nothing moves: harmless
+    loop.command(30e3)
+    loop.run_for(0.5)
+    _, output = loop.first_fault()
+    assert output.fault_flags & (Fault.SENSOR_STUCK | Fault.SENSOR_DISAGREE) and "chamber_b" in output.message
+    assert within_limits(loop)
+
+
+def test_with_one_sensor_a_frozen_reading_is_named_from_the_plant():
+    """No second sensor to compare with: the plant, through the commanded valve, says it must move."""
+    class OneSensor(FaultyLoop):
+        SENSORS = {"chamber_a": (300.0, 2)}
+    loop = OneSensor()
+    loop.command(20e3)
+    loop.run_for(0.6)
+    loop.stuck["chamber_a"] = None
+    loop.command(0.0, Source.VENT)
+    loop.run_for(0.5)
+    _, output = loop.first_fault()
+    assert Fault.SENSOR_STUCK in output.fault_flags and "the plant, through the VENT valve" in output.message
+
+
+@pytest.mark.parametrize("bias_pa", [20e3, -20e3])
+def test_a_sensor_bias_during_holding_is_named_and_does_not_triple_the_clamp(bias_pa):
+    """#20.2: a 20 kPa bias during HOLDING at -10 kPa went unnoticed; the true pressure went to
+    -20 ... -34 kPa. Both sensors jump together faster than the plant can: named at once."""
+    loop = held_at(-10e3, 1.0)
+    loop.bias_pa = bias_pa
+    loop.run_for(0.5)
+    when, output = loop.first_fault(since=1.0)
+    assert Fault.SENSOR_IMPLAUSIBLE in output.fault_flags and "jumped together" in output.message
+    assert when - 1.0 < 0.02 and in_safe_state(loop.outputs[-1][1])
+    low, high = loop.true_extremes(since=1.0)
+    assert low >= -10e3 - 1.5e3 and high <= 1.5e3           # vented from the clamp: never squeezed harder
+
+
+@pytest.mark.parametrize("rate_pa_per_s", [20e3, -20e3])
+def test_a_drifting_bias_is_named_from_the_regulator_before_it_moves_the_clamp_far(rate_pa_per_s):
+    """A bias that grows slowly jumps nowhere. With the supply valve open, the chamber must settle
+    at the regulator's output; sensors that read away from it, and stay there, are named (a
+    bias, or a valve that does not open) while the true clamp is still within 10 kPa of its target."""
+    loop = held_at(-10e3, 1.0)
+    loop.bias_rate_pa_per_s = rate_pa_per_s
+    loop.run_for(2.0)
+    when, output = loop.first_fault(since=1.0)
+    assert Fault.RESPONSE in output.fault_flags and "biased sensors" in output.message
+    during = [p for t, p in loop.true if 1.0 <= t <= when]
+    assert max(abs(p + 10e3) for p in during) < 10e3 and within_limits(loop)
+
+
+@pytest.mark.parametrize("bias_pa, drift_s", [(10e3, 0.0), (20e3, 0.1)])
+def test_a_bias_that_makes_the_valves_toggle_is_named_by_the_cycles_it_causes(bias_pa, drift_s):
+    """A +10 kPa step (under the 200 Hz sensor's jump bound) or +20 kPa over 0.1 s: the controller
+    chases the biased reading with the vacuum pump, the valves toggle, and no single-valve window
+    lasts long enough to judge. Before the cycle check the true clamp went to -18 and -28 kPa,
+    unnamed; the repeated evacuations at a steady target now name it within ~0.15 s."""
+    loop = held_at(-10e3, 1.0)
+    if drift_s:
+        loop.bias_rate_pa_per_s = bias_pa / drift_s
+        loop.run_for(drift_s)
+        loop.bias_rate_pa_per_s = 0.0
+    else:
+        loop.bias_pa = bias_pa
+    loop.run_for(1.0)
+    when, output = loop.first_fault(since=1.0)
+    assert Fault.RESPONSE in output.fault_flags and when - 1.0 < 0.25
+    assert within_limits(loop) and in_safe_state(loop.outputs[-1][1])
+
+
+def test_a_valve_stuck_open_to_supply_keeps_the_chamber_inside_the_limit():
+    """#20.3: with the valves stuck open to SUPPLY, OPEN fully reached 57.2 kPa: the boost's
+    regulator output (target + 60 kPa) went on pumping through the valve that should have closed.
+    The boost ceiling and the trip's second path (the regulator disabled) now bound it."""
+    for seed in range(5):
+        loop = FaultyLoop(seed=seed)
+        loop.valve_stuck_open = True
+        loop.command(50e3)
+        loop.run_for(1.0)
+        assert loop.first_fault() is not None and within_limits(loop), loop.true_extremes()
+        assert not loop.outputs[-1][1].regulator_enabled
+
+
+def test_the_boost_ceiling_is_derived_from_the_plant():
+    ceiling = PressureController().config.boost_ceiling_pa
+    assert 55e3 < ceiling < PressureControlConfig().regulator_max_gauge_pa
+    slower = PneumaticPlant(dataclasses_replace(PneumaticPlant().parameters, regulator_rate_limit_pa_per_s=0.5e6))
+    assert boost_ceiling_pa(slower.parameters, PressureControlConfig()) < ceiling     # falls slower: a lower ceiling
+
+
+def dataclasses_replace(instance, **changes):
+    import dataclasses
+    return dataclasses.replace(instance, **changes)
+
+
+def test_a_stuck_valve_is_named_when_the_chamber_moves_against_the_closed_command():
+    """#20.3: a stuck valve gave no diagnostic. Stuck open during a boost, the chamber keeps rising
+    while the settle commands CLOSED."""
+    loop = FaultyLoop()
+    loop.command(25e3)
+    loop.run_for(0.03)
+    loop.valve_stuck = True                                  # stuck in the boost's SUPPLY
+    loop.run_for(0.5)
+    _, output = loop.first_fault()
+    assert Fault.RESPONSE in output.fault_flags and "CLOSED valve" in output.message and within_limits(loop)
+
+
+@pytest.mark.parametrize("target_pa", [19e3, 45e3])
+def test_a_regulator_overshoot_is_named_and_the_peak_stays_inside_the_limit(target_pa):
+    """#20.4: regulator_overshoot_pa = 100 kPa while ENVELOPED peaked at 55.5 kPa (the trip fired
+    only once the limit was crossed). The regulator's output leaves its model within tens of ms."""
+    loop = held_at(target_pa, 1.0)
+    loop.overshoot_pa = 100e3
+    loop.run_for(1.0)
+    when, output = loop.first_fault(since=1.0)
+    assert output.fault_flags & (Fault.REGULATOR | Fault.OVERPRESSURE) and when - 1.0 < 0.1
+    assert within_limits(loop)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_fuzz_of_pressure_commands_never_leaves_the_limits(seed):
+    """#20.4: under a fuzz of PressureCommands (huge targets and rates) the peak reached 58.3 kPa."""
+    rng = np.random.default_rng(100 + seed)
+    loop = FaultyLoop(seed=seed)
+    for _ in range(60):
+        target = float(rng.choice([rng.uniform(-300e3, 300e3), 50e3, -60e3, 0.0, 1e9, -1e9]))
+        rate = float(rng.choice([math.nan, 0.0, 1e9, rng.uniform(1e3, 1e8)]))
+        source = Source(int(rng.integers(0, 4)))
+        try:
+            loop.command(target, source, rate)
+        except ValueError:
+            pass
+        loop.run_for(float(rng.uniform(0.005, 0.15)))
+    assert within_limits(loop), loop.true_extremes()
+
+
+def test_a_noisy_sensor_is_named():
+    loop = held_at(19e3)
+    loop.noise_scale = 10.0
+    loop.run_for(1.0)
+    _, output = loop.first_fault(since=0.6)
+    assert output.fault_flags & (Fault.SENSOR_NOISE | Fault.SENSOR_DISAGREE | Fault.SENSOR_IMPLAUSIBLE)
+    assert within_limits(loop)
+
+
+def test_the_estimators_nis_evidence_latches_a_named_fault():
+    """#20: the estimator knew (mean NIS of 60,000) and nothing acted on it."""
+    loop = held_at(10e3)
+    for _ in range(8):
+        loop.controller.update_consistency("chamber_a", 6e4, 1.36, loop.now)
+        loop.run_for(0.1)
+    _, output = loop.first_fault()
+    assert Fault.SENSOR_INCONSISTENT in output.fault_flags and "chamber_a inconsistent" in output.message
+
+
+def test_the_safe_state_clears_on_a_command_once_its_evidence_is_gone():
+    loop = held_at(-10e3)
+    loop.bias_pa = 20e3
+    loop.run_for(0.3)
+    assert in_safe_state(loop.outputs[-1][1])
+    loop.bias_pa = 0.0                                        # the sensor repaired
+    loop.run_for(0.2)
+    assert "still in the safe state" in loop.command(20e3)    # too soon: the jump back is evidence too
+    loop.run_for(loop.controller.config.safety.clear_time_s + 0.1)
+    assert loop.command(20e3) == ""
+    loop.run_for(0.6)
+    assert loop.outputs[-1][1].mode == Mode.REGULATE and abs(loop.gauge() - 20e3) < 1e3
+
+
+def test_an_explicit_vent_is_obeyed_while_blind_and_said_to_be_unconfirmed():
+    """#20.6: with the bus silent the controller held every valve closed, even for ~/vent."""
+    controller = PressureController()
+    controller.active = True
+    controller.update_sensor("s", 20e3, 0.0)
+    controller.command(20e3, Source.SUPPLY, math.nan, 0.0)
+    out = controller.step(1.0)                               # no reading for 1 s
+    assert out.mode == Mode.HOLD and out.valves == (Valve.CLOSED,) and "held closed" in out.message
+    controller.vent(1.0)
+    out = controller.step(1.002)
+    assert out.valves == (Valve.VENT,) and "unconfirmed" in out.message and Fault.SENSOR_TIMEOUT in out.fault_flags
+
+
+def test_bad_safety_configuration_is_refused():
+    for bad in (dict(response_tolerance=1.5), dict(noise_ratio=0.5), dict(reaction_time_s=-1.0),
+                dict(disagreement_pa=math.nan)):
+        with pytest.raises(ValueError):
+            SafetyConfig(**bad)
