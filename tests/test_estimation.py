@@ -417,3 +417,38 @@ def test_bad_samples_and_settings_are_rejected_clearly():
             EstimatorConfig(**changes)
     with pytest.raises(ValueError, match="noise_std_pa"):
         SensorConfig("a", 0.0)
+
+
+def test_a_prediction_far_ahead_takes_a_bounded_number_of_filter_steps():
+    """#20.5: a stamp 1 h ahead was predicted in 5 ms steps (720,000 of them) under the node's lock."""
+    from softgrip_ros.estimation.estimator import MAX_PREDICTION_STEPS
+    estimator = PressureEstimator()
+    estimator.add_measurements({"chamber_a": 10e3, "chamber_b": 10e3}, 0.0)
+    calls = []
+    real_predict = estimator.filter.predict
+    estimator.filter.predict = lambda dt, inputs: calls.append(dt) or real_predict(dt, inputs)
+    estimator.predict_to(3600.0)
+    assert len(calls) <= MAX_PREDICTION_STEPS and estimator.time_s == 3600.0
+    assert math.isfinite(estimator.estimate().gauge_pa)
+
+
+def test_samples_just_after_an_input_change_stay_out_of_the_nis_window():
+    """The input's effect at the device lies within ~input_timing_std of its stamp; for
+    nis_input_settle_s the innovations there are not evidence about the sensors."""
+    estimator = PressureEstimator(EstimatorConfig(nis_window=20, nis_input_settle_s=0.05))
+    estimator.add_measurements({"chamber_a": 0.0, "chamber_b": 0.0}, 0.0)
+    estimator.set_inputs(0.0, True, Valve.VENT, 0.1)      # vented at 0 kPa: the chamber stays where it is
+    rng = np.random.default_rng(0)
+    for k in range(1, 41):                          # 2 ms apart: 25 within the settle, 15 after
+        estimator.add_measurements({"chamber_a": rng.normal(0.0, 300.0)}, 0.1 + 0.002 * k)
+    stats = estimator.stats["chamber_a"]
+    assert stats.nis_settling == 24 and len(stats.nis) == 16 and stats.accepted + stats.rejected == 41
+
+
+def test_an_over_cautious_filter_is_reported_but_is_no_warning(trajectory):
+    """Q is sized for fills: at rest the NIS falls below its bound by design. That is reported in
+    the message; only an overconfident filter (or a faulty sensor) is a warning."""
+    loose_sensors = tuple(SensorConfig(s.name, s.noise_std_pa * 3.0) for s in sim.config_for(trajectory, "ekf").sensors)
+    loose = sim.run(trajectory, dataclasses.replace(sim.config_for(trajectory, "ekf"), sensors=loose_sensors)).estimator
+    report = loose.report(trajectory.truth_t[-1])
+    assert "over-cautious" in report.message and report.health == Health.OK

@@ -155,3 +155,20 @@ def test_bad_startup_parameter_exits_1_with_its_reason(argument, message):
     assert run.returncode == 1, run.stderr
     assert message in run.stderr
     assert "Traceback" not in run.stderr
+
+
+def test_messages_stamped_far_ahead_are_ignored_and_the_estimates_go_on(wired):
+    """#20.5: one sample stamped an hour ahead would move the filter there, after which every real
+    sample is "late" and dropped: the estimator froze. Now it is ignored, counted and reported."""
+    from sensor_msgs.msg import FluidPressure
+    from softgrip_ros.nodes.common import stamp_msg
+    feeder, publishers, status_pub, estimates, diagnostics = wired
+    rng = np.random.default_rng(2)
+    _feed(feeder, publishers, ("chamber_a", "chamber_b"), 5e3, 0.3, rng)
+    ahead = stamp_msg(feeder.get_clock().now().nanoseconds * 1e-9 + 3600.0)
+    publishers["chamber_a"].publish(FluidPressure(fluid_pressure=P_ATM_PA + 5e3, variance=9e4, header=_header(ahead, "a")))
+    count = len(estimates)
+    _feed(feeder, publishers, ("chamber_a", "chamber_b"), 5e3, 0.5, rng)
+    assert len(estimates) - count > 5
+    assert all(m.header.stamp.sec < ahead.sec - 1000 for m in estimates[count:])
+    wait_for(lambda: any("in the future" in d.message for d in diagnostics), message="the refusal reported")

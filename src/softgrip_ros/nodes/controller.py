@@ -45,7 +45,8 @@ def make_nodes(context=None, overrides: dict | None = None) -> list:
     overrides = overrides or {}
     nodes = []
     try:
-        controller = PressureControllerNode(context=context, parameter_overrides=overrides.get("pressure_controller", []))
+        controller = PressureControllerNode(in_process=True, context=context,
+                                            parameter_overrides=overrides.get("pressure_controller", []))
         nodes.append(controller)
         interface, channel = controller.values["can.interface"], controller.values["can.channel"]
         if interface == "virtual":
@@ -61,6 +62,7 @@ def make_nodes(context=None, overrides: dict | None = None) -> list:
         grasp_manager.scene_listeners.append(kinematics.on_scene)
         grasp_manager.command_listeners.append(controller.on_command)
         estimator.estimate_listeners += [kinematics.on_estimate, grasp_manager.on_estimate]
+        estimator.consistency_listeners.append(controller.on_consistency)
     except Exception:
         close_all(nodes)
         raise

@@ -22,9 +22,10 @@ from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Header
 
 from softgrip_interfaces.msg import ControllerStatus, PressureCommand
-from softgrip_ros.estimation.estimator import EstimatorConfig, Health, PressureEstimator, SensorConfig
+from softgrip_ros.estimation.estimator import EstimatorConfig, Health, PressureEstimator, Report, SensorConfig
 from softgrip_ros.model.pneumatics import Valve
-from softgrip_ros.nodes.common import P_ATM_PA, NodeTimers, listened, notify, publish, run_node, stamp_msg, stamp_seconds
+from softgrip_ros.nodes.common import (P_ATM_PA, NodeTimers, future_stamp_reason, listened, notify, publish, run_node,
+                                       stamp_msg, stamp_seconds)
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
 _DEFAULTS = EstimatorConfig()
@@ -38,6 +39,8 @@ SPECS = [
               "(0: each at once; 20 ms: one fusion every other bus batch while the controller rests)", "s", 0.0, 0.02),
     ParamSpec("input_timing_std", _DEFAULTS.input_timing_std_s, "how far an input's effect at the device may lie "
               "from its stamp (1 sigma); P grows by the change in rate times this at each input change", "s", 0.0, 0.1),
+    ParamSpec("nis_input_settle", _DEFAULTS.nis_input_settle_s, "samples this soon after an input change stay out "
+              "of the NIS window (still gated and fused): the input's timing is uncertain there", "s", 0.0, 1.0),
     ParamSpec("max_fusion_shift_pa", _DEFAULTS.max_fusion_shift_pa, "the chamber rests (see fusion_window) while its "
               "modelled change over the window stays within this", "Pa", 1.0, 1000.0),
     ParamSpec("sensors.names", ["chamber_a", "chamber_b"], "sensors fused: topics pressure/sensor/<name>"),
@@ -48,7 +51,11 @@ SPECS = [
     ParamSpec("nis_window", _DEFAULTS.nis_window, "samples per sensor in the NIS consistency window", "", 10, 100000),
     ParamSpec("max_consecutive_rejections", _DEFAULTS.max_consecutive_rejections,
               "rejections in a row from every live sensor before re-initialising", "", 1, 100000),
+    ParamSpec("stamp_tolerance", 0.5, "a sample, status or command stamped further ahead of this node's clock than "
+              "this is ignored (and counted)", "s", 0.0, 60.0),
 ]
+EVIDENCE_PERIOD_S = 0.1        # the NIS evidence handed to the composed pressure controller this often
+REFUSAL_REPORTED_S = 5.0       # a refused message keeps the diagnostics at WARN this long
 PREDICTION_RATE_LIMIT_HZ = 50.0
 LEVELS = {Health.OK: DiagnosticStatus.OK, Health.WARN: DiagnosticStatus.WARN, Health.ERROR: DiagnosticStatus.ERROR}
 
@@ -64,7 +71,7 @@ def config_from(values: dict) -> EstimatorConfig:
                            process_noise_pa2_per_s=tuple(float(v) for v in values["process_noise_covariance"]),
                            nis_window=values["nis_window"], max_consecutive_rejections=values["max_consecutive_rejections"],
                            fusion_window_s=values["fusion_window"], max_fusion_shift_pa=values["max_fusion_shift_pa"],
-                           input_timing_std_s=values["input_timing_std"])
+                           input_timing_std_s=values["input_timing_std"], nis_input_settle_s=values["nis_input_settle"])
 
 
 class EstimatorNode(Node):
@@ -80,6 +87,9 @@ class EstimatorNode(Node):
         super().__init__("estimator", **kwargs)
         self._lock = threading.Lock()      # the in-process path calls in from the controller's CAN thread
         self.estimate_listeners = []
+        self.consistency_listeners = []    # in-process: f(sensor, mean NIS, bound), every EVIDENCE_PERIOD_S
+        self.future_stamps = 0             # messages ignored for a stamp too far ahead
+        self.last_refusal, self.last_refusal_at = "", -float("inf")
         self.closed = False
         specs = {s.name: s for s in SPECS}
         self.values = declare(self, SPECS)
@@ -96,14 +106,14 @@ class EstimatorNode(Node):
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         for name in [] if in_process else self.values["sensors.names"]:
             self.create_subscription(FluidPressure, f"pressure/sensor/{name}",
-                                     lambda msg, name=name: self.on_sensor_samples(
-                                         [(name, msg.fluid_pressure - P_ATM_PA, stamp_seconds(msg.header.stamp))]), 50)
+                                     lambda msg, name=name: self._on_sensor_message(name, msg), 50)
         if not in_process:
             self.create_subscription(ControllerStatus, "controller/status", self.on_status, 10)
         self.create_subscription(PressureCommand, "pressure/command", self._on_command, 10)
         self.periodic = NodeTimers(self, in_process)
         self.periodic.every(max(self.period_s, 1.0 / PREDICTION_RATE_LIMIT_HZ), self._on_timer)
         self.periodic.every(0.5, self._publish_diagnostics)
+        self.periodic.every(EVIDENCE_PERIOD_S, self._share_evidence)
         self.periodic.start()
 
     def close(self) -> None:
@@ -114,6 +124,15 @@ class EstimatorNode(Node):
 
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
+
+    def _refused(self, what: str, stamp_s: float) -> bool:
+        """Whether a message's stamp lies too far ahead to take (then counted and logged)."""
+        reason = future_stamp_reason(stamp_s, self._now(), self.values["stamp_tolerance"])
+        if reason:
+            self.future_stamps += 1
+            self.last_refusal, self.last_refusal_at = f"{what} {reason}", self._now()
+            self.get_logger().warn(self.last_refusal, throttle_duration_sec=5.0)
+        return bool(reason)
 
     def on_sensor_samples(self, samples: list) -> None:
         """Readings [(sensor name, gauge Pa, stamp s)], oldest first (a batch of the bus's, or one
@@ -139,9 +158,14 @@ class EstimatorNode(Node):
         if refused is not None:
             raise refused
 
+    def _on_sensor_message(self, name: str, msg: FluidPressure) -> None:
+        stamp_s = stamp_seconds(msg.header.stamp)
+        if not self._refused(f"pressure/sensor/{name}", stamp_s):
+            self.on_sensor_samples([(name, msg.fluid_pressure - P_ATM_PA, stamp_s)])
+
     def on_status(self, msg: ControllerStatus) -> None:
         """The process model's inputs: the regulator command and the valve state."""
-        if not msg.valve_states:
+        if not msg.valve_states or self._refused("controller/status", stamp_seconds(msg.header.stamp)):
             return
         try:
             with self._lock:
@@ -152,7 +176,7 @@ class EstimatorNode(Node):
 
     def _on_command(self, msg: PressureCommand) -> None:
         valve = {PressureCommand.VENT: Valve.VENT, PressureCommand.HOLD: Valve.CLOSED}.get(msg.source)
-        if valve is not None:
+        if valve is not None and not self._refused("pressure/command", stamp_seconds(msg.header.stamp)):
             with self._lock:
                 inputs = self.estimator.inputs
                 self.estimator.set_inputs(inputs.regulator_setpoint_gauge_pa, inputs.regulator_enabled, valve,
@@ -184,9 +208,21 @@ class EstimatorNode(Node):
                 fluid_pressure=estimate.gauge_pa + P_ATM_PA, variance=estimate.variance_pa2))
         notify(self.estimate_listeners, estimate.stamp_s, estimate.gauge_pa, estimate.variance_pa2)
 
+    def _share_evidence(self) -> None:
+        """The NIS of each sensor to the composed pressure controller's safety checks."""
+        if not self.consistency_listeners:
+            return
+        with self._lock:
+            evidence, bound = self.estimator.nis_evidence(), self.estimator.nis_bounds[1]
+        for name, mean_nis in evidence.items():
+            notify(self.consistency_listeners, name, mean_nis, bound)
+
     def _publish_diagnostics(self) -> None:
         with self._lock:
             report = self.estimator.report(self._now())
+        report.values["future_stamps_ignored"] = self.future_stamps
+        if self._now() - self.last_refusal_at < REFUSAL_REPORTED_S:
+            report = Report(max(report.health, Health.WARN), f"{report.message}; {self.last_refusal}", report.values)
         status = DiagnosticStatus(name="softgrip: estimator", hardware_id="pressure", level=LEVELS[report.health],
                                   message=report.message,
                                   values=[KeyValue(key=k, value=str(v)) for k, v in report.values.items()])
