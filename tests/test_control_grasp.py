@@ -71,23 +71,53 @@ def test_stop_during_opening_vents_at_once(kinematics):
     loop.run_for(0.05)
     assert loop.fsm.state.phase == Phase.OPENING
     loop.command(GraspRequest(Mode.STOP))
-    assert loop.fsm.request.source == Source.VENT and loop.fsm.state.phase == Phase.IDLE
-    loop.run_for(0.5)
+    assert loop.fsm.request.source == Source.VENT and loop.fsm.state.phase == Phase.RELEASING
+    loop.run_until(lambda s: s.phase == Phase.IDLE, 0.5)           # IDLE only once the pressure says vented
+    assert abs(loop.gauge()) < loop.fsm.config.vented_below_pa and "stopped: vented" in loop.fsm.state.message
+    loop.run_for(0.3)
     assert abs(loop.pressures_since(loop.now - 0.05)[-1]) < 1e3
+
+
+def test_stop_and_release_never_report_success_while_the_pressure_stays(kinematics):
+    """#20: with the valves stuck, RELEASE reached IDLE ("released") while the pressure went
+    anywhere. Fed a pressure that never vents, STOP and RELEASE time out into FAULT instead."""
+    for mode in (Mode.STOP, Mode.RELEASE):
+        fsm = GraspStateMachine(kinematics, GraspConfig(releasing_timeout_s=0.5))
+        fsm.command(GraspRequest(Mode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.05), 0.0)
+        fsm.command(GraspRequest(mode), 0.0)
+        for k in range(70):
+            fsm.update(0.01 * k, -9e3)
+            assert fsm.state.phase != Phase.IDLE and "released" not in fsm.state.message
+        assert fsm.state.phase == Phase.FAULT and "timed out" in fsm.state.message
 
 
 def test_a_controller_fault_while_holding_gives_fault_and_vents(kinematics):
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
     loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
-    loop.controller_fault = "sensor timeout"
+    loop.controller_fault = "sensor disagree"
     loop.run_for(0.02)
-    assert loop.fsm.state.phase == Phase.FAULT and "sensor timeout" in loop.fsm.state.message
-    assert loop.fsm.request.source == Source.VENT
-    assert "fault" in loop.fsm.command(GraspRequest(Mode.OPEN, target_tip_spacing_m=0.05), loop.now, "sensor timeout")
+    assert loop.fsm.state.phase == Phase.FAULT and "sensor disagree" in loop.fsm.state.message
+    assert loop.fsm.request.source == Source.VENT and "venting" in loop.fsm.state.message
+    assert "fault" in loop.fsm.command(GraspRequest(Mode.OPEN, target_tip_spacing_m=0.05), loop.now, "sensor disagree")
     loop.controller_fault = ""
     assert loop.fsm.command(GraspRequest(Mode.STOP), loop.now) == ""
-    assert loop.fsm.state.phase == Phase.IDLE
+    assert loop.fsm.state.phase == Phase.RELEASING and loop.fsm.request.source == Source.VENT
+    loop.run_until(lambda s: s.phase == Phase.IDLE, 1.0)
+    assert "stopped: vented" in loop.fsm.state.message
+
+
+def test_a_blind_controller_gives_fault_with_the_valves_held_and_says_so(kinematics):
+    """#20: with the bus silent the grasp said "venting" while every ValveCommand said CLOSED. A
+    controller that cannot see the chamber holds the valves closed (design.md); the grasp now asks
+    for the same, and says exactly that."""
+    loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
+    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
+    loop.controller_fault, loop.controller_blind = "sensor timeout, bus silent", True
+    loop.run_for(0.02)
+    assert loop.fsm.state.phase == Phase.FAULT and loop.fsm.request.source == Source.HOLD
+    assert "venting" not in loop.fsm.state.message and "holds the valves closed" in loop.fsm.state.message
 
 
 def test_a_regulator_overshoot_while_holding_is_detected_and_gives_fault(kinematics):
@@ -110,10 +140,23 @@ def test_holding_pressure_drifting_off_target_gives_fault(kinematics):
 
 
 def test_a_phase_that_cannot_finish_times_out_into_fault(kinematics):
-    loop = GraspLoop(kinematics, GraspConfig(opening_timeout_s=0.3), valve_stuck=True)
+    """The pressure never arrives, and nothing names a cause: the phase's own timeout ends it."""
+    fsm = GraspStateMachine(kinematics, GraspConfig(opening_timeout_s=0.3))
+    fsm.command(GraspRequest(Mode.OPEN, target_tip_spacing_m=0.08), 0.0)
+    for k in range(40):
+        fsm.update(0.01 * k, 2e3)
+    assert fsm.state.phase == Phase.FAULT
+    assert "opening timed out" in fsm.state.message and fsm.request.source == Source.VENT
+
+
+def test_a_valve_that_does_not_open_is_named_by_the_controller_before_the_phase_times_out(kinematics):
+    """Valves stuck closed: the pressure controller's response check finds that the chamber does
+    not follow the supply valve, and the grasp ends in FAULT on that, not on the 3 s timeout."""
+    loop = GraspLoop(kinematics, GraspConfig(), valve_stuck=True)
     loop.command(GraspRequest(Mode.OPEN, target_tip_spacing_m=0.08))
-    loop.run_until(lambda s: s.phase == Phase.FAULT, 2.0)
-    assert "opening timed out" in loop.fsm.state.message and loop.fsm.request.source == Source.VENT
+    loop.run_until(lambda s: s.phase == Phase.FAULT, 1.0)
+    assert "response" in loop.fsm.state.message and loop.fsm.request.source == Source.VENT
+    assert loop.now < 0.5
 
 
 NAN = math.nan
@@ -134,6 +177,17 @@ REJECTIONS = [
     (GraspRequest(Mode.OPEN, target_tip_spacing_m=math.inf), "OPEN needs a finite"),
     (GraspRequest(Mode.OPEN, target_tip_spacing_m=0.3), "wider than the gripper opens"),
     (GraspRequest(Mode.CLAMP), "CLAMP needs the ENVELOPED phase"),
+    # #20: commands that contradict their mode
+    (GraspRequest(Mode.OPEN, target_tip_spacing_m=0.1, open_pressure_pa=-20e3), "open_pressure_pa must be > 0"),
+    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, open_pressure_pa=-20e3),
+     "open_pressure_pa must be > 0"),
+    (GraspRequest(Mode.OPEN, target_tip_spacing_m=0.1, open_pressure_pa=5e3), "short of target_tip_spacing_m"),
+    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, clamp_pressure_pa=5e3),
+     "clamp_pressure_pa must be <= 0"),
+    (GraspRequest(Mode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1, clamp_pressure_pa=5e3),
+     "clamp_pressure_pa must be <= 0"),
+    (GraspRequest(Mode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1, open_pressure_pa=10e3), "PINCH does not open"),
+    (GraspRequest(Mode.OPEN, target_tip_spacing_m=0.05, clamp_pressure_pa=-10e3), "OPEN does not clamp"),
 ]
 
 

@@ -3,7 +3,7 @@ import math
 
 import numpy as np
 
-from softgrip_ros.control.grasp_fsm import GraspStateMachine, fault_text
+from softgrip_ros.control.grasp_fsm import HALTING_FAULTS, TRANSIENT_FAULTS, GraspStateMachine, fault_text
 from softgrip_ros.control.pressure import PressureController
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 
@@ -27,6 +27,8 @@ class GraspLoop:
         self.spacing_at_enveloped = math.nan
         self._sent = None
         self.reported_fault = ""
+        self.blind = False
+        self.controller_blind = False    # whether an injected controller_fault is the blind kind
 
     def command(self, request):
         reason = self.fsm.command(request, self.now, self.controller_fault)
@@ -50,6 +52,7 @@ class GraspLoop:
             self.controller.update_sensor("sensor1", self.gauge() + 300.0 * self.rng.standard_normal(), self.now)
             out = self.controller.step(self.now)
             self.reported_fault = fault_text(out.fault_flags)
+            self.blind = not (out.fault_flags & HALTING_FAULTS & ~TRANSIENT_FAULTS)
             valves = (Valve.CLOSED,) if self.valve_stuck else out.valves
             self.inputs = PlantInputs(out.regulator_setpoint_gauge_pa, out.regulator_enabled, valves,
                                       regulator_overshoot_pa=self.overshoot_pa)
@@ -57,7 +60,8 @@ class GraspLoop:
             self.controller.update_regulator_status(self.state.regulator_gauge_pa, 0)
             before = self.fsm.state.phase
             self.fsm.update(self.now, self.gauge() + 100.0 * self.rng.standard_normal(), 100.0,
-                            self.controller_fault or self.reported_fault)
+                            self.controller_fault or self.reported_fault,
+                            controller_blind=self.controller_blind if self.controller_fault else self.blind)
             if self.fsm.state.phase != before and self.fsm.state.phase.name == "ENVELOPED":
                 self.spacing_at_enveloped = self.fsm.state.tip_spacing_m
             self._forward()

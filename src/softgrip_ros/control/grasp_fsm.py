@@ -14,12 +14,17 @@ Phases: IDLE -> OPENING -> ENVELOPED -> CLAMPING -> HOLDING -> RELEASING -> IDLE
 - OPEN: OPENING to ``target_tip_spacing_m``, then ENVELOPED (held open; CLAMP may follow).
 - RELEASE: RELEASING vents until the chamber is near 0, then opens to the object plus margin
   (or ``release_tip_spacing_m``), then IDLE with the valves holding.
-- STOP: vent now, whatever runs; IDLE.
+- STOP: vent now, whatever runs: RELEASING until the chamber is near 0, then IDLE ("stopped:
+  vented"). Neither RELEASE nor STOP reports success before the pressure says so.
 - CLAMP: clamp now; only from ENVELOPED.
 
 Every phase that waits has a timeout; a timeout, a controller fault or a HOLDING pressure that
-drifts off its target gives FAULT, which vents.
-A rejected command changes nothing and says why.
+drifts off its target gives FAULT, which vents. A controller that cannot see the chamber (a
+sensor timeout or a silent bus that outlasts the grace) gives FAULT too, but with the valves
+held closed, as the pressure controller itself does then: nothing could confirm a vent.
+A rejected command changes nothing and says why: an invalid number, and also a command that
+cannot do what its mode means (an opening pressure that is not positive, a clamp pressure
+that is, an override a mode never uses).
 """
 from __future__ import annotations
 
@@ -29,6 +34,7 @@ import math
 
 from softgrip_ros.checks import require_positive
 from softgrip_ros.control.pressure import ERROR_FAULTS, Fault, Source
+from softgrip_ros.control.safety import SAFETY_FAULTS
 from softgrip_ros.model.fidelity import FREE, Scene, cylinder_scene
 from softgrip_ros.model.grasp import ClampForceLaw
 from softgrip_ros.model.rod import Sheet
@@ -159,14 +165,16 @@ class ControllerFeedback:
         self.transient_grace_s = transient_grace_s
         self._estimate = (math.nan, math.nan, -math.inf)        # gauge, std, arrival
         self._status = None                                       # (fault flags, measured gauge, arrival)
+        self._message = ""                                        # the controller's own words on its fault
         self._awaited_since = None                                # first non-idle ask before any status
         self._transient_since = None                              # since when TRANSIENT_FAULTS are reported
 
     def on_estimate(self, gauge_pa: float, std_pa: float, now: float) -> None:
         self._estimate = (gauge_pa, std_pa, now)
 
-    def on_status(self, fault_flags: int, measured_gauge_pa: float, now: float) -> None:
+    def on_status(self, fault_flags: int, measured_gauge_pa: float, now: float, message: str = "") -> None:
         self._status = (fault_flags, measured_gauge_pa, now)
+        self._message = message
         if not fault_flags & TRANSIENT_FAULTS:
             self._transient_since = None
         elif self._transient_since is None:
@@ -193,7 +201,19 @@ class ControllerFeedback:
             return f"no controller/status for {now - stamp:.1f} s"
         if self._transient_since is not None and now - self._transient_since < self.transient_grace_s:
             flags &= ~TRANSIENT_FAULTS
-        return fault_text(flags)
+        text = fault_text(flags)
+        if text and Fault(flags) & SAFETY_FAULTS and self._message:
+            text = f"{text} ({self._message})"
+        return text
+
+    def blind(self, now: float) -> bool:
+        """Whether the fault that stops a grasp is the controller being unable to see the chamber
+        (a sensor timeout or a silent bus past the grace, or no status at all) and nothing else:
+        the controller holds the valves closed then, and a vent could not be confirmed."""
+        if self._status is None:
+            return True
+        flags, _, stamp = self._status
+        return now - stamp > self.status_timeout_s or not Fault(flags) & HALTING_FAULTS & ~TRANSIENT_FAULTS
 
 
 TERMINAL = {Mode.ENVELOP_CLAMP: (Phase.HOLDING,), Mode.PINCH: (Phase.HOLDING,), Mode.OPEN: (Phase.ENVELOPED,),
@@ -246,7 +266,8 @@ class GraspStateMachine:
         for name, value in plan.items():        # the pressures worked out while checking
             setattr(self, name, value)
         if mode == Mode.STOP:
-            self._enter(Phase.IDLE, PressureRequest(0.0, Source.VENT), now, "stopped: venting")
+            self._release_step = "stop"
+            self._enter(Phase.RELEASING, PressureRequest(0.0, Source.VENT), now, "stopping: venting")
         elif mode == Mode.CLAMP:
             self._enter(Phase.CLAMPING, self._pressure(self._clamp_pa), now, "clamping")
         elif mode == Mode.RELEASE:
@@ -282,6 +303,9 @@ class GraspStateMachine:
             value = getattr(r, name)
             if not math.isnan(value) and not (math.isfinite(value) and c.min_gauge_pa <= value <= c.max_gauge_pa):
                 return f"{name} {value} Pa is beyond the pressure limits [{c.min_gauge_pa:.0f}, {c.max_gauge_pa:.0f}] Pa"
+        contradiction = self._contradiction(mode, r)
+        if contradiction:
+            return contradiction
         low, high = self.kinematics.tip_spacing_range_m()
         if mode == Mode.OPEN:
             spacing = high if math.isnan(r.target_tip_spacing_m) else r.target_tip_spacing_m    # NaN: fully open
@@ -289,6 +313,10 @@ class GraspStateMachine:
                 return f"OPEN needs a finite, non-negative target_tip_spacing_m (NaN: fully open), got {spacing}"
             if spacing > high:
                 return f"target_tip_spacing_m {spacing * 1e3:.1f} mm is wider than the gripper opens ({high * 1e3:.1f} mm)"
+            if not math.isnan(r.open_pressure_pa) and self.kinematics.pose(r.open_pressure_pa).tip_spacing_m < spacing:
+                return (f"open_pressure_pa {r.open_pressure_pa:.0f} Pa opens the tips to "
+                        f"{self.kinematics.pose(r.open_pressure_pa).tip_spacing_m * 1e3:.1f} mm, short of "
+                        f"target_tip_spacing_m {spacing * 1e3:.1f} mm")
             plan.update(_open_pa=self._open_pressure(spacing, r.open_pressure_pa), target_tip_spacing_m=spacing)
             return ""
         if not math.isfinite(r.object_diameter_m) or r.object_diameter_m < 0.0:
@@ -321,6 +349,26 @@ class GraspStateMachine:
             plan["_open_pa"] = self._open_pressure(needed, r.open_pressure_pa)
         return ""
 
+    @staticmethod
+    def _contradiction(mode: Mode, r: GraspRequest) -> str:
+        """Why an override contradicts its mode ('' when none does): positive pressure opens and
+        negative pressure clamps, and a mode that never opens or never clamps takes no such
+        override (it could only mean that the sender wanted another mode)."""
+        opens, clamps = mode in (Mode.ENVELOP_CLAMP, Mode.OPEN), mode in (Mode.ENVELOP_CLAMP, Mode.PINCH)
+        if not math.isnan(r.open_pressure_pa):
+            if not opens:
+                return f"{mode.name} does not open: open_pressure_pa must be NaN, got {r.open_pressure_pa:.0f} Pa"
+            if r.open_pressure_pa <= 0.0:
+                return (f"open_pressure_pa must be > 0 (positive pressure opens the fingers; negative closes them), "
+                        f"got {r.open_pressure_pa:.0f} Pa")
+        if not math.isnan(r.clamp_pressure_pa):
+            if not clamps:
+                return f"{mode.name} does not clamp: clamp_pressure_pa must be NaN, got {r.clamp_pressure_pa:.0f} Pa"
+            if r.clamp_pressure_pa > 0.0:
+                return (f"clamp_pressure_pa must be <= 0 (negative pressure clamps; positive opens), "
+                        f"got {r.clamp_pressure_pa:.0f} Pa")
+        return ""
+
     def _open_pressure(self, tip_spacing_m: float, override_pa: float) -> float:
         if not math.isnan(override_pa):
             return override_pa
@@ -333,13 +381,20 @@ class GraspStateMachine:
 
     # ---- time ---------------------------------------------------------------------------------
     def update(self, now: float, estimate_gauge_pa: float, estimate_std_pa: float = math.nan,
-               controller_fault: str = "") -> GraspState:
-        """Advance on a new estimate (NaN when none) and the controller's fault ('' when none)."""
+               controller_fault: str = "", controller_blind: bool = False) -> GraspState:
+        """Advance on a new estimate (NaN when none) and the controller's fault ('' when none).
+        ``controller_blind``: that fault is only the controller not seeing the chamber (see
+        :meth:`ControllerFeedback.blind`): FAULT then holds the valves closed instead of venting."""
         s, c = self.state, self.config
         s.estimated_gauge_pa, s.estimated_std_pa = estimate_gauge_pa, estimate_std_pa
         self._model(estimate_gauge_pa)
         if controller_fault and s.phase not in (Phase.IDLE, Phase.FAULT):
-            self._enter(Phase.FAULT, PressureRequest(0.0, Source.VENT), now, f"fault: {controller_fault}; venting")
+            if controller_blind:
+                self._enter(Phase.FAULT, PressureRequest(self.request.target_gauge_pa, Source.HOLD), now,
+                            f"fault: {controller_fault}: the pressure controller holds the valves closed "
+                            f"(nothing can confirm a vent while it cannot see the chamber)")
+            else:
+                self._enter(Phase.FAULT, PressureRequest(0.0, Source.VENT), now, f"fault: {controller_fault}; venting")
             return s
         settled = self._settled(now, estimate_gauge_pa)
         elapsed = now - self._phase_start
@@ -361,7 +416,14 @@ class GraspStateMachine:
             elif elapsed > c.clamping_timeout_s:
                 self._timeout(now, "clamping")
         elif s.phase == Phase.RELEASING:
-            if self._release_step == "vent" and math.isfinite(estimate_gauge_pa) and abs(estimate_gauge_pa) < c.vented_below_pa:
+            vented = math.isfinite(estimate_gauge_pa) and abs(estimate_gauge_pa) < c.vented_below_pa
+            if self._release_step == "stop" and vented:
+                self._request = None
+                self._enter(Phase.IDLE, PressureRequest(0.0, Source.VENT), now,
+                            f"stopped: vented ({estimate_gauge_pa / 1e3:.1f} kPa)")
+            elif self._release_step == "stop" and elapsed > c.releasing_timeout_s:
+                self._timeout(now, "stopping (the vent)")
+            elif self._release_step == "vent" and vented:
                 self._release_step = "open"
                 spacing = c.release_tip_spacing_m
                 if self._request is not None and math.isfinite(self._request.object_diameter_m):

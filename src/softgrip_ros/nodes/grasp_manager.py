@@ -163,7 +163,7 @@ class GraspManagerNode(Node):
     def on_status(self, msg: ControllerStatus) -> None:
         with self._lock:
             if not self.closed:
-                self.feedback.on_status(msg.fault_flags, msg.measured_gauge_pressure_pa, self._now())
+                self.feedback.on_status(msg.fault_flags, msg.measured_gauge_pressure_pa, self._now(), msg.message)
 
     def _on_timer(self) -> None:
         with self._lock:
@@ -172,7 +172,8 @@ class GraspManagerNode(Node):
     def _tick(self, force_state: bool = False) -> None:
         now = self._now()
         gauge, std = self.feedback.pressure(now)
-        self.fsm.update(now, gauge, std, self._controller_fault(now))
+        fault = self._controller_fault(now)
+        self.fsm.update(now, gauge, std, fault, controller_blind=bool(fault) and self.feedback.blind(now))
         self._after_change(now, force_state)
 
     def _after_change(self, now: float, force_state: bool = False) -> None:
