@@ -6,8 +6,8 @@ import pytest
 
 from softgrip_ros.control.grasp_fsm import GraspConfig, GraspRequest, Mode, Phase
 from softgrip_ros.model.calibration import build_kinematics
-from softgrip_ros.model.fidelity import (FREE, ErrorBounds, LatestSolveThread, ModelSelector, RodSolverProcess, Scene,
-                                         SceneModel, cylinder_scene)
+from softgrip_ros.model.fidelity import FREE, ErrorBounds, ModelSelector, Scene, SceneModel, cylinder_scene
+from softgrip_ros.runtime.rod_solver import LatestSolveThread, RodSolverProcess
 from softgrip_ros.model.reference import ReferenceFinger
 from softgrip_ros.model.rod import Circle, Sheet
 from tests.helpers.grasp_loop import GraspLoop

@@ -15,15 +15,10 @@ and the median cost of one pose. ``auto`` picks the cheapest model whose bound m
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import math
-import multiprocessing
-import os
 import pathlib
-import threading
 import typing
-from concurrent.futures import ProcessPoolExecutor
 
 import yaml
 
@@ -33,6 +28,11 @@ from softgrip_ros.model.kinematics import TipTable
 from softgrip_ros.model.rod import Circle, RodFinger, Sheet
 
 BOUNDS_FILE = "model_error_bounds.yaml"
+# The pressures scripts/bench_speed_accuracy.py measures the contact bound at (cylinders clamped
+# from 0 to -20 kPa and released up to their 30 kPa opening, a sheet pinched at -5 and -20 kPa):
+# L2 in a contact scene is validated there. The bounds file records the range it was measured on;
+# this is the default when it does not.
+CONTACT_VALIDATED_RANGE_PA = (-20e3, 30e3)
 MODELS = ("l0", "l1", "l2")
 SCENE_CLASSES = ("free", "free_beyond", "contact")
 CHOICES = MODELS + ("auto",)
@@ -78,6 +78,7 @@ class ErrorBounds:
     tip_error_bound_m: dict      # {model: {scene class: m}}
     median_cost_s: dict          # {model: s}
     source: str = ""
+    contact_range_pa: tuple = CONTACT_VALIDATED_RANGE_PA    # where the contact bound was measured
 
     @classmethod
     def load(cls, path=None) -> "ErrorBounds":
@@ -90,114 +91,14 @@ class ErrorBounds:
             models = doc["models"]
             bounds = {m: {c: float(models[m]["tip_error_bound_m"][c]) for c in SCENE_CLASSES} for m in MODELS}
             costs = {m: float(models[m]["median_cost_s"]) for m in MODELS}
+            low, high = (float(v) for v in doc.get("contact_pressure_range_pa", CONTACT_VALIDATED_RANGE_PA))
         except (KeyError, TypeError, ValueError) as error:
             raise ValueError(f"{path}: not a model error-bound table ({error!r}); "
                              "regenerate it with scripts/bench_speed_accuracy.py") from None
-        return cls(bounds, costs, str(path))
+        return cls(bounds, costs, str(path), (low, high))
 
 
 ROD_CONTINUATION_STEPS = 4
-# The solver's matrices are small: OpenBLAS's worker threads gain nothing on them and spin between
-# calls, which in the controller's child took 40 % of a core during grasps (solves 26 -> 8.5 ms of
-# CPU each with one thread; bench_e2e). A setting of the user's own is kept.
-SOLVER_PROCESS_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
-# A solve holds a core for ~8.5 ms; at the default nice value the scheduler shares that core
-# evenly with the pressure loop, the CAN reception and the estimator, which wait behind it. Raised
-# by 10, the child yields to them (bench_e2e: the sensor-to-pose p99 lower in each of 4 comparisons,
-# by 0.05-0.7 ms; see docs/benchmarks.md).
-SOLVER_PROCESS_NICE_INCREMENT = 10
-
-
-@contextlib.contextmanager
-def _environment_defaults(values: dict):
-    """os.environ with ``values`` where unset, for a child started inside; restored after."""
-    added = [name for name in values if name not in os.environ]
-    os.environ.update({name: values[name] for name in added})
-    try:
-        yield
-    finally:
-        for name in added:
-            os.environ.pop(name, None)
-
-
-class RodSolverProcess:
-    """L2 solves in a child process of their own. A solve is milliseconds of pure-Python CPU; in a
-    thread of the composed controller it holds the GIL that the 500 Hz pressure loop and the CAN
-    threads need, and they stall behind it (the demo's clamp overshot past the vacuum limit in 3
-    of 14 runs that way, 0 of 14 before L2 ran there). Call it as SceneModel's ``rod_solver``;
-    :meth:`close` it when done. The child is spawned (never forked from a threaded process) and
-    runs ``nice_increment`` (0..19) above this process's nice value: the solves are a refinement
-    that must not delay the control path."""
-
-    def __init__(self, cavity_type: str = "type_II", nice_increment: int = SOLVER_PROCESS_NICE_INCREMENT):
-        if not 0 <= nice_increment <= 19:
-            raise ValueError(f"nice_increment must lie in [0, 19], got {nice_increment}")
-        self._executor = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
-                                             initializer=_start_rod_worker, initargs=(cavity_type, nice_increment))
-        with _environment_defaults(SOLVER_PROCESS_ENVIRONMENT):   # the child copies it as it starts
-            self._executor.submit(int)      # start the child now (about a second), not at the first solve
-
-    def __call__(self, pressure_pa: float, obstacle, from_pressure_pa: float):
-        return self._executor.submit(_solve_in_rod_worker, pressure_pa, obstacle, from_pressure_pa).result()
-
-    def close(self) -> None:
-        self._executor.shutdown(wait=True, cancel_futures=True)
-
-
-class LatestSolveThread:
-    """:meth:`SceneModel.solve_rod` on a thread of its own, for a caller that cannot wait
-    milliseconds (the kinematics node answers each estimate at once, with the last solve).
-    :meth:`request` replaces a request not yet started: the latest pressure is the one worth
-    solving. A failed solve goes to ``on_error(pressure_pa, error)`` and the thread goes on."""
-
-    def __init__(self, model: "SceneModel", on_error=None, name: str = "softgrip-l2"):
-        self.model, self.on_error = model, on_error
-        self._wanted = threading.Condition()
-        self._request = None                 # (pressure, scene, stamp)
-        self._closed = False
-        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
-        self._thread.start()
-
-    def request(self, pressure_pa: float, scene: "Scene", stamp_s: float | None = None) -> None:
-        with self._wanted:
-            self._request = (pressure_pa, scene, stamp_s)
-            self._wanted.notify()
-
-    def close(self) -> None:
-        with self._wanted:
-            self._closed = True
-            self._wanted.notify_all()
-        self._thread.join(timeout=2.0)
-
-    def _run(self) -> None:
-        while True:
-            with self._wanted:
-                while self._request is None and not self._closed:
-                    self._wanted.wait()
-                if self._closed:
-                    return
-                (pressure, scene, stamp_s), self._request = self._request, None
-            try:
-                self.model.solve_rod(pressure, scene, stamp_s)
-            except Exception as error:        # noqa: BLE001 - a failed solve must not end the thread
-                if self.on_error is not None:
-                    self.on_error(pressure, error)
-
-
-_WORKER_ROD: RodFinger | None = None
-
-
-def _start_rod_worker(cavity_type: str, nice_increment: int) -> None:
-    global _WORKER_ROD
-    if nice_increment:
-        os.nice(nice_increment)
-    l1 = build_kinematics("l1", cavity_type)
-    _WORKER_ROD = RodFinger(l1.geometry, l1.calibration)
-
-
-def _solve_in_rod_worker(pressure_pa, obstacle, from_pressure_pa):
-    return _WORKER_ROD.solve(pressure_pa, obstacle=obstacle, from_pressure_pa=from_pressure_pa,
-                             steps=ROD_CONTINUATION_STEPS)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -321,6 +222,9 @@ class SceneModel:
         if message is None:
             message = self._descriptions[scene] = scene.describe()
         if choice.model == "l2":
+            if scene.contact:       # validated where the contact bound was measured, not free bending's range
+                contact_low, contact_high = self.selector.bounds.contact_range_pa
+                validated = contact_low <= pressure <= contact_high
             if solve and self._stale(pressure, scene, now_s):
                 self.solve_rod(pressure, scene, now_s)
             last = self._rod

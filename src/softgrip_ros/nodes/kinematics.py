@@ -30,10 +30,11 @@ from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
 from softgrip_interfaces.msg import GraspScene
-from softgrip_ros.model.fidelity import (CHOICES, FREE, SOLVER_PROCESS_NICE_INCREMENT, LatestSolveThread, RodSolverProcess,
-                                         Scene, SceneModel)
+from softgrip_ros.model.fidelity import CHOICES, FREE, ROD_CONTINUATION_STEPS, Scene, SceneModel
+from softgrip_ros.runtime.rod_solver import SOLVER_PROCESS_NICE_INCREMENT, LatestSolveThread, RodSolverProcess
 from softgrip_ros.model.rod import Circle, Sheet
-from softgrip_ros.nodes.common import P_ATM_PA, NodeTimers, listened, publish, run_node, stamp_msg, stamp_seconds
+from softgrip_ros.nodes.common import (P_ATM_PA, NodeTimers, future_stamp_reason, listened, publish, run_node, stamp_msg,
+                                       stamp_seconds)
 from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
 
 SPECS = [
@@ -51,6 +52,8 @@ SPECS = [
               "so that its solves yield the CPU to the pressure loop, the CAN reception and the estimator", "", 0, 19),
     ParamSpec("cavity_type", "type_II", "finger type of config/gripper_geometry.yaml", choices=("type_I", "type_II", "type_III")),
     ParamSpec("frame_id", "softgrip_base", "frame of the tip poses and markers"),
+    ParamSpec("stamp_tolerance", 0.5, "an estimate stamped further ahead of this node's clock than this is ignored",
+              "s", 0.0, 60.0),
 ]
 
 
@@ -67,7 +70,8 @@ class KinematicsNode(Node):
         self.add_on_set_parameters_callback(
             lambda params: check_all(specs, params, lambda _: "kinematics parameters apply at start-up: restart the node"))
         # L2 runs in a process of its own: in this one it would starve the controller's threads of the GIL
-        self.rod_solver = (RodSolverProcess(self.values["cavity_type"], self.values["l2_nice_increment"])
+        self.rod_solver = (RodSolverProcess(self.values["cavity_type"], self.values["l2_nice_increment"],
+                                            ROD_CONTINUATION_STEPS)
                            if self.values["fidelity"] in ("l2", "auto") else None)
         self.model = SceneModel(self.values["fidelity"], self.values["tolerance_m"], self.values["cavity_type"],
                                 resolve_pressure_pa=self.values["resolve_pressure_pa"],
@@ -84,8 +88,7 @@ class KinematicsNode(Node):
         self.marker_pub = self.create_publisher(MarkerArray, "finger_markers", 1)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         if not in_process:
-            self.create_subscription(FluidPressure, "pressure/estimate", lambda msg: self.on_estimate(
-                stamp_seconds(msg.header.stamp), msg.fluid_pressure - P_ATM_PA, msg.variance), 10)
+            self.create_subscription(FluidPressure, "pressure/estimate", self._on_estimate_message, 10)
             latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
             self.create_subscription(GraspScene, "grasp_scene", self._on_scene_message, latched)
         self.periodic = NodeTimers(self, in_process)
@@ -114,6 +117,14 @@ class KinematicsNode(Node):
             self.get_logger().error(f"grasp_scene refused, kept {self.scene.describe()}: {error}")
             return
         self.on_scene(scene)
+
+    def _on_estimate_message(self, msg: FluidPressure) -> None:
+        stamp_s = stamp_seconds(msg.header.stamp)
+        refused = future_stamp_reason(stamp_s, self.get_clock().now().nanoseconds * 1e-9, self.values["stamp_tolerance"])
+        if refused:    # it would hold every later pose back until its stamp
+            self.get_logger().warn(f"pressure/estimate {refused}", throttle_duration_sec=5.0)
+            return
+        self.on_estimate(stamp_s, msg.fluid_pressure - P_ATM_PA, msg.variance)
 
     def on_estimate(self, stamp_s: float, gauge_pa: float, variance_pa2: float) -> None:
         """Publish both tip poses for the estimate at ``stamp_s``, unless one went out less than a period ago."""
