@@ -68,6 +68,23 @@ def test_a_sensor_frozen_at_its_reading_is_named_once_the_pressure_moves():
     assert within_limits(loop)
 
 
+def test_a_stalled_sender_is_not_a_frozen_sensor():
+    """A sender stalled for 0.15 s (a loaded host) whose first reading after the stall happens to
+    equal its last one before is one long gap, not a run of repeats: no SENSOR_STUCK."""
+    from softgrip_ros.control.safety import SafetyMonitor
+    monitor = SafetyMonitor(sensors={"chamber_a": 300.0})
+    monitor.record_output(0.0, Valve.VENT, 0.0, True)
+    rng = np.random.default_rng(0)
+    for k in range(50):
+        monitor.add_reading("chamber_a", 10e3 + 300.0 * rng.standard_normal(), 0.002 * k)
+    last = monitor.sensors["chamber_a"].value
+    monitor.add_reading("chamber_a", last, 0.098 + 0.15)       # the same value, after the stall
+    assert not [f for f in monitor.check(0.25, 0.05) if f.flag == Fault.SENSOR_STUCK]
+    for k in range(1, 6):                                     # then repeats: that is frozen
+        monitor.add_reading("chamber_a", last, 0.248 + 0.002 * k)
+    assert [f for f in monitor.check(0.26, 0.05) if f.flag == Fault.SENSOR_STUCK]
+
+
 def test_with_one_sensor_a_frozen_reading_is_named_from_the_plant():
     """No second sensor to compare with: the plant, through the commanded valve, says it must move."""
     class OneSensor(FaultyLoop):

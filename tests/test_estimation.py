@@ -14,7 +14,7 @@ from softgrip_ros.canbus.sim_device import DEFAULT_SENSORS
 from softgrip_ros.estimation import simulation as sim
 from softgrip_ros.estimation.estimator import EstimatorConfig, Health, PressureEstimator, SensorConfig
 from softgrip_ros.estimation.filters import FILTER_TYPES, plant_step
-from softgrip_ros.model.pneumatics import PlantInputs, PneumaticPlant, Valve
+from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 
 STEADY = ((0.45, 0.6), (1.05, 1.3))      # after the 25 kPa fill settles; the sealed hold
 STEPS = ((0.2, 0.35), (0.6, 0.75), (1.3, 1.45), (1.7, 1.85))   # fills, evacuation, vent
@@ -436,11 +436,16 @@ def test_samples_just_after_an_input_change_stay_out_of_the_nis_window():
     """The input's effect at the device lies within ~input_timing_std of its stamp; for
     nis_input_settle_s the innovations there are not evidence about the sensors."""
     estimator = PressureEstimator(EstimatorConfig(nis_window=20, nis_input_settle_s=0.05))
-    estimator.add_measurements({"chamber_a": 0.0, "chamber_b": 0.0}, 0.0)
-    estimator.set_inputs(0.0, True, Valve.VENT, 0.1)      # vented at 0 kPa: the chamber stays where it is
-    rng = np.random.default_rng(0)
-    for k in range(1, 41):                          # 2 ms apart: 25 within the settle, 15 after
-        estimator.add_measurements({"chamber_a": rng.normal(0.0, 300.0)}, 0.1 + 0.002 * k)
+    estimator.add_measurements({"chamber_a": 10e3, "chamber_b": 10e3}, 0.0)
+    estimator.set_inputs(10e3, True, Valve.CLOSED, 0.01)  # the regulator told 10 kPa: a change that matters
+    estimator.set_inputs(10.2e3, True, Valve.CLOSED, 0.08)  # the trim's kind of step: no settle window
+    assert estimator._inputs_changed_s == 0.01
+    estimator.set_inputs(10e3, True, Valve.VENT, 0.1)     # a vent: the timing of this one matters
+    plant, rng = PneumaticPlant(), np.random.default_rng(0)
+    truth = plant.initial_state(10e3)
+    for k in range(1, 41):                          # 2 ms apart, along the vent: 24 within the settle, 16 after
+        truth = plant.step(truth, PlantInputs(10e3, True, (Valve.VENT,)), 0.002)
+        estimator.add_measurements({"chamber_a": rng.normal(truth.chamber_pa[0] - P_ATM_PA, 300.0)}, 0.1 + 0.002 * k)
     stats = estimator.stats["chamber_a"]
     assert stats.nis_settling == 24 and len(stats.nis) == 16 and stats.accepted + stats.rejected == 41
 

@@ -18,7 +18,8 @@ The checks, each with the fault flag it raises:
 - **Sensors against each other** (``SENSOR_DISAGREE``): two sensors, low-passed and aligned in
   time, further apart than ``disagreement_pa`` for ``disagreement_time_s``.
 - **A frozen sensor** (``SENSOR_STUCK``): a sensor whose reading has not changed for
-  ``stuck_time_s`` while another sensor, or the plant through the commanded valves, moved the
+  ``stuck_time_s``, over at least STUCK_MIN_REPEATS repeated readings (a sender that stalled
+  leaves one long gap instead), while another sensor, or the plant through the commanded valves, moved the
   pressure by ``stuck_motion_pa`` or more. A sensor frozen while nothing moves is harmless and
   cannot be told from a quiet one; it is caught once the pressure moves.
 - **A jump no plant can make** (``SENSOR_IMPLAUSIBLE``): every sensor stepping the same way
@@ -139,6 +140,7 @@ class SafetyConfig:
 EMA_TIME_S = 0.01              # low-pass time constant of each sensor's value and rate
 HISTORY_S = 0.5                # how far back the per-sensor and command histories reach
 JUMP_WINDOW_S = 0.012          # jumps of every sensor within this count as one (sensors sample apart)
+STUCK_MIN_REPEATS = 5          # a frozen sensor repeats its reading: a stalled sender leaves one long gap
 STAMP_JITTER_S = 0.002         # a frame's stamp may lag its sample by this (a late send): the jump
                                # check judges a step over at least the sensor's usual period plus this
 NOISE_SAMPLES = 64             # second differences in the noise median
@@ -155,6 +157,7 @@ class _Sensor:
         self.lowpass = math.nan
         self.rate = 0.0                       # low-passed dp/dt of the readings, Pa/s
         self.changed_at = math.nan            # when the reading last changed
+        self.repeats = 0                      # readings equal to the one before, in a row
         self.history = collections.deque()    # (stamp, low-passed value), HISTORY_S back
         self.second_differences = collections.deque(maxlen=NOISE_SAMPLES)
         self.noise_pa = math.nan              # the robust noise estimate
@@ -171,7 +174,9 @@ class _Sensor:
         else:
             dt = stamp - self.stamp
             if value != self.value:
-                self.changed_at = stamp
+                self.changed_at, self.repeats = stamp, 0
+            else:
+                self.repeats += 1
             if not math.isnan(self.previous):
                 self.second_differences.append(abs(value - 2.0 * self.value + self.previous))
             step = value - self.value
@@ -440,7 +445,7 @@ class SafetyMonitor:
         # frozen while the pressure moves
         for sensor in fresh:
             frozen_for = now - sensor.changed_at
-            if frozen_for < c.stuck_time_s:
+            if frozen_for < c.stuck_time_s or sensor.repeats < STUCK_MIN_REPEATS:
                 continue
             since = max(sensor.changed_at, now - 0.9 * HISTORY_S)      # as far back as the others' histories go
             moved = [(other.name, abs(other.lowpass - other.lowpass_at(since))) for other in fresh
