@@ -1,0 +1,50 @@
+"""The single-fault matrix in its quick form (#20): every simulated fault once, its phase rotating
+through the six grasp phases, on the composed suite over DDS, then fault-free grasps.
+``python scripts/bench_faults.py`` runs all 17 x 6 and writes docs/benchmarks.md."""
+import json
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+from softgrip_ros.devtools.fault_matrix import FAULTS, PHASES
+
+REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+
+@pytest.fixture(scope="module")
+def quick_matrix():
+    result = subprocess.run([sys.executable, "scripts/bench_faults.py", "--quick", "--json"], cwd=REPO_ROOT,
+                            capture_output=True, text=True, timeout=900)
+    assert "Traceback" not in result.stderr, result.stderr[-3000:]
+    return result.returncode, json.loads(result.stdout), result.stderr
+
+
+def test_no_fault_takes_the_true_pressure_past_its_limits(quick_matrix):
+    _, figures, log = quick_matrix
+    assert figures["cases"] == len(FAULTS)
+    assert figures["limit_violations"] == 0, log[-3000:]
+    low, high = figures["true_range_pa"]
+    assert -65e3 <= low and high <= 55e3
+
+
+def test_every_fault_is_named_ends_in_its_documented_state_and_a_new_grasp_works(quick_matrix):
+    returncode, figures, log = quick_matrix
+    assert figures["failures"] == [], log[-3000:]
+    assert figures["undetected"] == figures["wrong_end_state"] == figures["not_recovered"] == 0
+    assert set(figures["detection_s"]) == {case.name for case in FAULTS}
+    assert returncode == 0
+
+
+def test_fault_free_grasps_raise_no_warning(quick_matrix):
+    _, figures, _ = quick_matrix
+    assert figures["fault_free_grasps"] == 2
+    assert figures["false_alarms_fault_free"] == 0, figures["fault_free_warnings"]
+
+
+def test_the_quick_matrix_covers_every_fault_and_every_phase(quick_matrix):
+    _, figures, _ = quick_matrix
+    assert {fault for fault, _ in figures["case_list"]} == {case.name for case in FAULTS}
+    assert {phase for _, phase in figures["case_list"]} == set(PHASES)
