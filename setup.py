@@ -38,7 +38,7 @@ setup(
         ],
         # python-can finds this interface by name: can.Bus(interface="softgrip_ipc", channel=...)
         "can.interface": [
-            "softgrip_ipc = softgrip_ros.canbus.ipc_bus:LocalSocketBus",
+            "softgrip_ipc = softgrip_ros.canbus.softgrip_ipc:SoftgripIpcBus",
         ],
     },
 )

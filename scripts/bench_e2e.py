@@ -54,11 +54,11 @@ from rclpy.node import Node  # noqa: E402
 
 from demo_grasp import command, wait_phase  # noqa: E402
 from softgrip_interfaces.msg import GraspCommand, GripperState  # noqa: E402
-from softgrip_ros.benchmarking import figure_rows, machine_line, update_section  # noqa: E402
+from softgrip_ros.devtools.benchmarking import figure_rows, machine_line, update_section  # noqa: E402
 from softgrip_ros.canbus.codec import FrameCodec  # noqa: E402
 from softgrip_ros.canbus.reader import BatchReader  # noqa: E402
 from softgrip_ros.nodes.common import spinning, stamp_seconds  # noqa: E402
-from softgrip_ros.processes import installed_executable, stop_process  # noqa: E402
+from softgrip_ros.devtools.processes import installed_executable, stop_process  # noqa: E402
 
 TARGETS = {"cmd_to_valve_frame_ms_p99": (10.0, True), "sensor_to_tip_pose_ms_p99": (5.0, True),
            "controller_cpu_pct_idle": (15.0, True), "controller_cpu_pct_grasp": (40.0, True)}
@@ -299,7 +299,10 @@ def main(argv=None) -> int:
     parser.add_argument("--window-s", type=float, default=2.0, help="CPU window (median over windows)")
     parser.add_argument("--runs", type=int, default=3,
                         help="whole measurements, each with fresh processes; each figure is the median over them")
+    parser.add_argument("--quick", action="store_true", help="one short run (2 s idle, 6 s of grasps); writes nothing")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.runs, args.idle_s, args.grasp_s, args.window_s = 1, 3.0, 6.0, 1.0
     if args.window_s <= 0 or args.idle_s < 3 * args.window_s or args.grasp_s < 3 * args.window_s:
         parser.error("need --window-s > 0 and at least three windows in --idle-s and --grasp-s")
     if args.runs < 1:
@@ -312,8 +315,8 @@ def main(argv=None) -> int:
     # a p99 of one run on a shared 2-core VM moves by a millisecond from run to run: the median of runs
     figures = {key: statistics.median(f[key] for f, _ in runs) for key in runs[0][0]}
     details = {**runs[-1][1], "runs": {key: [f[key] for f, _ in runs] for key in runs[0][0]}}
-    if args.json:
-        print(json.dumps({**figures, "details": details}, indent=2))
+    if args.json or args.quick:
+        print(json.dumps({**figures, "details": details}, indent=2) if args.json else "\n".join(figure_rows(figures, TARGETS)))
         return 0
     rows = figure_rows(figures, TARGETS)
     per_command = "; ".join(f"{k} {v['median']:.2f} ms median, {v['p99']:.2f} ms p99 (n = {v['n']})"

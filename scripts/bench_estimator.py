@@ -19,8 +19,8 @@ import sys
 import time
 
 import numpy as np
-from softgrip_ros.benchmarking import figure_rows, interleaved_seconds, machine_line, repeat_count, update_section
-from softgrip_ros.estimation import simulation as sim
+from softgrip_ros.devtools.benchmarking import figure_rows, interleaved_seconds, machine_line, repeat_count, update_section
+from softgrip_ros.devtools import estimator_simulation as sim
 from softgrip_ros.estimation.estimator import PressureEstimator
 from softgrip_ros.estimation.filters import FILTER_TYPES
 
@@ -113,13 +113,16 @@ def main(argv=None) -> int:
     parser.add_argument("--repeat", type=repeat_count, default=15,
                         help="rounds of timed passes, one of each filter a round (median)")
     parser.add_argument("--runs", type=int, default=50, help="Monte Carlo runs for the NEES check")
+    parser.add_argument("--quick", action="store_true", help="3 rounds, 10 Monte Carlo runs; writes nothing")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.repeat, args.runs = 3, 10
     if args.runs < 10:
         parser.error("--runs must be at least 10")
     started = time.perf_counter()
     figures, details = measure(args.repeat, args.runs)
-    if args.json:
-        print(json.dumps({**figures, "details": details}, indent=2))
+    if args.json or args.quick:
+        print(json.dumps({**figures, "details": details}, indent=2) if args.json else "\n".join(figure_rows(figures, TARGETS)))
         return 0
     chart(figures, details)
     rows = figure_rows(figures, TARGETS)

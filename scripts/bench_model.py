@@ -10,7 +10,7 @@ import sys
 
 import numpy as np
 
-from softgrip_ros.benchmarking import machine_line, median_seconds, repeat_count, update_section, verdict
+from softgrip_ros.devtools.benchmarking import machine_line, median_seconds, repeat_count, update_section, verdict
 from softgrip_ros.model.calibration import build_kinematics
 
 TARGETS_US = {"l0_single_us": 20.0, "l0_batch_us_per_pressure": 0.2, "l1_single_us": 200.0, "inverse_us": 200.0}
@@ -58,9 +58,12 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", action="store_true", help="print the figures as JSON, write nothing")
     parser.add_argument("--repeat", type=repeat_count, default=15, help="timed runs per figure (median)")
+    parser.add_argument("--quick", action="store_true", help="3 timed runs per figure; writes nothing")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.repeat = 3
     figures = measure(args.repeat)
-    if args.json:
+    if args.json or args.quick:
         print(json.dumps(figures, indent=2))
         return 0
     rows = ["| key | what | median | target | |", "|---|---|---|---|---|"]

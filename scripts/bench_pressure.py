@@ -27,7 +27,7 @@ import numpy as np
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
-from softgrip_ros.benchmarking import figure_rows, machine_line, median_seconds, repeat_count, update_section  # noqa: E402
+from softgrip_ros.devtools.benchmarking import figure_rows, machine_line, median_seconds, repeat_count, update_section  # noqa: E402
 from softgrip_ros.canbus.codec import FrameCodec  # noqa: E402
 from softgrip_ros.canbus.controller_link import make_control_loop, ControllerLink, SensorBinding  # noqa: E402
 from softgrip_ros.canbus.sim_device import SimDeviceConfig, SimulatedDevice  # noqa: E402
@@ -180,12 +180,15 @@ def main(argv=None) -> int:
     parser.add_argument("--json", action="store_true", help="print the figures as JSON; write nothing")
     parser.add_argument("--repeat", type=repeat_count, default=9, help="timed runs per codec figure (median)")
     parser.add_argument("--steps", type=int, default=5, help="CAN step responses (median)")
+    parser.add_argument("--quick", action="store_true", help="3 codec runs, one step response; writes nothing")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.repeat, args.steps = 3, 1
     if args.steps < 1:
         parser.error("--steps must be at least 1")
     figures = measure(args.repeat, args.steps, lambda what: print(f"[bench_pressure] {what}", file=sys.stderr))
-    if args.json:
-        print(json.dumps(figures, indent=2))
+    if args.json or args.quick:
+        print(json.dumps(figures, indent=2) if args.json else "\n".join(figure_rows(figures, TARGETS)))
         return 0
     rows = figure_rows(figures, TARGETS)
     notes = ("`loop_period_p99_ms` is the p99 of the measured tick-to-tick period. At 500 Hz the nominal "

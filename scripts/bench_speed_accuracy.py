@@ -15,7 +15,9 @@ Auto: the demo grasp's pressure trace and scenes through SceneModel(auto), cost 
 against the cheapest model, error at the benchmark's points.
 
 Writes docs/speed_vs_accuracy.md, docs/speed_accuracy_{kinematics,estimators,integrators}.png and
-config/model_error_bounds.yaml; --json prints the points and the `pareto` lists instead.
+config/model_error_bounds.yaml; --json prints the points and the `pareto` lists instead. --quick
+takes a few points on a coarse reference (4 elements per segment) and fewer integrator steps,
+prints the same keys and writes nothing: it checks that the script runs, not the figures.
 Reproduce: bash scripts/setup.sh --with-reference; source scripts/env.sh;
 python scripts/bench_speed_accuracy.py   (about 2-4 minutes on 2 cores)
 """
@@ -32,14 +34,14 @@ import yaml
 from scipy.integrate import solve_ivp
 from tqdm import tqdm
 
-from softgrip_ros.benchmarking import machine_line, median_seconds, repeat_count, update_section
+from softgrip_ros.devtools.benchmarking import machine_line, median_seconds, repeat_count, update_section
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.fidelity import (CONTACT_VALIDATED_RANGE_PA, FREE, MODELS, SCENE_CLASSES, ErrorBounds, Scene,  # noqa: E402
                                         SceneModel, cylinder_scene)
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PlantState, PneumaticParameters, PneumaticPlant, Valve
 from softgrip_ros.model.reference import ReferenceFinger
 from softgrip_ros.model.rod import RodFinger, Sheet
-from softgrip_ros.model.validation import rows as paper_rows
+from softgrip_ros.devtools.model_validation import rows as paper_rows
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 DOC = ROOT / "docs" / "speed_vs_accuracy.md"
@@ -47,6 +49,9 @@ BOUNDS = ROOT / "config" / "model_error_bounds.yaml"
 CHARTS = {name: ROOT / "docs" / f"speed_accuracy_{name}.png" for name in ("kinematics", "estimators", "integrators")}
 FREE_PRESSURES_PA = [0.0, 5e3, 10e3, 15e3, 20e3, 25e3, 30e3, 35e3, 40e3, 45e3, 48e3, 52e3, 56e3, 60e3]
 HELD_OUT_FREE_PRESSURES_PA = [2.5e3, 17.5e3, 32.5e3, 42.5e3, 50e3, 58e3]
+INTEGRATOR_STEPS_S = [1e-5, 3e-5, 1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 2e-2]
+QUICK = {"free": [0.0, 25e3, 52e3], "contacts": 2, "held_out": 2, "elements_per_segment": 4,
+         "integrator_steps_s": [1e-4, 1e-3, 2e-2]}
 TOLERANCE_M = 1e-3           # the kinematics node's default tolerance_m
 
 
@@ -78,12 +83,15 @@ def held_out_cases(rod):
 
 
 def kinematics_points(repeat: int, reference: ReferenceFinger, rod: RodFinger, cases=None,
-                      desc: str = "kinematics vs PyElastica", timed: bool = True) -> dict:
+                      desc: str = "kinematics vs PyElastica", timed: bool = True, quick: bool = False) -> dict:
     """Each case's tip error against the reference per model and, if ``timed``, the cost of a pose."""
     free_models = {m: build_kinematics(m, max_pressure_pa=60e3) for m in ("l0", "l1")}
     validated_max = free_models["l1"].calibration.validated_max_pressure_pa
     if cases is None:
-        cases = [(f"free at {p / 1e3:.0f} kPa", FREE, p) for p in FREE_PRESSURES_PA] + contact_cases(rod)
+        free = QUICK["free"] if quick else FREE_PRESSURES_PA
+        contact = contact_cases(rod)
+        cases = [(f"free at {p / 1e3:.0f} kPa", FREE, p) for p in free] + (
+            [contact[2], contact[-1]] if quick else contact)
     points = []
     for label, scene, pressure in tqdm(cases, desc=desc, file=sys.stderr):
         ref = reference.solve(pressure, obstacle=scene.obstacle, from_pressure_pa=scene.opening_gauge_pa)
@@ -144,7 +152,7 @@ def error_bounds(kinematics: dict) -> dict:
 def estimator_points(repeat: int) -> list:
     sys.path.insert(0, str(ROOT / "scripts"))
     from bench_estimator import step_costs_us
-    from softgrip_ros.estimation import simulation as sim
+    from softgrip_ros.devtools import estimator_simulation as sim
     from softgrip_ros.estimation.filters import FILTER_TYPES
     trajectory = sim.simulate(seed=7)
     points = [{"method": f"raw {name}", "cost_us": 0.0, "rmse_pa": trajectory.raw_rmse(name)} for name in trajectory.sensor_std]
@@ -155,7 +163,7 @@ def estimator_points(repeat: int) -> list:
     return points
 
 
-def integrator_points(repeat: int) -> dict:
+def integrator_points(repeat: int, steps_s=INTEGRATOR_STEPS_S) -> dict:
     """Error against cost: the device's chamber filled to 25 kPa over 0.3 s, against LSODA at rtol
     1e-10 (as tests/test_model_pneumatics.py). Divergence: the stiff 1 mL rigid chamber filled to
     30 kPa, where the equilibrium (30 kPa) is known, so no reference solve is needed (an adaptive
@@ -185,7 +193,7 @@ def integrator_points(repeat: int) -> dict:
                                                chamber_compliance_m3_per_pa=0.0))
     fill_30 = PlantInputs(regulator_setpoint_gauge_pa=30e3, valves=(Valve.SUPPLY,))
     points = []
-    for dt in tqdm([1e-5, 3e-5, 1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 2e-2], desc="integrators", file=sys.stderr):
+    for dt in tqdm(steps_s, desc="integrators", file=sys.stderr):
         for method, name in (("explicit Euler", "explicit_euler_step"), ("backward Euler (ours)", "step")):
             times, values = fixed_step(plant, getattr(plant, name), inputs, dt, duration, 0.0)
             cost = median_seconds(lambda n=name, d=dt: fixed_step(plant, getattr(plant, n), inputs, d, duration, 0.0), 1,
@@ -470,19 +478,26 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", action="store_true", help="print the points and pareto lists as JSON, write nothing")
     parser.add_argument("--repeat", type=repeat_count, default=5, help="timed repeats per point (median)")
+    parser.add_argument("--quick", action="store_true", help="a few points on a coarse reference; writes nothing")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.repeat = 3
     started = time.perf_counter()
     l1 = build_kinematics("l1")
     rod = RodFinger(l1.geometry, l1.calibration)
-    reference = ReferenceFinger(rod)
-    kinematics = kinematics_points(args.repeat, reference, rod)
+    reference = ReferenceFinger(rod, elements_per_segment=QUICK["elements_per_segment"]) if args.quick else ReferenceFinger(rod)
+    kinematics = kinematics_points(args.repeat, reference, rod, quick=args.quick)
     table = error_bounds(kinematics)
-    held_out = kinematics_points(args.repeat, reference, rod, held_out_cases(rod), "held-out scenes", timed=False)
+    held_out_scenes = held_out_cases(rod)
+    if args.quick:
+        held_out_scenes = [held_out_scenes[1], held_out_scenes[-1]]
+    held_out = kinematics_points(args.repeat, reference, rod, held_out_scenes, "held-out scenes", timed=False)
     bounds = ErrorBounds({m: v["tip_error_bound_m"] for m, v in table.items()},
                          {m: v["median_cost_s"] for m, v in table.items()}, "this run")
     result = {"kinematics": kinematics, "bounds": table, "finger_length_m": l1.geometry.total_length_m,
               "reference": f"{reference.rod.elements_per_segment} elements per segment",
-              "estimators": estimator_points(args.repeat), "integrators": integrator_points(args.repeat),
+              "estimators": estimator_points(args.repeat),
+              "integrators": integrator_points(args.repeat, QUICK["integrator_steps_s"] if args.quick else INTEGRATOR_STEPS_S),
               "auto": auto_points(rod, bounds, kinematics, held_out), "held_out": held_out,
               "bound_checks": bound_checks(held_out, table),
               "paper_rows": [{"quantity": r.quantity, "paper": r.paper, "l0": r.l0_calibrated, "l1": r.l1,
@@ -494,6 +509,9 @@ def main(argv=None) -> int:
                                               "cost_s", "error_pa", "method")}
     if args.json:
         print(json.dumps(result, indent=2, default=float))
+        return 0
+    if args.quick:
+        print("\n".join(target_rows(result)))
         return 0
     write_bounds(table, l1.geometry.total_length_m, reference)
     charts(result)

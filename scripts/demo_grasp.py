@@ -23,8 +23,9 @@ from rclpy.node import Node  # noqa: E402
 from sensor_msgs.msg import FluidPressure  # noqa: E402
 
 from softgrip_interfaces.msg import GraspCommand, GripperState  # noqa: E402
-from softgrip_ros.nodes.common import P_ATM_PA, spinning, stamp_seconds  # noqa: E402
-from softgrip_ros.processes import installed_executable, stop_process  # noqa: E402
+from softgrip_ros.model.pneumatics import P_ATM_PA  # noqa: E402
+from softgrip_ros.nodes.common import spinning, stamp_seconds  # noqa: E402
+from softgrip_ros.devtools.processes import installed_executable, stop_process  # noqa: E402
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
 PHASES = {getattr(GripperState, n): n for n in ("IDLE", "OPENING", "ENVELOPED", "CLAMPING", "HOLDING", "RELEASING", "FAULT")}

@@ -22,5 +22,8 @@ source "$_softgrip_root/install/setup.bash"
 [ "$_softgrip_nounset" = "on" ] && set -u
 # Only loopback here; a real multi-machine deployment sets its own range (e.g. SUBNET).
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
+# the executables (controller, sim_device, ...) where ros2 run would find them, on this shell's PATH
+case ":$PATH:" in *":$_softgrip_root/install/softgrip_ros/lib/softgrip_ros:"*) ;;
+  *) export PATH="$_softgrip_root/install/softgrip_ros/lib/softgrip_ros:$PATH";; esac
 export SOFTGRIP_ROOT="$_softgrip_root"
 unset _softgrip_root _softgrip_nounset

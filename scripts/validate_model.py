@@ -13,7 +13,8 @@ import sys
 
 import numpy as np
 
-from softgrip_ros.model import calibration, validation
+from softgrip_ros.devtools import model_validation as validation
+from softgrip_ros.model import calibration
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
 DOCS = REPO_ROOT / "docs"

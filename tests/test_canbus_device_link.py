@@ -9,7 +9,7 @@ import pytest
 
 from softgrip_ros.canbus.controller_link import ControllerLink, SensorBinding
 from softgrip_ros.canbus.sim_device import SimDeviceConfig, SimulatedDevice
-from softgrip_ros.control.pressure import Fault, Mode, PressureControlConfig, PressureController, Source
+from softgrip_ros.control.pressure import Fault, PressureMode, PressureControlConfig, PressureController, Source
 from softgrip_ros.model.pneumatics import Valve
 
 from tests.helpers.ros import wait_for
@@ -68,7 +68,7 @@ def test_positive_step_vacuum_and_vent(rig):
     link.command(0.0, Source.VENT, math.nan)
     _, pressures, outputs = run(link, device, 0.8)
     assert abs(pressures[-1]) < 500.0
-    assert outputs[-1].mode == Mode.VENT and device.valves() == (Valve.VENT,)
+    assert outputs[-1].mode == PressureMode.VENT and device.valves() == (Valve.VENT,)
     assert link.frames_bad == 0 and link.frames_rx > 500
 
 
@@ -78,13 +78,13 @@ def test_sensor_dropout_holds_and_recovers(rig):
     run(link, device, 0.8)
     device.set_fault("sensor_dropout", "all")
     _, pressures, outputs = run(link, device, 0.4)
-    assert outputs[-1].mode == Mode.HOLD and Fault.SENSOR_TIMEOUT in outputs[-1].fault_flags
+    assert outputs[-1].mode == PressureMode.HOLD and Fault.SENSOR_TIMEOUT in outputs[-1].fault_flags
     assert device.valves() == (Valve.CLOSED,)
     assert np.ptp(pressures[-50:]) < 50.0                           # held: the air stays in
     device.set_fault("sensor_dropout", "")
     link.command(15e3, Source.SUPPLY, math.nan)
     _, _, outputs = run(link, device, 0.3)
-    assert outputs[-1].mode == Mode.REGULATE and Fault.SENSOR_TIMEOUT not in outputs[-1].fault_flags
+    assert outputs[-1].mode == PressureMode.REGULATE and Fault.SENSOR_TIMEOUT not in outputs[-1].fault_flags
 
 
 def test_one_sensor_lost_the_other_carries_on(rig):
@@ -92,7 +92,7 @@ def test_one_sensor_lost_the_other_carries_on(rig):
     link.command(10e3, Source.SUPPLY, math.nan)
     device.set_fault("sensor_dropout", "chamber_a")
     _, pressures, outputs = run(link, device, 1.0)
-    assert outputs[-1].mode == Mode.REGULATE
+    assert outputs[-1].mode == PressureMode.REGULATE
     assert abs(pressures[-100:].mean() - 10e3) < 500.0
 
 
@@ -105,7 +105,7 @@ def test_corrupt_frames_are_counted_and_never_acted_on(rig):
     _, pressures, outputs = run(link, device, 1.0)
     rejected = {k: link.codec.rejected[k] - before[k] for k in before}
     assert rejected["bad_crc"] > 20 and rejected["repeated_counter"] > 20
-    assert outputs[-1].mode == Mode.REGULATE
+    assert outputs[-1].mode == PressureMode.REGULATE
     assert abs(pressures[-100:].mean() - 20e3) < 700.0               # still regulating on the good frames
 
 
@@ -138,11 +138,11 @@ def test_at_rest_the_loop_slows_and_a_command_or_a_reading_beyond_the_limits_ste
         wait_for(lambda: loop.ticks >= at_rest + 20 and device.valves() == (Valve.SUPPLY,), timeout=0.9,
                  message="regulating at the full rate")
         link.command(0.0, Source.HOLD, math.nan)
-        wait_for(lambda: statuses[-1].mode == Mode.HOLD, timeout=0.9, message="HOLD")
+        wait_for(lambda: statuses[-1].mode == PressureMode.HOLD, timeout=0.9, message="HOLD")
         time.sleep(0.05)
         before = loop.ticks
         device.set_fault("sensor_bias_pa", 70e3)   # every reading beyond 50 kPa + the 5 kPa margin
-        wait_for(lambda: statuses[-1].mode == Mode.FAULT, timeout=0.9, message="FAULT from the reading")
+        wait_for(lambda: statuses[-1].mode == PressureMode.FAULT, timeout=0.9, message="FAULT from the reading")
         assert loop.ticks <= before + 3 and Fault.OVERPRESSURE in statuses[-1].fault_flags
         wait_for(lambda: device.valves() == (Valve.VENT,), timeout=0.9, message="vent")
     finally:
@@ -178,7 +178,7 @@ def test_regulator_overshoot_vents_below_limit_plus_margin(rig):
     _, pressures, outputs = run(link, device, 1.5)
     # the regulator's model check names it (its output far above what it was told), or the trip,
     # which extrapolates over the reaction time: the true peak stays within the limit plus margin
-    assert any(o.mode == Mode.FAULT for o in outputs)
+    assert any(o.mode == PressureMode.FAULT for o in outputs)
     assert outputs[-1].fault_flags & (Fault.OVERPRESSURE | Fault.REGULATOR)
     assert pressures.max() <= config.max_gauge_pa + config.overpressure_margin_pa
     assert device.valves() == (Valve.VENT,) and not device.regulator_enabled()

@@ -6,7 +6,7 @@ import sys
 import can
 import pytest
 
-from softgrip_ros.canbus import ipc_bus
+from softgrip_ros.canbus import softgrip_ipc
 
 from tests.helpers.ros import unique
 
@@ -47,7 +47,7 @@ def test_every_other_bus_gets_each_frame_and_a_closed_one_is_forgotten(channel):
         assert [f.arbitration_id for f in drain(c)] == [0x10]
         assert drain(a) == []                               # not its own frames
         c.shutdown()
-        assert len(list(ipc_bus.channel_directory(channel).glob("*.port"))) == 2
+        assert len(list(softgrip_ipc.channel_directory(channel).glob("*.port"))) == 2
         a._peers_read = -1.0                                # look at the channel again now
         a.send(can.Message(arbitration_id=0x11, data=b"", is_extended_id=False))
         assert len(a._peers) == 1 and [f.arbitration_id for f in drain(b)] == [0x11]
@@ -58,7 +58,7 @@ def test_every_other_bus_gets_each_frame_and_a_closed_one_is_forgotten(channel):
 
 def test_the_announcement_of_a_process_that_died_is_removed(channel):
     finished = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
-    directory = ipc_bus.channel_directory(channel)
+    directory = softgrip_ipc.channel_directory(channel)
     directory.mkdir(parents=True, exist_ok=True)
     stale = directory / f"{int(finished.stdout)}-9.port"
     stale.touch()
@@ -84,3 +84,19 @@ def test_a_datagram_that_is_not_a_frame_is_ignored(channel):
         stray.close()
         sender.shutdown()
         receiver.shutdown()
+
+
+def test_the_interface_is_named_as_python_can_names_its_own_and_a_failed_send_is_a_can_error(channel):
+    """python-can's convention: interface ``virtual``, class ``VirtualBus``; its buses raise
+    CanOperationError, never a bare OSError."""
+    bus = can.Bus(interface="softgrip_ipc", channel=channel)
+    peer = can.Bus(interface="softgrip_ipc", channel=channel)
+    try:
+        assert type(bus) is softgrip_ipc.SoftgripIpcBus
+        bus.send(can.Message(arbitration_id=1, data=b"\x01", is_extended_id=False))      # the peer is known now
+        bus._socket.close()                                                             # a send then fails
+        with pytest.raises(can.CanOperationError, match="softgrip_ipc send failed"):
+            bus.send(can.Message(arbitration_id=1, data=b"\x01", is_extended_id=False))
+    finally:
+        peer.shutdown()
+        bus._path.unlink(missing_ok=True)

@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from softgrip_ros.control.grasp_fsm import GraspConfig, GraspRequest, GraspStateMachine, Mode, Phase
+from softgrip_ros.control.grasp_fsm import GraspConfig, GraspRequest, GraspStateMachine, GraspMode, Phase
 from softgrip_ros.control.pressure import Source
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.grasp import ClampForceLaw, G_M_PER_S2
@@ -18,7 +18,7 @@ def kinematics():
 
 def test_envelop_clamp_40mm_runs_its_phases_in_order_and_holds(kinematics):
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.3))
-    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2, command_id="g1"))
+    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2, command_id="g1"))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     phases = [p for _, p in loop.phase_log]
     assert phases == [Phase.OPENING, Phase.ENVELOPED, Phase.CLAMPING, Phase.HOLDING]
@@ -38,9 +38,9 @@ def test_envelop_clamp_40mm_runs_its_phases_in_order_and_holds(kinematics):
 
 def test_release_vents_then_opens_then_idles(kinematics):
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
-    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.03, object_mass_kg=0.1))
+    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.03, object_mass_kg=0.1))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
-    loop.command(GraspRequest(Mode.RELEASE))
+    loop.command(GraspRequest(GraspMode.RELEASE))
     loop.run_until(lambda s: s.phase == Phase.IDLE, 5.0)
     assert "released" in loop.fsm.state.message
     assert loop.fsm.request.source == Source.HOLD and loop.fsm.state.tip_spacing_m >= 0.04 - 1e-3
@@ -48,7 +48,7 @@ def test_release_vents_then_opens_then_idles(kinematics):
 
 def test_pinch_holds_a_tenth_of_a_millimetre_sheet(kinematics):
     loop = GraspLoop(kinematics)
-    loop.command(GraspRequest(Mode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.05))
+    loop.command(GraspRequest(GraspMode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.05))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     assert [p for _, p in loop.phase_log] == [Phase.CLAMPING, Phase.HOLDING]
     assert loop.fsm.request.source == Source.VACUUM and loop.fsm.state.clamp_force_n > 0.0
@@ -57,20 +57,20 @@ def test_pinch_holds_a_tenth_of_a_millimetre_sheet(kinematics):
 
 def test_enveloped_waits_for_the_arm_then_clamps_on_request(kinematics):
     loop = GraspLoop(kinematics)          # no automatic clamp
-    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
     loop.run_until(lambda s: s.phase == Phase.ENVELOPED, 5.0)
     loop.run_for(1.0)
     assert loop.fsm.state.phase == Phase.ENVELOPED
-    loop.command(GraspRequest(Mode.CLAMP))
+    loop.command(GraspRequest(GraspMode.CLAMP))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
 
 
 def test_stop_during_opening_vents_at_once(kinematics):
     loop = GraspLoop(kinematics)
-    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
     loop.run_for(0.05)
     assert loop.fsm.state.phase == Phase.OPENING
-    loop.command(GraspRequest(Mode.STOP))
+    loop.command(GraspRequest(GraspMode.STOP))
     assert loop.fsm.request.source == Source.VENT and loop.fsm.state.phase == Phase.RELEASING
     loop.run_until(lambda s: s.phase == Phase.IDLE, 0.5)           # IDLE only once the pressure says vented
     assert abs(loop.gauge()) < loop.fsm.config.vented_below_pa and "stopped: vented" in loop.fsm.state.message
@@ -81,9 +81,9 @@ def test_stop_during_opening_vents_at_once(kinematics):
 def test_stop_and_release_never_report_success_while_the_pressure_stays(kinematics):
     """#20: with the valves stuck, RELEASE reached IDLE ("released") while the pressure went
     anywhere. Fed a pressure that never vents, STOP and RELEASE time out into FAULT instead."""
-    for mode in (Mode.STOP, Mode.RELEASE):
+    for mode in (GraspMode.STOP, GraspMode.RELEASE):
         fsm = GraspStateMachine(kinematics, GraspConfig(releasing_timeout_s=0.5))
-        fsm.command(GraspRequest(Mode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.05), 0.0)
+        fsm.command(GraspRequest(GraspMode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.05), 0.0)
         fsm.command(GraspRequest(mode), 0.0)
         for k in range(70):
             fsm.update(0.01 * k, -9e3)
@@ -93,18 +93,35 @@ def test_stop_and_release_never_report_success_while_the_pressure_stays(kinemati
 
 def test_a_controller_fault_while_holding_gives_fault_and_vents(kinematics):
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
-    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     loop.controller_fault = "sensor disagree"
     loop.run_for(0.02)
     assert loop.fsm.state.phase == Phase.FAULT and "sensor disagree" in loop.fsm.state.message
     assert loop.fsm.request.source == Source.VENT and "venting" in loop.fsm.state.message
-    assert "fault" in loop.fsm.command(GraspRequest(Mode.OPEN, target_tip_spacing_m=0.05), loop.now, "sensor disagree")
+    assert "fault" in loop.fsm.command(GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.05), loop.now, "sensor disagree")
     loop.controller_fault = ""
-    assert loop.fsm.command(GraspRequest(Mode.STOP), loop.now) == ""
+    assert loop.fsm.command(GraspRequest(GraspMode.STOP), loop.now) == ""
     assert loop.fsm.state.phase == Phase.RELEASING and loop.fsm.request.source == Source.VENT
     loop.run_until(lambda s: s.phase == Phase.IDLE, 1.0)
     assert "stopped: vented" in loop.fsm.state.message
+
+
+def test_a_safety_fault_found_after_a_release_ended_gives_fault_from_idle(kinematics):
+    """A fault found just after a grasp returned to IDLE (noise x10 during RELEASING, named
+    0.3 s later) left grasp_state IDLE while the controller vented in its safe state, and the
+    idle hold was re-sent. A fault that is no safe state (a command timeout) leaves IDLE be."""
+    loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
+    loop.command(GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.05))
+    loop.run_until(lambda s: s.phase == Phase.ENVELOPED, 5.0)
+    loop.command(GraspRequest(GraspMode.RELEASE))
+    loop.run_until(lambda s: s.phase == Phase.IDLE, 5.0)
+    loop.fsm.update(loop.now, loop.gauge(), 100.0, "command timeout")
+    assert loop.fsm.state.phase == Phase.IDLE
+    loop.fsm.update(loop.now, loop.gauge(), 100.0, "sensor noise", controller_safe_state=True)
+    assert loop.fsm.state.phase == Phase.FAULT and "sensor noise" in loop.fsm.state.message
+    assert loop.fsm.request.source == Source.VENT
+    assert loop.fsm.command(GraspRequest(GraspMode.STOP), loop.now) == ""
 
 
 def test_a_blind_controller_gives_fault_with_the_valves_held_and_says_so(kinematics):
@@ -112,7 +129,7 @@ def test_a_blind_controller_gives_fault_with_the_valves_held_and_says_so(kinemat
     controller that cannot see the chamber holds the valves closed (design.md); the grasp now asks
     for the same, and says exactly that."""
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
-    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     loop.controller_fault, loop.controller_blind = "sensor timeout, bus silent", True
     loop.run_for(0.02)
@@ -122,7 +139,7 @@ def test_a_blind_controller_gives_fault_with_the_valves_held_and_says_so(kinemat
 
 def test_a_regulator_overshoot_while_holding_is_detected_and_gives_fault(kinematics):
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
-    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     loop.overshoot_pa = 20e3
     loop.run_until(lambda s: s.phase == Phase.FAULT, 2.0)
@@ -131,7 +148,7 @@ def test_a_regulator_overshoot_while_holding_is_detected_and_gives_fault(kinemat
 
 def test_holding_pressure_drifting_off_target_gives_fault(kinematics):
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
-    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     target, t = loop.fsm.request.target_gauge_pa, loop.now
     for k in range(40):                  # a leak the controller cannot make up: 8 kPa off for 0.4 s
@@ -142,7 +159,7 @@ def test_holding_pressure_drifting_off_target_gives_fault(kinematics):
 def test_a_phase_that_cannot_finish_times_out_into_fault(kinematics):
     """The pressure never arrives, and nothing names a cause: the phase's own timeout ends it."""
     fsm = GraspStateMachine(kinematics, GraspConfig(opening_timeout_s=0.3))
-    fsm.command(GraspRequest(Mode.OPEN, target_tip_spacing_m=0.08), 0.0)
+    fsm.command(GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.08), 0.0)
     for k in range(40):
         fsm.update(0.01 * k, 2e3)
     assert fsm.state.phase == Phase.FAULT
@@ -153,7 +170,7 @@ def test_a_valve_that_does_not_open_is_named_by_the_controller_before_the_phase_
     """Valves stuck closed: the pressure controller's response check finds that the chamber does
     not follow the supply valve, and the grasp ends in FAULT on that, not on the 3 s timeout."""
     loop = GraspLoop(kinematics, GraspConfig(), valve_stuck=True)
-    loop.command(GraspRequest(Mode.OPEN, target_tip_spacing_m=0.08))
+    loop.command(GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.08))
     loop.run_until(lambda s: s.phase == Phase.FAULT, 1.0)
     assert "response" in loop.fsm.state.message and loop.fsm.request.source == Source.VENT
     assert loop.now < 0.5
@@ -162,32 +179,32 @@ def test_a_valve_that_does_not_open_is_named_by_the_controller_before_the_phase_
 NAN = math.nan
 REJECTIONS = [
     (GraspRequest(9), "unknown mode 9"),
-    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=NAN, object_mass_kg=0.1), "object_diameter_m must be finite"),
-    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=NAN), "object_mass_kg must be finite"),
-    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=-0.01, object_mass_kg=0.1), "object_diameter_m must be finite and >= 0"),
-    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=-1.0), "object_mass_kg must be finite and >= 0"),
-    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.15, object_mass_kg=0.1), "wider than the gripper opens"),
-    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, open_pressure_pa=80e3), "beyond the pressure limits"),
-    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, clamp_pressure_pa=-90e3), "beyond the pressure limits"),
-    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, open_pressure_pa=5e3), "short of the object plus margin"),
-    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=5.0), "too heavy"),
-    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, friction_coefficient=-0.2), "friction_coefficient"),
-    (GraspRequest(Mode.PINCH, object_diameter_m=0.02, object_mass_kg=0.1), "PINCH takes objects up to 5.0 mm"),
-    (GraspRequest(Mode.OPEN, target_tip_spacing_m=-0.01), "OPEN needs a finite"),
-    (GraspRequest(Mode.OPEN, target_tip_spacing_m=math.inf), "OPEN needs a finite"),
-    (GraspRequest(Mode.OPEN, target_tip_spacing_m=0.3), "wider than the gripper opens"),
-    (GraspRequest(Mode.CLAMP), "CLAMP needs the ENVELOPED phase"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=NAN, object_mass_kg=0.1), "object_diameter_m must be finite"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=NAN), "object_mass_kg must be finite"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=-0.01, object_mass_kg=0.1), "object_diameter_m must be finite and >= 0"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=-1.0), "object_mass_kg must be finite and >= 0"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.15, object_mass_kg=0.1), "wider than the gripper opens"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, open_pressure_pa=80e3), "beyond the pressure limits"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, clamp_pressure_pa=-90e3), "beyond the pressure limits"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, open_pressure_pa=5e3), "short of the object plus margin"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=5.0), "too heavy"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, friction_coefficient=-0.2), "friction_coefficient"),
+    (GraspRequest(GraspMode.PINCH, object_diameter_m=0.02, object_mass_kg=0.1), "PINCH takes objects up to 5.0 mm"),
+    (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=-0.01), "OPEN needs a finite"),
+    (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=math.inf), "OPEN needs a finite"),
+    (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.3), "wider than the gripper opens"),
+    (GraspRequest(GraspMode.CLAMP), "CLAMP needs the ENVELOPED phase"),
     # #20: commands that contradict their mode
-    (GraspRequest(Mode.OPEN, target_tip_spacing_m=0.1, open_pressure_pa=-20e3), "open_pressure_pa must be > 0"),
-    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, open_pressure_pa=-20e3),
+    (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.1, open_pressure_pa=-20e3), "open_pressure_pa must be > 0"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, open_pressure_pa=-20e3),
      "open_pressure_pa must be > 0"),
-    (GraspRequest(Mode.OPEN, target_tip_spacing_m=0.1, open_pressure_pa=5e3), "short of target_tip_spacing_m"),
-    (GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, clamp_pressure_pa=5e3),
+    (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.1, open_pressure_pa=5e3), "short of target_tip_spacing_m"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, clamp_pressure_pa=5e3),
      "clamp_pressure_pa must be <= 0"),
-    (GraspRequest(Mode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1, clamp_pressure_pa=5e3),
+    (GraspRequest(GraspMode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1, clamp_pressure_pa=5e3),
      "clamp_pressure_pa must be <= 0"),
-    (GraspRequest(Mode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1, open_pressure_pa=10e3), "PINCH does not open"),
-    (GraspRequest(Mode.OPEN, target_tip_spacing_m=0.05, clamp_pressure_pa=-10e3), "OPEN does not clamp"),
+    (GraspRequest(GraspMode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1, open_pressure_pa=10e3), "PINCH does not open"),
+    (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.05, clamp_pressure_pa=-10e3), "OPEN does not clamp"),
 ]
 
 
@@ -245,14 +262,25 @@ def test_a_sensor_timeout_stops_a_grasp_only_once_it_lasts():
     assert feedback.fault(0.0, idle=False) == "overpressure"           # no grace for the rest
 
 
+def test_controller_feedback_tells_the_safe_state_from_other_faults():
+    from softgrip_ros.control.grasp_fsm import ControllerFeedback
+    from softgrip_ros.control.pressure import Fault
+    feedback = ControllerFeedback(estimate_timeout_s=0.1, status_timeout_s=1.0)
+    assert not feedback.safe_state(0.0)                                 # no status yet
+    feedback.on_status(int(Fault.COMMAND_TIMEOUT | Fault.SENSOR_TIMEOUT), 0.0, 0.0)
+    assert not feedback.safe_state(0.1)
+    feedback.on_status(int(Fault.SENSOR_NOISE), 0.0, 0.2)
+    assert feedback.safe_state(0.3) and not feedback.safe_state(1.3)    # a stale status says nothing
+
+
 def test_a_rejected_command_leaves_a_running_grasp_untouched(kinematics):
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
-    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     before = (loop.fsm.request, loop.fsm.state.phase, loop.fsm._contact_pa, loop.fsm._clamp_pa, loop.fsm._open_pa)
     force = loop.fsm.state.clamp_force_n
-    assert "too heavy" in loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.01, object_mass_kg=5.0))
-    assert "does not squeeze" in loop.command(GraspRequest(Mode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1,
+    assert "too heavy" in loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.01, object_mass_kg=5.0))
+    assert "does not squeeze" in loop.command(GraspRequest(GraspMode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1,
                                                           clamp_pressure_pa=0.0))
     assert (loop.fsm.request, loop.fsm.state.phase, loop.fsm._contact_pa, loop.fsm._clamp_pa, loop.fsm._open_pa) == before
     loop.run_for(0.1)

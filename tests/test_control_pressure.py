@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from softgrip_ros.control.pressure import Fault, Mode, PressureControlConfig, PressureController, Source
+from softgrip_ros.control.pressure import Fault, PressureMode, PressureControlConfig, PressureController, Source
 from softgrip_ros.model.pneumatics import Valve
 from tests.helpers.closed_loop import rise_time_s, step_response
 
@@ -43,7 +43,7 @@ def test_vent_returns_to_atmosphere():
     controller.update_sensor("s", 30e3, 0.0)
     controller.command(0.0, Source.VENT, math.nan, 0.0)
     out = controller.step(0.001)
-    assert out.mode == Mode.VENT and out.valves == (Valve.VENT,)
+    assert out.mode == PressureMode.VENT and out.valves == (Valve.VENT,)
 
 
 def active(config=None, pressure=0.0, now=0.0):
@@ -56,7 +56,7 @@ def active(config=None, pressure=0.0, now=0.0):
 def test_inactive_controller_outputs_nothing():
     controller = PressureController()
     out = controller.step(0.0)
-    assert out.mode == Mode.INACTIVE and out.valves == (Valve.CLOSED,) and not out.regulator_enabled
+    assert out.mode == PressureMode.INACTIVE and out.valves == (Valve.CLOSED,) and not out.regulator_enabled
 
 
 def test_setpoint_above_the_limit_is_clamped_and_reported():
@@ -81,7 +81,7 @@ def test_overpressure_vents_and_latches_until_a_new_command_once_the_evidence_is
     controller = active(pressure=56e3)
     controller.command(40e3, Source.SUPPLY, math.nan, 0.0)
     out = controller.step(0.001)
-    assert out.mode == Mode.FAULT and out.valves == (Valve.VENT,) and not out.regulator_enabled
+    assert out.mode == PressureMode.FAULT and out.valves == (Valve.VENT,) and not out.regulator_enabled
     assert Fault.OVERPRESSURE in out.fault_flags
     rng, now = np.random.default_rng(0), 0.001
 
@@ -90,21 +90,21 @@ def test_overpressure_vents_and_latches_until_a_new_command_once_the_evidence_is
         for _ in range(int(seconds / 0.002)):
             now += 0.002
             controller.update_sensor("s", 56e3 * math.exp(-now / 0.08) + 300.0 * rng.standard_normal(), now)
-            assert controller.step(now).mode == Mode.FAULT      # pressure back, but no new command
+            assert controller.step(now).mode == PressureMode.FAULT      # pressure back, but no new command
 
     vent_for(0.1)
     assert "still in the safe state" in controller.command(20e3, Source.SUPPLY, math.nan, now)
-    assert controller.step(now + 0.001).mode == Mode.FAULT      # too soon after the evidence
+    assert controller.step(now + 0.001).mode == PressureMode.FAULT      # too soon after the evidence
     vent_for(controller.config.safety.clear_time_s)
     assert controller.command(20e3, Source.SUPPLY, math.nan, now) == ""
     out = controller.step(now + 0.001)
-    assert out.mode == Mode.REGULATE and Fault.OVERPRESSURE not in out.fault_flags
+    assert out.mode == PressureMode.REGULATE and Fault.OVERPRESSURE not in out.fault_flags
 
 
 def test_regulator_overshoot_fault_never_exceeds_limit_plus_margin():
     config = PressureControlConfig()
     _, pressures, outputs = step_response(45e3, duration_s=1.5, overshoot_fault_pa=30e3)
-    assert any(out.mode == Mode.FAULT for out in outputs)
+    assert any(out.mode == PressureMode.FAULT for out in outputs)
     assert pressures.max() <= config.max_gauge_pa + config.overpressure_margin_pa + 1e3  # + one control period
     assert outputs[-1].valves == (Valve.VENT,)
 
@@ -112,19 +112,19 @@ def test_regulator_overshoot_fault_never_exceeds_limit_plus_margin():
 def test_sensor_timeout_holds_then_recovers():
     times, pressures, outputs = step_response(20e3, duration_s=0.6, sensor_until_s=0.3)
     after = [o for t, o in zip(np.arange(len(outputs)) * 0.002, outputs) if t > 0.36]
-    assert after and all(o.mode == Mode.HOLD and o.valves == (Valve.CLOSED,) for o in after)
+    assert after and all(o.mode == PressureMode.HOLD and o.valves == (Valve.CLOSED,) for o in after)
     assert all(Fault.SENSOR_TIMEOUT in o.fault_flags for o in after)
     held = pressures[int(0.36 / 1e-3):]
     assert np.ptp(held) < 1.0                                       # valves closed: the air stays in
     controller = active()
     controller.command(10e3, Source.SUPPLY, math.nan, 0.0)
-    assert controller.step(1.0).mode == Mode.HOLD
+    assert controller.step(1.0).mode == PressureMode.HOLD
     controller.update_sensor("s", 9e3, 1.001)
     out = controller.step(1.002)
-    assert out.mode == Mode.REGULATE and Fault.SENSOR_TIMEOUT not in out.fault_flags
+    assert out.mode == PressureMode.REGULATE and Fault.SENSOR_TIMEOUT not in out.fault_flags
 
 
-@pytest.mark.parametrize("action, mode, valve", [("hold", Mode.HOLD, Valve.CLOSED), ("vent", Mode.VENT, Valve.VENT)])
+@pytest.mark.parametrize("action, mode, valve", [("hold", PressureMode.HOLD, Valve.CLOSED), ("vent", PressureMode.VENT, Valve.VENT)])
 def test_command_timeout_takes_the_safe_action(action, mode, valve):
     controller = active(PressureControlConfig(command_timeout_s=0.5, command_timeout_action=action), pressure=9e3)
     controller.command(10e3, Source.SUPPLY, math.nan, 0.0)
@@ -136,7 +136,7 @@ def test_command_timeout_takes_the_safe_action(action, mode, valve):
     assert out.mode == mode and out.valves == (valve,) and Fault.COMMAND_TIMEOUT in out.fault_flags
     controller.command(10e3, Source.SUPPLY, math.nan, 0.8)
     controller.update_sensor("s", 9e3, 0.8)
-    assert controller.step(0.801).mode == Mode.REGULATE
+    assert controller.step(0.801).mode == PressureMode.REGULATE
 
 
 def test_hold_keeps_valves_closed_without_timing_out():
@@ -145,7 +145,7 @@ def test_hold_keeps_valves_closed_without_timing_out():
     for i in range(3000):
         controller.update_sensor("s", 5e3, i * 0.002)
         out = controller.step(i * 0.002)
-    assert out.mode == Mode.HOLD and Fault.COMMAND_TIMEOUT not in out.fault_flags
+    assert out.mode == PressureMode.HOLD and Fault.COMMAND_TIMEOUT not in out.fault_flags
 
 
 def test_bad_commands_and_config_are_rejected():
@@ -168,16 +168,17 @@ def test_nan_sensor_readings_are_ignored():
 
 
 def test_severity_of_outputs():
-    from softgrip_ros.control.pressure import Severity, severity
+    from softgrip_ros.control.reports import severity
+    from softgrip_ros.health import Health
 
     controller = active(pressure=1e3)
     controller.command(5e3, Source.SUPPLY, math.nan, 0.0)
-    assert severity(controller.step(0.001)) == Severity.OK
+    assert severity(controller.step(0.001)) == Health.OK
     controller.command(90e3, Source.SUPPLY, math.nan, 0.002)
-    assert severity(controller.step(0.003)) == Severity.WARN            # clamped setpoint
-    assert severity(controller.step(1.0)) == Severity.ERROR             # no sensor: blind
+    assert severity(controller.step(0.003)) == Health.WARN            # clamped setpoint
+    assert severity(controller.step(1.0)) == Health.ERROR             # no sensor: blind
     controller.update_sensor("s", 70e3, 1.001)
-    assert severity(controller.step(1.002)) == Severity.ERROR           # overpressure
+    assert severity(controller.step(1.002)) == Health.ERROR           # overpressure
 
 
 def test_a_clamp_during_the_settle_after_a_boost_evacuates_at_once():

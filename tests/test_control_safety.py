@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from softgrip_ros.control.pressure import Fault, Mode, PressureControlConfig, PressureController, Source, boost_ceiling_pa
+from softgrip_ros.control.pressure import Fault, PressureMode, PressureControlConfig, PressureController, Source, boost_ceiling_pa
 from softgrip_ros.control.safety import SAFETY_FAULTS, SafetyConfig
 from softgrip_ros.model.pneumatics import PneumaticPlant, Valve
 from tests.helpers.closed_loop import FaultyLoop
@@ -23,7 +23,7 @@ def within_limits(loop, since=0.0):
 
 
 def in_safe_state(output):
-    return output.mode == Mode.FAULT and output.valves == (Valve.VENT,) and not output.regulator_enabled
+    return output.mode == PressureMode.FAULT and output.valves == (Valve.VENT,) and not output.regulator_enabled
 
 
 def held_at(target_pa, seconds=0.6, seed=0):
@@ -242,7 +242,7 @@ def test_the_safe_state_clears_on_a_command_once_its_evidence_is_gone():
     loop.run_for(loop.controller.config.safety.clear_time_s + 0.1)
     assert loop.command(20e3) == ""
     loop.run_for(0.6)
-    assert loop.outputs[-1][1].mode == Mode.REGULATE and abs(loop.gauge() - 20e3) < 1e3
+    assert loop.outputs[-1][1].mode == PressureMode.REGULATE and abs(loop.gauge() - 20e3) < 1e3
 
 
 def test_an_explicit_vent_is_obeyed_while_blind_and_said_to_be_unconfirmed():
@@ -252,7 +252,7 @@ def test_an_explicit_vent_is_obeyed_while_blind_and_said_to_be_unconfirmed():
     controller.update_sensor("s", 20e3, 0.0)
     controller.command(20e3, Source.SUPPLY, math.nan, 0.0)
     out = controller.step(1.0)                               # no reading for 1 s
-    assert out.mode == Mode.HOLD and out.valves == (Valve.CLOSED,) and "held closed" in out.message
+    assert out.mode == PressureMode.HOLD and out.valves == (Valve.CLOSED,) and "held closed" in out.message
     controller.vent(1.0)
     out = controller.step(1.002)
     assert out.valves == (Valve.VENT,) and "unconfirmed" in out.message and Fault.SENSOR_TIMEOUT in out.fault_flags

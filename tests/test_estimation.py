@@ -1,4 +1,4 @@
-"""The pressure estimators against ground truth from the pneumatic plant (estimation/simulation).
+"""The pressure estimators against ground truth from the pneumatic plant (devtools/estimator_simulation).
 
 Tolerances are stated where they are used. Sensors as on the simulated device: chamber_a
 500 Hz, 300 Pa; chamber_b 200 Hz, 150 Pa (plus quantisation).
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from softgrip_ros.canbus.sim_device import DEFAULT_SENSORS
-from softgrip_ros.estimation import simulation as sim
+from softgrip_ros.devtools import estimator_simulation as sim
 from softgrip_ros.estimation.estimator import EstimatorConfig, Health, PressureEstimator, SensorConfig
 from softgrip_ros.estimation.filters import FILTER_TYPES, plant_step
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
@@ -53,7 +53,7 @@ def test_estimate_is_unbiased(filter_type):
 @pytest.mark.parametrize("filter_type", FILTER_TYPES)
 def test_nees_is_consistent_over_50_monte_carlo_runs(filter_type):
     """Truth with the filter's own process noise; the time-averaged ANEES (2 states) must lie in
-    the 95 % interval chi2(2M)/M (see simulation.anees for why it starts at 0.25 s)."""
+    the 95 % interval chi2(2M)/M (see estimator_simulation.anees for why it starts at 0.25 s)."""
     values, (low, high) = sim.anees(filter_type, runs=50)
     assert low <= values.mean() <= high
 
@@ -457,3 +457,23 @@ def test_an_over_cautious_filter_is_reported_but_is_no_warning(trajectory):
     loose = sim.run(trajectory, dataclasses.replace(sim.config_for(trajectory, "ekf"), sensors=loose_sensors)).estimator
     report = loose.report(trajectory.truth_t[-1])
     assert "over-cautious" in report.message and report.health == Health.OK
+
+
+def test_the_nis_evidence_follows_a_sensor_back_within_a_few_samples():
+    """The safety checks take the median of the last 25 NIS values: a stuck sensor's is huge, and
+    once it reads true again the evidence is back to normal within 25 samples (the window's mean
+    took the window's length, a second for the 200 Hz sensor, and latched a fault after recovery)."""
+    from softgrip_ros.estimation.estimator import NIS_EVIDENCE_SAMPLES
+    estimator = PressureEstimator(EstimatorConfig(nis_window=200))
+    rng = np.random.default_rng(5)
+    t = 0.0
+    for k in range(350):                                         # both true, then b stuck low
+        t += 0.002
+        b = rng.normal(10e3, 150.0) if k < 50 else -40e3
+        estimator.add_measurements({"chamber_a": rng.normal(10e3, 300.0), "chamber_b": b}, t)
+    assert estimator.nis_evidence()["chamber_b"] > 1e3 * estimator.nis_bounds[1]
+    for k in range(NIS_EVIDENCE_SAMPLES):
+        t += 0.002
+        estimator.add_measurements({"chamber_a": rng.normal(10e3, 300.0), "chamber_b": rng.normal(10e3, 150.0)}, t)
+    assert estimator.nis_evidence()["chamber_b"] < 5.0
+    assert estimator.stats["chamber_b"].mean_nis() > 100.0     # the window itself still remembers

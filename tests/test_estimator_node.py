@@ -5,7 +5,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from softgrip_ros.processes import installed_executable
+from softgrip_ros.devtools.processes import installed_executable
 
 from tests.helpers.ros import spinning, wait_for
 

@@ -8,7 +8,7 @@ import time
 import can
 import pytest
 
-from softgrip_ros.processes import installed_executable, stop_process
+from softgrip_ros.devtools.processes import installed_executable, stop_process
 
 from tests.helpers.ros import spinning, unique, wait_for
 
@@ -253,3 +253,84 @@ def test_the_installed_controller_grasps_over_dds_and_exits_cleanly_on_sigterm(t
         notifier.stop()
         monitor.shutdown()
         log.close()
+
+
+def _goal(client, command, feedback=None):
+    """Send a Grasp goal; its handle once accepted."""
+    from softgrip_interfaces.action import Grasp
+    future = client.send_goal_async(Grasp.Goal(command=command), feedback_callback=feedback)
+    return wait_for(lambda: future.done() and future.result(), message="goal accepted")
+
+
+def _result(handle, timeout=5.0):
+    future = handle.get_result_async()
+    return wait_for(lambda: future.done() and future.result(), timeout=timeout, message="goal result")
+
+
+def test_an_envelop_clamp_goal_continued_by_a_clamp_on_the_topic_succeeds_holding(suite):
+    """#21.1: a CLAMP on grasp_command that continues the goal's ENVELOP_CLAMP aborted the goal as
+    "superseded", although the gripper went on to HOLDING. It is part of the goal."""
+    from action_msgs.msg import GoalStatus
+    from rclpy.action import ActionClient
+    from softgrip_interfaces.action import Grasp
+    from softgrip_interfaces.msg import GraspCommand, GripperState as S
+    nodes, user, publisher, states = suite
+    client = ActionClient(user, Grasp, "grasp")
+    assert client.wait_for_server(timeout_sec=5.0)
+    feedback = []
+    handle = _goal(client, grasp(GraspCommand.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2,
+                                 command_id="act-cup"), feedback.append)
+    wait_for(lambda: feedback and feedback[-1].feedback.state.phase == S.ENVELOPED, message="ENVELOPED feedback")
+    publisher.publish(grasp(GraspCommand.CLAMP, command_id="act-cup"))
+    response = _result(handle)
+    assert response.status == GoalStatus.STATUS_SUCCEEDED, response.result.message
+    assert response.result.object_held and response.result.final_phase == S.HOLDING
+    assert response.result.clamp_force_n > 0.0
+
+
+def test_an_action_client_completes_the_grasp_with_a_clamp_goal(suite):
+    """Without a side topic: ENVELOP_CLAMP, then a CLAMP goal once ENVELOPED; both goals succeed."""
+    from action_msgs.msg import GoalStatus
+    from rclpy.action import ActionClient
+    from softgrip_interfaces.action import Grasp
+    from softgrip_interfaces.msg import GraspCommand, GripperState as S
+    nodes, user, publisher, states = suite
+    client = ActionClient(user, Grasp, "grasp")
+    assert client.wait_for_server(timeout_sec=5.0)
+    feedback = []
+    envelop = _goal(client, grasp(GraspCommand.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2,
+                                  command_id="bt-cup"), feedback.append)
+    wait_for(lambda: feedback and feedback[-1].feedback.state.phase == S.ENVELOPED, message="ENVELOPED feedback")
+    clamp = _goal(client, grasp(GraspCommand.CLAMP, command_id="bt-clamp"))
+    for handle in (clamp, envelop):
+        response = _result(handle)
+        assert response.status == GoalStatus.STATUS_SUCCEEDED, response.result.message
+        assert response.result.object_held and response.result.final_phase == S.HOLDING
+
+
+def test_a_different_command_supersedes_a_goal_and_a_cancel_vents(suite):
+    from action_msgs.msg import GoalStatus
+    from rclpy.action import ActionClient
+    from softgrip_interfaces.action import Grasp
+    from softgrip_interfaces.msg import GraspCommand, GripperState as S
+    nodes, user, publisher, states = suite
+    device = nodes["sim_device"].device
+    client = ActionClient(user, Grasp, "grasp")
+    assert client.wait_for_server(timeout_sec=5.0)
+    first = _goal(client, grasp(GraspCommand.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2,
+                                command_id="first"))
+    wait_for(lambda: states[-1].phase == S.ENVELOPED, message="ENVELOPED")
+    publisher.publish(grasp(GraspCommand.PINCH, object_diameter_m=0.04, object_mass_kg=0.2, command_id="bad"))  # rejected
+    wait_for(lambda: states[-1].command_rejected and states[-1].command_id == "bad", message="the rejection")
+    publisher.publish(grasp(GraspCommand.STOP, command_id="stop"))
+    response = _result(first)
+    assert response.status == GoalStatus.STATUS_ABORTED and "superseded by command 'stop'" in response.result.message
+    wait_for(lambda: states[-1].phase == S.IDLE, message="IDLE after the STOP")
+    second = _goal(client, grasp(GraspCommand.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2,
+                                 command_id="second"))
+    wait_for(lambda: device.chamber_gauge_pa() > 5e3, message="opening")
+    cancel = second.cancel_goal_async()
+    wait_for(lambda: cancel.done(), message="cancel accepted")
+    response = _result(second)
+    assert response.status == GoalStatus.STATUS_CANCELED and "venting" in response.result.message
+    wait_for(lambda: abs(device.chamber_gauge_pa()) < 1.5e3, timeout=3.0, message="vented")

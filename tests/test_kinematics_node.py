@@ -65,7 +65,7 @@ def test_an_object_on_grasp_scene_switches_auto_to_l2_and_free_bending_back(wire
 def test_a_malformed_scene_is_refused_and_the_last_one_kept(wired, kind, diameter, opening, reason):
     from softgrip_interfaces.msg import GraspScene
     from softgrip_ros.model.fidelity import FREE
-    from softgrip_ros.nodes.kinematics import scene_from_message
+    from softgrip_ros.nodes.messages import scene_from_message
     node, scenes, estimate = wired
     message = GraspScene(kind=kind, object_diameter_m=diameter, object_center_z_m=0.1, opening_gauge_pressure_pa=opening)
     with pytest.raises(ValueError, match=reason):

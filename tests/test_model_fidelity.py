@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from softgrip_ros.control.grasp_fsm import GraspConfig, GraspRequest, Mode, Phase
+from softgrip_ros.control.grasp_fsm import GraspConfig, GraspRequest, GraspMode, Phase
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.fidelity import FREE, ErrorBounds, ModelSelector, Scene, SceneModel, cylinder_scene
 from softgrip_ros.runtime.rod_solver import LatestSolveThread, RodSolverProcess
@@ -186,16 +186,16 @@ def test_the_grasp_reports_the_model_of_its_scene():
     and holding; PINCH: L2 on a sheet."""
     kinematics = build_kinematics("l0")
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.2), scene_model=SceneModel("auto", 1e-3))
-    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2, command_id="g"))
+    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2, command_id="g"))
     loop.run_until(lambda s: s.phase == Phase.ENVELOPED, 5.0)
     assert loop.fsm.scene() == FREE and loop.fsm.state.model_fidelity in ("l0", "l1")
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     scene = loop.fsm.scene()
     assert isinstance(scene.obstacle, Circle) and scene.obstacle.radius_m == pytest.approx(0.02)
     assert loop.fsm.state.model_fidelity == "l2"
-    loop.command(GraspRequest(Mode.STOP, command_id="s"))
+    loop.command(GraspRequest(GraspMode.STOP, command_id="s"))
     loop.run_until(lambda s: s.phase == Phase.IDLE, 2.0)
-    loop.command(GraspRequest(Mode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.01, command_id="p"))
+    loop.command(GraspRequest(GraspMode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.01, command_id="p"))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     assert loop.fsm.scene() == Scene(Sheet(1e-4), 0.0) and loop.fsm.state.model_fidelity == "l2"
 
@@ -207,7 +207,7 @@ def test_a_held_cylinder_keeps_the_reported_tip_spacing_where_the_rod_puts_the_t
     and opens until the fingers clear the object. Stopped, nothing held, D2 is free again."""
     kinematics = build_kinematics("l1")
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.1), scene_model=MODEL)
-    loop.command(GraspRequest(Mode.ENVELOP_CLAMP, object_diameter_m=diameter_m, object_mass_kg=0.2, command_id="g"))
+    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=diameter_m, object_mass_kg=0.2, command_id="g"))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     state, scene = loop.fsm.state, loop.fsm.scene()
     assert kinematics.pose(state.estimated_gauge_pa).tip_spacing_m < 1e-3 and state.tip_spacing_m == diameter_m
@@ -216,17 +216,17 @@ def test_a_held_cylinder_keeps_the_reported_tip_spacing_where_the_rod_puts_the_t
     assert solution.converged and solution.contact_force_n > 0.0
     assert -2.0 * face_x_m == pytest.approx(diameter_m, abs=0.5e-3)
     releasing = []
-    loop.command(GraspRequest(Mode.RELEASE, command_id="r"))
+    loop.command(GraspRequest(GraspMode.RELEASE, command_id="r"))
     loop.run_until(lambda s: s.phase == Phase.IDLE or releasing.append(s.tip_spacing_m), 5.0)
     assert len(releasing) > 10 and min(releasing) == diameter_m and scene.contact
     assert loop.fsm.state.tip_spacing_m > diameter_m                 # opened past it: free bending
-    loop.command(GraspRequest(Mode.STOP, command_id="s"))
+    loop.command(GraspRequest(GraspMode.STOP, command_id="s"))
     loop.run_for(0.5)
     assert loop.fsm.state.tip_spacing_m < 2e-3                      # vented, nothing held
 
 
 def test_a_pinched_sheet_is_the_reported_tip_spacing():
     loop = GraspLoop(build_kinematics("l0"), scene_model=MODEL)
-    loop.command(GraspRequest(Mode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.01, command_id="p"))
+    loop.command(GraspRequest(GraspMode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.01, command_id="p"))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     assert loop.fsm.state.tip_spacing_m == 1e-4

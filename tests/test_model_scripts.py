@@ -46,16 +46,16 @@ def test_validate_model_json_has_the_contract_keys():
     assert figures["held_out"] == ["D1 at 0 kPa", "D1 at 50 kPa"]
 
 
-def test_bench_model_json_reports_every_figure():
-    result = run("scripts/bench_model.py", "--json", "--repeat", "3")
+def test_bench_model_quick_json_reports_every_figure():
+    result = run("scripts/bench_model.py", "--quick", "--json")
     assert result.returncode == 0, result.stderr
     figures = json.loads(result.stdout)
     assert set(figures) >= {"l0_single_us", "l0_batch_us_per_pressure", "l1_single_us", "inverse_us"}
     assert all(value > 0 for value in figures.values())
 
 
-def test_bench_estimator_json_reports_every_filter_with_its_interleaved_costs():
-    result = run("scripts/bench_estimator.py", "--json", "--repeat", "3", "--runs", "10")
+def test_bench_estimator_quick_json_reports_every_filter_with_its_interleaved_costs():
+    result = run("scripts/bench_estimator.py", "--quick", "--json")
     assert result.returncode == 0, result.stderr
     figures = json.loads(result.stdout)
     quartiles = figures["details"]["step_us_quartiles"]
@@ -67,14 +67,44 @@ def test_bench_estimator_json_reports_every_filter_with_its_interleaved_costs():
 
 
 @pytest.mark.ros
-def test_bench_pressure_json_reports_every_figure():
-    result = run("scripts/bench_pressure.py", "--json", "--repeat", "3", "--steps", "1", timeout=600)
+def test_bench_pressure_quick_json_reports_every_figure():
+    result = run("scripts/bench_pressure.py", "--quick", "--json", timeout=600)
     assert result.returncode == 0, result.stderr
     figures = json.loads(result.stdout)
     for key in ("loop_period_p99_ms", "codec_frames_per_s", "rise_time_ratio", "overshoot_pct",
                 "steady_state_error_kpa", "bus_load_pct_500k", "loop_period_p99_ms_1khz"):
         assert figures[key] > 0 or key == "overshoot_pct", key
     assert "Traceback" not in result.stderr
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_bench_e2e_quick_json_reports_every_figure():
+    """The installed controller and device as processes, one short run: every key the committed
+    table has, each a number (no timing is judged here)."""
+    result = run("scripts/bench_e2e.py", "--quick", "--json", timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    figures = json.loads(result.stdout)
+    for key in ("cmd_to_valve_frame_ms_median", "cmd_to_valve_frame_ms_p99", "sensor_to_tip_pose_ms_median",
+                "sensor_to_tip_pose_ms_p99", "sensor_to_tip_pose_received_ms_p99", "controller_cpu_pct_idle",
+                "controller_cpu_pct_grasp", "controller_cpu_pct_device_paused", "controller_rss_mb"):
+        assert figures[key] > 0, key
+    assert set(figures["details"]["runs"]) >= {"cmd_to_valve_frame_ms_p99", "controller_cpu_pct_idle"}
+
+
+@pytest.mark.slow
+def test_bench_speed_accuracy_quick_json_runs_through_and_reports_every_key():
+    """#21: it died at the end on an import of a renamed function, and no test ran it."""
+    result = run("scripts/bench_speed_accuracy.py", "--quick", "--json", timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    result_doc = json.loads(result.stdout)
+    assert set(result_doc) >= {"kinematics", "bounds", "estimators", "integrators", "auto", "held_out",
+                               "bound_checks", "paper_rows", "pareto"}
+    assert set(result_doc["bounds"]) == {"l0", "l1", "l2"}
+    for bounds in result_doc["bounds"].values():
+        assert set(bounds["tip_error_bound_m"]) == {"free", "free_beyond", "contact"}
+    assert {p["method"] for p in result_doc["estimators"]} >= {"kf", "ekf", "ukf"}
+    assert all(p["cost_us"] > 0 for p in result_doc["estimators"] if p["method"] in ("kf", "ekf", "ukf"))
 
 
 @pytest.mark.ros

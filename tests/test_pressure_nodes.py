@@ -8,7 +8,7 @@ import time
 import can
 import pytest
 
-from softgrip_ros.processes import installed_executable, stop_process
+from softgrip_ros.devtools.processes import installed_executable, stop_process
 
 from tests.helpers.ros import spinning, unique, wait_for
 
@@ -390,25 +390,6 @@ def test_a_failed_configure_leaves_the_bus_closed_and_a_bad_rest_rate_is_refused
         controller.destroy_node()
     with pytest.raises(ValueError, match=r"rest_rate_hz \(800 Hz\) must not exceed control_rate_hz \(500 Hz\)"):
         PressureControllerNode(context=rclpy_context, parameter_overrides=[Parameter("rest_rate_hz", value=800.0)])
-
-
-def test_shutdown_reads_the_errors_of_callbacks_it_cut_short_and_reports_any_other(capsys):
-    """spinning() and run_node() read each unfinished callback task's error once the executor is
-    down: a handle destroyed under it is expected and dropped (else rclpy prints "exception never
-    retrieved" at exit); any other error is reported on stderr."""
-    import types
-
-    from rclpy._rclpy_pybind11 import InvalidHandle
-    from rclpy.task import Future
-    from softgrip_ros.nodes.common import _read_errors_of_unfinished_callbacks
-    cut_short, failed, finished, running = Future(), Future(), Future(), Future()
-    cut_short.set_exception(InvalidHandle("cannot use Destroyable because destruction was requested"))
-    failed.set_exception(ValueError("boom"))
-    finished.set_result(1)
-    _read_errors_of_unfinished_callbacks(types.SimpleNamespace(_futures=[cut_short, failed, finished, running]))
-    assert cut_short._exception_fetched and failed._exception_fetched
-    err = capsys.readouterr().err
-    assert "ValueError: boom" in err and "Destroyable" not in err
 
 
 def test_the_vent_service_vents_a_blind_controller_and_says_it_cannot_confirm_it(nodes):

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from softgrip_ros.processes import installed_executable, stop_process
+from softgrip_ros.devtools.processes import installed_executable, stop_process
 
 from tests.helpers.ros import spinning, unique, wait_for
 

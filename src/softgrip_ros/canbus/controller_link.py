@@ -28,12 +28,13 @@ import can
 
 from softgrip_ros.canbus.codec import FrameCodec, frame_age_s
 from softgrip_ros.canbus.reader import BatchReader
-from softgrip_ros.control.pressure import ControlOutput, Fault, Mode, PressureController, Source
+from softgrip_ros.control.pressure import ControlOutput, Fault, PressureMode, PressureController, Source
+from softgrip_ros.control.reports import LinkStats
 from softgrip_ros.model.pneumatics import Valve
 from softgrip_ros.realtime import PeriodicThread
 
 HEARTBEAT_PERIOD_S = 0.1
-CONTROLLER_STATE = {Mode.INACTIVE: 0, Mode.FAULT: 2}
+CONTROLLER_STATE = {PressureMode.INACTIVE: 0, PressureMode.FAULT: 2}
 FRAMES_REJECTED_HOLD_S = 1.0     # FRAMES_REJECTED is reported this long after the last rejected frame
 
 
@@ -191,7 +192,7 @@ class ControllerLink:
             now = self.clock()
             with self._lock:
                 output = self.controller.step(now)
-            resting = output.mode != Mode.REGULATE
+            resting = output.mode != PressureMode.REGULATE
             if self.resting and not resting:
                 self._reader.wake()          # regulating: the readings matter at once from here on
             self.resting = resting
@@ -221,6 +222,15 @@ class ControllerLink:
             self._send("RegulatorSetpoint", {"SetpointGaugePressure": 0.0, "Enable": 0, "Source": int(Source.VENT)})
             self._send("ValveCommand", self._valve_signals([Valve.VENT] * 4))
 
+    def vent_and_say(self) -> str:
+        """:meth:`send_vent`, then what to tell the caller: "venting" when a fresh reading can
+        confirm it; blind, that the VENT frames went out but nothing says the chamber follows."""
+        self.send_vent()
+        age_s = self.last_sensor_age_s()
+        if age_s <= self.controller.config.sensor_timeout_s:
+            return "venting"
+        return f"VENT sent, but it cannot be confirmed: no valid sensor reading for {age_s:.2f} s"
+
     def _send_output(self, output: ControlOutput, now: float) -> None:
         low, high = self.codec.signal_range("RegulatorSetpoint", "SetpointGaugePressure")
         valves = list(output.valves) + [Valve.CLOSED] * (4 - len(output.valves))
@@ -249,6 +259,20 @@ class ControllerLink:
         with self._lock:
             return self.controller.last_sensor_age(self.clock())
 
+    def stats(self, sensor_names, loop: PeriodicThread | None = None) -> LinkStats:
+        """What this link (and the control ``loop`` that steps it) has counted, for the report."""
+        with self._lock:
+            fresh = self.controller.fresh_sensors(self.clock())
+        receive_errors, last_receive_error = self.receive_errors   # one read: count and text agree
+        return LinkStats(
+            frames_rx=self.frames_rx, frames_tx=self.frames_tx, frames_bad=self.frames_bad,
+            rejected=dict(self.codec.rejected), last_sensor_age_s=self.last_sensor_age_s(),
+            silent_sensors=tuple(n for n in sensor_names if n not in fresh),
+            listener_errors=self.listener_errors, last_listener_error=self.last_listener_error,
+            status_errors=loop.errors if loop is not None else 0,
+            last_status_error=loop.last_error if loop is not None else "",
+            receive_errors=receive_errors, last_receive_error=last_receive_error)
+
 
 
 def make_control_loop(link: ControllerLink, rate_hz: float, status_rate_hz: float, on_status=None,
@@ -259,7 +283,7 @@ def make_control_loop(link: ControllerLink, rate_hz: float, status_rate_hz: floa
     ``on_status`` at about ``status_rate_hz`` and at once on a change (see :class:`StatusOnChange`)."""
     on_output = None if on_status is None else StatusOnChange(on_status, 1.0 / status_rate_hz)
     loop = PeriodicThread(link.step, rate_hz, "softgrip-control-loop", on_output=on_output,
-                          rest_rate_hz=rest_rate_hz, resting=lambda output: output.mode != Mode.REGULATE)
+                          rest_rate_hz=rest_rate_hz, resting=lambda output: output.mode != PressureMode.REGULATE)
     link.wake = loop.wake
     return loop
 

@@ -6,7 +6,7 @@ file ``<pid>-<port>.port`` in ``$TMPDIR/softgrip-can-<uid>/<channel>/``, and sen
 every other bus announced there. It exists so that tests (and users without SocketCAN) can run
 the controller, the simulated device and a bus monitor as separate processes::
 
-    can.Bus(interface="softgrip_ipc", channel="softgrip")
+    can.Bus(interface="softgrip_ipc", channel="softgrip")      # a SoftgripIpcBus
 
 Why UDP and not Unix datagram sockets, which it used before: Linux queues at most
 ``net.unix.max_dgram_qlen`` datagrams (10 by default) on a Unix socket, so a receiver that reads
@@ -51,7 +51,7 @@ def _alive(pid: int) -> bool:
     return True
 
 
-class LocalSocketBus(can.BusABC):
+class SoftgripIpcBus(can.BusABC):
     """A bus on ``channel`` shared by every process of this user on this machine."""
 
     def __init__(self, channel: str = "softgrip", receive_own_messages: bool = False, **kwargs):
@@ -106,6 +106,8 @@ class LocalSocketBus(can.BusABC):
                     self._socket.sendto(payload, socket.MSG_DONTWAIT, peer)
                 except BlockingIOError:           # its queue is full
                     self.frames_dropped += 1
+                except OSError as error:          # a closed socket, a vanished peer: python-can's error
+                    raise can.CanOperationError(f"softgrip_ipc send failed: {error}") from error
             if self._receive_own:
                 self._own.append(payload)
 

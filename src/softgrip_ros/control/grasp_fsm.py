@@ -62,7 +62,7 @@ class Phase(enum.IntEnum):
     FAULT = 6
 
 
-class Mode(enum.IntEnum):
+class GraspMode(enum.IntEnum):
     """GraspCommand modes."""
 
     PINCH = 0
@@ -93,6 +93,23 @@ class PressureRequest:
 
     target_gauge_pa: float
     source: Source
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """What an accepted command does: the phase it enters with its pressure request, and the
+    grasp it starts or goes on with (None: the running one stays) with its pressures (None:
+    unchanged). ``new_task``: false for a CLAMP, which goes on with the task it clamps."""
+
+    phase: Phase
+    pressure: "PressureRequest"
+    message: str
+    new_task: bool = True
+    grasp: GraspRequest | None = None
+    open_pa: float | None = None
+    clamp_pa: float | None = None
+    contact_pa: float | None = None
+    release_step: str = ""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -132,7 +149,7 @@ class GraspState:
     which they rest on (see :meth:`GraspStateMachine.held_object_m`)."""
 
     phase: Phase = Phase.IDLE
-    mode: int = Mode.STOP
+    mode: int = GraspMode.STOP
     command_id: str = ""
     command_rejected: bool = False
     target_gauge_pa: float = 0.0
@@ -206,6 +223,12 @@ class ControllerFeedback:
             text = f"{text} ({self._message})"
         return text
 
+    def safe_state(self, now: float) -> bool:
+        """Whether the controller's fresh status reports a safety fault (it vents, regulator off)."""
+        if self._status is None or now - self._status[2] > self.status_timeout_s:
+            return False
+        return bool(Fault(self._status[0]) & SAFETY_FAULTS)
+
     def blind(self, now: float) -> bool:
         """Whether the fault that stops a grasp is the controller being unable to see the chamber
         (a sensor timeout or a silent bus past the grace, or no status at all) and nothing else:
@@ -216,8 +239,8 @@ class ControllerFeedback:
         return now - stamp > self.status_timeout_s or not Fault(flags) & HALTING_FAULTS & ~TRANSIENT_FAULTS
 
 
-TERMINAL = {Mode.ENVELOP_CLAMP: (Phase.HOLDING,), Mode.PINCH: (Phase.HOLDING,), Mode.OPEN: (Phase.ENVELOPED,),
-            Mode.RELEASE: (Phase.IDLE,), Mode.STOP: (Phase.IDLE,), Mode.CLAMP: (Phase.HOLDING,)}
+TERMINAL = {GraspMode.ENVELOP_CLAMP: (Phase.HOLDING,), GraspMode.PINCH: (Phase.HOLDING,), GraspMode.OPEN: (Phase.ENVELOPED,),
+            GraspMode.RELEASE: (Phase.IDLE,), GraspMode.STOP: (Phase.IDLE,), GraspMode.CLAMP: (Phase.HOLDING,)}
 
 
 class GraspStateMachine:
@@ -238,6 +261,7 @@ class GraspStateMachine:
         self.request = PressureRequest(0.0, Source.VENT)
         self.changes = 0                       # counts every phase or request change
         self.accepted = 0                      # counts accepted commands
+        self.task = 0                          # the running task: a new one per command but a CLAMP that goes on
         self._request: GraspRequest | None = None
         self._phase_start = 0.0
         self._settled_since = None
@@ -249,76 +273,120 @@ class GraspStateMachine:
 
     # ---- commands -----------------------------------------------------------------------------
     def command(self, request: GraspRequest, now: float, controller_fault: str = "") -> str:
-        """Accept ``request`` ('' returned) or reject it (the reason returned); nothing moves on a rejection."""
-        plan = {}
-        reason = self._rejection(request, controller_fault, plan)
-        if reason:
-            self.state.command_rejected, self.state.message = True, f"rejected: {reason}"
-            self.state.command_id = request.command_id
-            self.changes += 1
-            return reason
+        """Accept ``request`` ('' returned) or reject it (the reason returned); nothing moves on a
+        rejection. Each mode has a planner that checks the command and works out what it does."""
+        try:
+            mode = GraspMode(request.mode)
+        except ValueError:
+            return self._reject(request, f"unknown mode {request.mode}")
+        if controller_fault and mode != GraspMode.STOP:
+            return self._reject(request, f"the pressure controller reports a fault: {controller_fault}")
+        plan = self._planners[mode](request)
+        if isinstance(plan, str):
+            return self._reject(request, plan)
         self.state.command_rejected = False
         self.state.command_id, self.state.mode = request.command_id, request.mode
         self.accepted += 1
-        mode = Mode(request.mode)
-        if "target_tip_spacing_m" in plan:
-            request = dataclasses.replace(request, target_tip_spacing_m=plan.pop("target_tip_spacing_m"))
-        for name, value in plan.items():        # the pressures worked out while checking
-            setattr(self, name, value)
-        if mode == Mode.STOP:
-            self._release_step = "stop"
-            self._enter(Phase.RELEASING, PressureRequest(0.0, Source.VENT), now, "stopping: venting")
-        elif mode == Mode.CLAMP:
-            self._enter(Phase.CLAMPING, self._pressure(self._clamp_pa), now, "clamping")
-        elif mode == Mode.RELEASE:
-            self._release_step = "vent"
-            self._enter(Phase.RELEASING, PressureRequest(0.0, Source.VENT), now, "releasing: venting")
-        else:
-            self._request = request
-            if mode == Mode.PINCH:
-                self._enter(Phase.CLAMPING, self._pressure(self._clamp_pa), now, "pinching")
-            else:
-                self._enter(Phase.OPENING, self._pressure(self._open_pa), now, "opening")
+        if plan.new_task:
+            self.task += 1
+        if plan.grasp is not None:
+            self._request = plan.grasp
+        self._open_pa = plan.open_pa if plan.open_pa is not None else self._open_pa
+        self._clamp_pa = plan.clamp_pa if plan.clamp_pa is not None else self._clamp_pa
+        self._contact_pa = plan.contact_pa if plan.contact_pa is not None else self._contact_pa
+        self._release_step = plan.release_step
+        self._enter(plan.phase, plan.pressure, now, plan.message)
         return ""
 
-    def _rejection(self, r: GraspRequest, controller_fault: str, plan: dict) -> str:
-        """'' or why ``r`` is refused; the pressures an accepted ``r`` needs go into ``plan``
-        (applied only on acceptance: a rejected command changes nothing)."""
-        c = self.config
-        try:
-            mode = Mode(r.mode)
-        except ValueError:
-            return f"unknown mode {r.mode}"
-        if mode == Mode.STOP:
-            return ""
-        if controller_fault:
-            return f"the pressure controller reports a fault: {controller_fault}"
-        if mode == Mode.RELEASE:
-            return ""
-        if mode == Mode.CLAMP:
-            if self.state.phase != Phase.ENVELOPED or self._request is None:
-                return f"CLAMP needs the ENVELOPED phase, the gripper is {self.state.phase.name}"
-            return ""
-        for name in ("open_pressure_pa", "clamp_pressure_pa"):
-            value = getattr(r, name)
-            if not math.isnan(value) and not (math.isfinite(value) and c.min_gauge_pa <= value <= c.max_gauge_pa):
-                return f"{name} {value} Pa is beyond the pressure limits [{c.min_gauge_pa:.0f}, {c.max_gauge_pa:.0f}] Pa"
-        contradiction = self._contradiction(mode, r)
+    def _reject(self, request: GraspRequest, reason: str) -> str:
+        self.state.command_rejected, self.state.message = True, f"rejected: {reason}"
+        self.state.command_id = request.command_id
+        self.changes += 1
+        return reason
+
+    @property
+    def _planners(self) -> dict:
+        return {GraspMode.STOP: self._plan_stop, GraspMode.RELEASE: self._plan_release, GraspMode.CLAMP: self._plan_clamp,
+                GraspMode.OPEN: self._plan_open, GraspMode.PINCH: self._plan_grasp, GraspMode.ENVELOP_CLAMP: self._plan_grasp}
+
+    def _plan_stop(self, r: GraspRequest) -> "Plan":
+        return Plan(Phase.RELEASING, PressureRequest(0.0, Source.VENT), "stopping: venting", release_step="stop")
+
+    def _plan_release(self, r: GraspRequest) -> "Plan":
+        return Plan(Phase.RELEASING, PressureRequest(0.0, Source.VENT), "releasing: venting", release_step="vent")
+
+    def _plan_clamp(self, r: GraspRequest) -> "Plan | str":
+        """CLAMP goes on with the grasp the gripper holds open (ENVELOP_CLAMP, or OPEN with the object
+        named here): the same task, so that its goal ends at HOLDING rather than being superseded."""
+        running = self._request
+        if self.state.phase != Phase.ENVELOPED or running is None:
+            return f"CLAMP needs the ENVELOPED phase, the gripper is {self.state.phase.name}"
+        contradiction = self._overrides(GraspMode.CLAMP, r)
         if contradiction:
             return contradiction
-        low, high = self.kinematics.tip_spacing_range_m()
-        if mode == Mode.OPEN:
-            spacing = high if math.isnan(r.target_tip_spacing_m) else r.target_tip_spacing_m    # NaN: fully open
-            if not math.isfinite(spacing) or spacing < 0.0:
-                return f"OPEN needs a finite, non-negative target_tip_spacing_m (NaN: fully open), got {spacing}"
-            if spacing > high:
-                return f"target_tip_spacing_m {spacing * 1e3:.1f} mm is wider than the gripper opens ({high * 1e3:.1f} mm)"
-            if not math.isnan(r.open_pressure_pa) and self.kinematics.pose(r.open_pressure_pa).tip_spacing_m < spacing:
-                return (f"open_pressure_pa {r.open_pressure_pa:.0f} Pa opens the tips to "
-                        f"{self.kinematics.pose(r.open_pressure_pa).tip_spacing_m * 1e3:.1f} mm, short of "
-                        f"target_tip_spacing_m {spacing * 1e3:.1f} mm")
-            plan.update(_open_pa=self._open_pressure(spacing, r.open_pressure_pa), target_tip_spacing_m=spacing)
-            return ""
+        if GraspMode(running.mode) == GraspMode.ENVELOP_CLAMP:
+            clamp = self._clamp_pa if math.isnan(r.clamp_pressure_pa) else r.clamp_pressure_pa
+            if clamp >= self._contact_pa:
+                return f"clamp_pressure_pa {clamp:.0f} Pa does not squeeze: contact is at {self._contact_pa:.0f} Pa"
+            return Plan(Phase.CLAMPING, self._pressure(clamp), "clamping", new_task=False, clamp_pa=clamp)
+        # held open by OPEN: this CLAMP must say what it holds, or how hard
+        if math.isnan(r.clamp_pressure_pa) and (math.isnan(r.object_diameter_m) or math.isnan(r.object_mass_kg)):
+            return ("CLAMP after OPEN needs object_diameter_m and object_mass_kg, or clamp_pressure_pa: nothing else "
+                    "says how hard to squeeze")
+        held = None if math.isnan(r.object_diameter_m) else self._object_plan(r, margin_m=0.0, check_size=False)
+        if isinstance(held, str):
+            return held
+        contact = held.contact_pa if held is not None else self.kinematics.pressure_for_tip_spacing(
+            max(self.state.tip_spacing_m, self.kinematics.tip_spacing_range_m()[0]))
+        clamp = held.clamp_pa if held is not None else r.clamp_pressure_pa
+        if clamp >= contact:
+            return f"clamp_pressure_pa {clamp:.0f} Pa does not squeeze: contact is at {contact:.0f} Pa"
+        grasp = dataclasses.replace(running, object_diameter_m=r.object_diameter_m, object_mass_kg=r.object_mass_kg)
+        return Plan(Phase.CLAMPING, self._pressure(clamp), "clamping", new_task=False, grasp=grasp, clamp_pa=clamp,
+                    contact_pa=contact)
+
+    def _plan_open(self, r: GraspRequest) -> "Plan | str":
+        problem = self._overrides(GraspMode.OPEN, r)
+        if problem:
+            return problem
+        high = self.kinematics.tip_spacing_range_m()[1]
+        spacing = high if math.isnan(r.target_tip_spacing_m) else r.target_tip_spacing_m    # NaN: fully open
+        if not math.isfinite(spacing) or spacing < 0.0:
+            return f"OPEN needs a finite, non-negative target_tip_spacing_m (NaN: fully open), got {spacing}"
+        if spacing > high:
+            return f"target_tip_spacing_m {spacing * 1e3:.1f} mm is wider than the gripper opens ({high * 1e3:.1f} mm)"
+        if not math.isnan(r.open_pressure_pa) and self.kinematics.pose(r.open_pressure_pa).tip_spacing_m < spacing:
+            return (f"open_pressure_pa {r.open_pressure_pa:.0f} Pa opens the tips to "
+                    f"{self.kinematics.pose(r.open_pressure_pa).tip_spacing_m * 1e3:.1f} mm, short of "
+                    f"target_tip_spacing_m {spacing * 1e3:.1f} mm")
+        open_pa = self._open_pressure(spacing, r.open_pressure_pa)
+        return Plan(Phase.OPENING, self._pressure(open_pa), "opening",
+                    grasp=dataclasses.replace(r, target_tip_spacing_m=spacing), open_pa=open_pa)
+
+    def _plan_grasp(self, r: GraspRequest) -> "Plan | str":
+        """PINCH (the tips close on the object) and ENVELOP_CLAMP (opened around it, then clamped)."""
+        mode = GraspMode(r.mode)
+        problem = self._overrides(mode, r)
+        if problem:
+            return problem
+        c = self.config
+        if mode == GraspMode.PINCH and math.isfinite(r.object_diameter_m) and r.object_diameter_m > c.pinch_max_diameter_m:
+            return (f"PINCH takes objects up to {c.pinch_max_diameter_m * 1e3:.1f} mm, got "
+                    f"{r.object_diameter_m * 1e3:.1f} mm: use ENVELOP_CLAMP")
+        plan = self._object_plan(r, margin_m=c.envelop_margin_m if mode == GraspMode.ENVELOP_CLAMP else 0.0)
+        if isinstance(plan, str) or mode == GraspMode.PINCH:
+            return plan
+        needed = r.object_diameter_m + c.envelop_margin_m
+        if not math.isnan(r.open_pressure_pa) and self.kinematics.pose(r.open_pressure_pa).tip_spacing_m < needed:
+            return (f"open_pressure_pa {r.open_pressure_pa:.0f} Pa opens the tips to "
+                    f"{self.kinematics.pose(r.open_pressure_pa).tip_spacing_m * 1e3:.1f} mm, short of the object plus margin")
+        open_pa = self._open_pressure(needed, r.open_pressure_pa)
+        return dataclasses.replace(plan, phase=Phase.OPENING, pressure=self._pressure(open_pa), message="opening",
+                                   open_pa=open_pa)
+
+    def _object_plan(self, r: GraspRequest, margin_m: float, check_size: bool = True) -> "Plan | str":
+        """The object's checks and its clamp: PINCH's plan, which ENVELOP_CLAMP starts with an opening."""
+        c = self.config
         if not math.isfinite(r.object_diameter_m) or r.object_diameter_m < 0.0:
             return f"object_diameter_m must be finite and >= 0, got {r.object_diameter_m}"
         if not math.isfinite(r.object_mass_kg) or r.object_mass_kg < 0.0:
@@ -326,12 +394,9 @@ class GraspStateMachine:
         mu = r.friction_coefficient
         if not math.isnan(mu) and not (math.isfinite(mu) and 0.0 < mu <= 2.0):
             return f"friction_coefficient must lie in (0, 2] (NaN: the default {self.force_law.friction_coefficient}), got {mu}"
-        if mode == Mode.PINCH and r.object_diameter_m > c.pinch_max_diameter_m:
-            return (f"PINCH takes objects up to {c.pinch_max_diameter_m * 1e3:.1f} mm, got "
-                    f"{r.object_diameter_m * 1e3:.1f} mm: use ENVELOP_CLAMP")
-        needed = r.object_diameter_m + (c.envelop_margin_m if mode == Mode.ENVELOP_CLAMP else 0.0)
-        if needed > high:
-            return (f"the object ({r.object_diameter_m * 1e3:.1f} mm plus {c.envelop_margin_m * 1e3:.0f} mm margin) is wider "
+        high = self.kinematics.tip_spacing_range_m()[1]
+        if check_size and r.object_diameter_m + margin_m > high:
+            return (f"the object ({r.object_diameter_m * 1e3:.1f} mm plus {margin_m * 1e3:.0f} mm margin) is wider "
                     f"than the gripper opens ({high * 1e3:.1f} mm)")
         contact = self._contact_pressure(r.object_diameter_m)
         clamp = (r.clamp_pressure_pa if not math.isnan(r.clamp_pressure_pa) else
@@ -341,20 +406,23 @@ class GraspStateMachine:
                     f"{c.min_gauge_pa / 1e3:.0f} kPa: too heavy for this gripper")
         if clamp >= contact:
             return f"clamp_pressure_pa {clamp:.0f} Pa does not squeeze: contact is at {contact:.0f} Pa"
-        plan.update(_contact_pa=contact, _clamp_pa=clamp)
-        if mode == Mode.ENVELOP_CLAMP:
-            if not math.isnan(r.open_pressure_pa) and self.kinematics.pose(r.open_pressure_pa).tip_spacing_m < needed:
-                return (f"open_pressure_pa {r.open_pressure_pa:.0f} Pa opens the tips to "
-                        f"{self.kinematics.pose(r.open_pressure_pa).tip_spacing_m * 1e3:.1f} mm, short of the object plus margin")
-            plan["_open_pa"] = self._open_pressure(needed, r.open_pressure_pa)
-        return ""
+        return Plan(Phase.CLAMPING, self._pressure(clamp), "pinching", grasp=r, clamp_pa=clamp, contact_pa=contact)
+
+    def _overrides(self, mode: GraspMode, r: GraspRequest) -> str:
+        """The pressure overrides within the limits, and none that contradicts the mode."""
+        c = self.config
+        for name in ("open_pressure_pa", "clamp_pressure_pa"):
+            value = getattr(r, name)
+            if not math.isnan(value) and not (math.isfinite(value) and c.min_gauge_pa <= value <= c.max_gauge_pa):
+                return f"{name} {value} Pa is beyond the pressure limits [{c.min_gauge_pa:.0f}, {c.max_gauge_pa:.0f}] Pa"
+        return self._contradiction(mode, r)
 
     @staticmethod
-    def _contradiction(mode: Mode, r: GraspRequest) -> str:
+    def _contradiction(mode: GraspMode, r: GraspRequest) -> str:
         """Why an override contradicts its mode ('' when none does): positive pressure opens and
         negative pressure clamps, and a mode that never opens or never clamps takes no such
         override (it could only mean that the sender wanted another mode)."""
-        opens, clamps = mode in (Mode.ENVELOP_CLAMP, Mode.OPEN), mode in (Mode.ENVELOP_CLAMP, Mode.PINCH)
+        opens, clamps = mode in (GraspMode.ENVELOP_CLAMP, GraspMode.OPEN), mode in (GraspMode.ENVELOP_CLAMP, GraspMode.PINCH, GraspMode.CLAMP)
         if not math.isnan(r.open_pressure_pa):
             if not opens:
                 return f"{mode.name} does not open: open_pressure_pa must be NaN, got {r.open_pressure_pa:.0f} Pa"
@@ -381,14 +449,19 @@ class GraspStateMachine:
 
     # ---- time ---------------------------------------------------------------------------------
     def update(self, now: float, estimate_gauge_pa: float, estimate_std_pa: float = math.nan,
-               controller_fault: str = "", controller_blind: bool = False) -> GraspState:
+               controller_fault: str = "", controller_blind: bool = False,
+               controller_safe_state: bool = False) -> GraspState:
         """Advance on a new estimate (NaN when none) and the controller's fault ('' when none).
         ``controller_blind``: that fault is only the controller not seeing the chamber (see
-        :meth:`ControllerFeedback.blind`): FAULT then holds the valves closed instead of venting."""
+        :meth:`ControllerFeedback.blind`): FAULT then holds the valves closed instead of venting.
+        ``controller_safe_state``: the controller vents on a safety fault. That gives FAULT from
+        IDLE too (a fault found just after a release ends, for one): grasp_state then says why
+        the next grasp is refused, and IDLE's hold is not asked for again."""
         s, c = self.state, self.config
         s.estimated_gauge_pa, s.estimated_std_pa = estimate_gauge_pa, estimate_std_pa
         self._model(estimate_gauge_pa)
-        if controller_fault and s.phase not in (Phase.IDLE, Phase.FAULT):
+        idle_and_safe = s.phase == Phase.IDLE and controller_safe_state
+        if controller_fault and (s.phase not in (Phase.IDLE, Phase.FAULT) or idle_and_safe):
             if controller_blind:
                 self._enter(Phase.FAULT, PressureRequest(self.request.target_gauge_pa, Source.HOLD), now,
                             f"fault: {controller_fault}: the pressure controller holds the valves closed "
@@ -405,7 +478,7 @@ class GraspStateMachine:
             elif elapsed > c.opening_timeout_s:
                 self._timeout(now, "opening")
         elif s.phase == Phase.ENVELOPED:
-            if (self._request is not None and Mode(self._request.mode) == Mode.ENVELOP_CLAMP
+            if (self._request is not None and GraspMode(self._request.mode) == GraspMode.ENVELOP_CLAMP
                     and c.auto_clamp_delay_s >= 0.0 and elapsed >= c.auto_clamp_delay_s):
                 self._enter(Phase.CLAMPING, self._pressure(self._clamp_pa), now, "clamping (automatic)")
         elif s.phase == Phase.HOLDING:
@@ -455,7 +528,7 @@ class GraspStateMachine:
         r = self._request
         if r is None:
             return 0.0
-        if Mode(r.mode) == Mode.OPEN:
+        if GraspMode(r.mode) == GraspMode.OPEN:
             return r.target_tip_spacing_m
         # an override was checked against the object when accepted; the estimate's tolerance then rules
         return r.object_diameter_m + self.config.envelop_margin_m if math.isnan(r.open_pressure_pa) else 0.0
@@ -488,9 +561,9 @@ class GraspStateMachine:
         r = self._request
         if self.scene_model is None or self.held_object_m() <= 0.0:
             return FREE
-        key = (Mode(r.mode), r.object_diameter_m, self._open_pa)
+        key = (GraspMode(r.mode), r.object_diameter_m, self._open_pa)
         if key not in self._scenes:
-            self._scenes = {key: Scene(Sheet(r.object_diameter_m), 0.0) if key[0] == Mode.PINCH
+            self._scenes = {key: Scene(Sheet(r.object_diameter_m), 0.0) if key[0] == GraspMode.PINCH
                             else cylinder_scene(self.scene_model.rod, r.object_diameter_m, self._open_pa)}
         return self._scenes[key]
 
@@ -523,4 +596,15 @@ class GraspStateMachine:
 
     def done(self, mode: int) -> bool:
         """Whether a command of ``mode`` has finished (or failed)."""
-        return self.state.phase == Phase.FAULT or self.state.phase in TERMINAL.get(Mode(mode), ())
+        return self.state.phase == Phase.FAULT or self.state.phase in TERMINAL.get(GraspMode(mode), ())
+
+    def outcome(self, task: int, mode: int) -> str:
+        """How a goal stands: the command of ``mode`` that started or went on with ``task``.
+        '' while it runs; "succeeded" at its mode's end (HOLDING for ENVELOP_CLAMP, PINCH and
+        CLAMP; ENVELOPED for OPEN; IDLE for RELEASE and STOP), "failed" in FAULT, "superseded" once
+        another command started a task of its own (a CLAMP that goes on with it does not)."""
+        if self.task != task:
+            return "superseded"
+        if self.state.phase == Phase.FAULT:
+            return "failed"
+        return "succeeded" if self.state.phase in TERMINAL.get(GraspMode(mode), ()) else ""

@@ -63,7 +63,7 @@ class Source(enum.IntEnum):
     HOLD = 3
 
 
-class Mode(enum.IntEnum):
+class PressureMode(enum.IntEnum):
     """ControllerStatus.mode."""
 
     INACTIVE = 0
@@ -73,15 +73,9 @@ class Mode(enum.IntEnum):
     FAULT = 4
 
 
-class Severity(enum.IntEnum):
-    OK = 0
-    WARN = 1
-    ERROR = 2
-
-
 ERROR_FAULTS = SAFETY_FAULTS | Fault.SENSOR_TIMEOUT | Fault.BUS_SILENT
-__all__ = ["ControlOutput", "ERROR_FAULTS", "Fault", "Mode", "PressureControlConfig", "PressureController",
-           "SafetyConfig", "Severity", "Source", "fault_names", "severity"]
+__all__ = ["ControlOutput", "ERROR_FAULTS", "Fault", "PressureMode", "PressureControlConfig", "PressureController",
+           "SafetyConfig", "Source", "fault_names"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -156,7 +150,7 @@ class ControlOutput:
     regulator_enabled: bool
     regulator_source: Source
     valves: tuple
-    mode: Mode
+    mode: PressureMode
     fault_flags: Fault
     setpoint_gauge_pa: float       # after limits and slew
     feedback_gauge_pa: float       # what the law used (NaN when none)
@@ -318,7 +312,7 @@ class PressureController:
         dt = 0.0 if self._last_step is None else max(0.0, now - self._last_step)
         self._last_step = now
         if not self.active:
-            return self._output(0.0, False, Source.VENT, Valve.CLOSED, Mode.INACTIVE, self._latched,
+            return self._output(0.0, False, Source.VENT, Valve.CLOSED, PressureMode.INACTIVE, self._latched,
                                 self.feedback(now), "inactive")
         regulating = self._source in (Source.SUPPLY, Source.VACUUM)
         for finding in self.monitor.check(now, c.sensor_timeout_s, regulating and self._phase == "track"):
@@ -337,9 +331,9 @@ class PressureController:
             self._phase = "track"
             self._previous_feedback = None    # the first reading after recovery starts a new rate estimate
             if self._source == Source.VENT:   # asked for explicitly: obeyed, but nothing can confirm it
-                return self._output(0.0, True, Source.VENT, Valve.VENT, Mode.VENT, faults | Fault.SENSOR_TIMEOUT,
+                return self._output(0.0, True, Source.VENT, Valve.VENT, PressureMode.VENT, faults | Fault.SENSOR_TIMEOUT,
                                     feedback, "venting, unconfirmed: no valid pressure reading")
-            return self._output(self._setpoint, True, self._regulator_source(), Valve.CLOSED, Mode.HOLD,
+            return self._output(self._setpoint, True, self._regulator_source(), Valve.CLOSED, PressureMode.HOLD,
                                 faults | Fault.SENSOR_TIMEOUT, feedback,
                                 "no valid pressure reading: valves held closed")
         regulating = self._source in (Source.SUPPLY, Source.VACUUM)
@@ -353,9 +347,9 @@ class PressureController:
             regulating = False
         if self._source == Source.VENT:
             self._setpoint = 0.0
-            return self._output(0.0, True, Source.VENT, Valve.VENT, Mode.VENT, faults, feedback, "venting")
+            return self._output(0.0, True, Source.VENT, Valve.VENT, PressureMode.VENT, faults, feedback, "venting")
         if self._source == Source.HOLD or not regulating:
-            return self._output(self._setpoint, True, Source.HOLD, Valve.CLOSED, Mode.HOLD, faults, feedback,
+            return self._output(self._setpoint, True, Source.HOLD, Valve.CLOSED, PressureMode.HOLD, faults, feedback,
                                 "holding: valves closed")
 
         # slew the setpoint towards the target
@@ -367,7 +361,7 @@ class PressureController:
         regulator, valve_override = self._regulation(error, feedback, dt, now)
         if valve_override is not None and valve != Valve.VACUUM:   # the pump needs no settled regulator
             valve = valve_override                                  # (Valve.CLOSED is 0: no "or")
-        return self._output(regulator, True, self._regulator_source(), valve, Mode.REGULATE,
+        return self._output(regulator, True, self._regulator_source(), valve, PressureMode.REGULATE,
                             faults, feedback, self._phase if self._phase != "track" else "")
 
     def _safe_state(self, now: float, faults: Fault, feedback: float) -> ControlOutput:
@@ -375,7 +369,7 @@ class PressureController:
         command clears the fault."""
         self.vent(now)
         self._phase = "track"
-        return self._output(0.0, False, Source.VENT, Valve.VENT, Mode.FAULT, faults, feedback,
+        return self._output(0.0, False, Source.VENT, Valve.VENT, PressureMode.FAULT, faults, feedback,
                             f"fault: {fault_names(self._latched & SAFETY_FAULTS)}: {self._fault_message}; "
                             f"venting with the regulator disabled")
 
@@ -498,7 +492,7 @@ def boost_ceiling_pa(plant_parameters, config: PressureControlConfig, guard_pa: 
                 inputs = PlantInputs(out.regulator_setpoint_gauge_pa, out.regulator_enabled, (Valve.SUPPLY,))
             state = plant.step(state, inputs, 1e-3)
             highest = max(highest, float(state.chamber_pa[0] - P_ATM_PA))
-            if controller.last_output is not None and controller.last_output.mode == Mode.FAULT \
+            if controller.last_output is not None and controller.last_output.mode == PressureMode.FAULT \
                     and state.regulator_gauge_pa < gauge:
                 break                                   # the regulator is below the chamber: it falls from here
         return highest
@@ -510,14 +504,3 @@ def boost_ceiling_pa(plant_parameters, config: PressureControlConfig, guard_pa: 
         middle = 0.5 * (low + high)
         low, high = (middle, high) if peak(middle) <= limit else (low, middle)
     return low
-
-
-def severity(output: ControlOutput) -> Severity:
-    """How bad an output is, for diagnostics: a safety fault or a blind controller is an error; a
-    recoverable fault (clamped setpoint, command timeout, regulator report, a refused command,
-    rejected frames) is a warning. Holding and venting as asked are normal operation."""
-    if output.fault_flags & ERROR_FAULTS or output.mode == Mode.FAULT:
-        return Severity.ERROR
-    if output.fault_flags:
-        return Severity.WARN
-    return Severity.OK

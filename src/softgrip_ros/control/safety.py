@@ -38,8 +38,9 @@ The checks, each with the fault flag it raises:
 - **The regulator against its model** (``REGULATOR``): its reported output away from the
   output its lag and rate limit predict for what it was told, by ``regulator_deviation_pa``
   for ``regulator_deviation_time_s``.
-- **The estimator's evidence** (``SENSOR_INCONSISTENT``): a sensor's windowed NIS above
-  ``nis_ratio`` times its consistency bound for ``nis_time_s`` (:meth:`SafetyMonitor.update_consistency`).
+- **The estimator's evidence** (``SENSOR_INCONSISTENT``): the median of a sensor's recent NIS
+  above ``nis_ratio`` times the estimator's consistency bound for ``nis_time_s``
+  (:meth:`SafetyMonitor.update_consistency`).
 
 A latched fault clears on a new command once none of its evidence has been seen for
 ``clear_time_s``. The plant model must resemble the hardware within a factor of about two in
@@ -305,7 +306,8 @@ class SafetyMonitor:
             self._regulator_history.popleft()
 
     def update_consistency(self, name: str, mean_nis: float, bound: float, now: float) -> None:
-        """The estimator's windowed NIS of sensor ``name`` and its upper consistency bound."""
+        """The estimator's recent NIS of sensor ``name`` (the median of its last samples) and its
+        upper consistency bound."""
         if not (math.isfinite(mean_nis) and math.isfinite(bound) and bound > 0.0):
             return
         above = mean_nis > self.config.nis_ratio * bound
@@ -535,7 +537,7 @@ class SafetyMonitor:
     def _consistency_finding(self, now: float) -> Finding | None:
         for name, (mean_nis, bound, since) in self._nis.items():
             if since is not None and now - since >= self.config.nis_time_s:
-                return Finding(Fault.SENSOR_INCONSISTENT, f"{name} inconsistent with the plant model: the estimator's mean "
+                return Finding(Fault.SENSOR_INCONSISTENT, f"{name} inconsistent with the plant model: the estimator's recent "
                                                           f"NIS {mean_nis:.0f}, {mean_nis / bound:.0f}x its bound "
                                                           f"{bound:.2f}")
         return None

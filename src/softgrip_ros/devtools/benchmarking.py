@@ -14,7 +14,7 @@ import platform
 import statistics
 import time
 
-BENCHMARKS_MD = pathlib.Path(__file__).resolve().parents[2] / "docs" / "benchmarks.md"
+BENCHMARKS_MD = pathlib.Path(__file__).resolve().parents[3] / "docs" / "benchmarks.md"
 
 
 def median_seconds(function, number: int, repeat: int) -> float:

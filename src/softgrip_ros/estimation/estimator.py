@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import enum
+import itertools
 import math
 
 import numpy as np
@@ -51,17 +51,13 @@ from scipy.stats import chi2
 
 from softgrip_ros.checks import require_positive
 from softgrip_ros.estimation.filters import CHAMBER, FILTER_TYPES, REGULATOR, make_filter, plant_step
+from softgrip_ros.health import Health, Report
 from softgrip_ros.model.pneumatics import PlantInputs, PneumaticPlant, Valve
 
 _H_CHAMBER = np.array([[1.0, 0.0]])      # every sensor measures the chamber
+NIS_EVIDENCE_SAMPLES = 25                 # the recent NIS the safety checks judge (see nis_evidence)
 MAX_PREDICTION_STEPS = 200                # a longer gap is predicted in larger steps (backward Euler is stable)
 REST_GATE_D2 = 9.0                        # 3 sigma: a sample this far from the estimate ends a rest
-
-
-class Health(enum.IntEnum):
-    OK = 0
-    WARN = 1
-    ERROR = 2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -177,15 +173,6 @@ class Estimate:
     @property
     def std_pa(self) -> float:
         return math.sqrt(self.variance_pa2)
-
-
-@dataclasses.dataclass(frozen=True)
-class Report:
-    """The estimator's health for diagnostics."""
-
-    health: Health
-    message: str
-    values: dict
 
 
 def _shared_walk_variance(walks: list, total_weight: float) -> float:
@@ -489,9 +476,17 @@ class PressureEstimator:
         return ""
 
     def nis_evidence(self) -> dict:
-        """{sensor: its windowed mean NIS} of the sensors with a full window; the upper bound is
-        ``nis_bounds[1]``."""
-        return {name: stats.mean_nis() for name, stats in self.stats.items() if len(stats.nis) == stats.nis.maxlen}
+        """{sensor: the median of its last NIS_EVIDENCE_SAMPLES NIS values}, for the pressure
+        controller's safety checks (compared there with a multiple of ``nis_bounds[1]``). Not the
+        window's mean: that outlives a sensor's recovery by the window's length (a second for the
+        200 Hz sensor), and one transient moves it; the recent median does neither (a stuck sensor's
+        is in the tens of thousands, a healthy one's near 0.45, the median of chi-square 1)."""
+        evidence = {}
+        for name, stats in self.stats.items():
+            if len(stats.nis) >= NIS_EVIDENCE_SAMPLES:
+                recent = list(itertools.islice(reversed(stats.nis), NIS_EVIDENCE_SAMPLES))
+                evidence[name] = float(np.median(recent))
+        return evidence
 
     def report(self, now: float) -> Report:
         alive = self.alive_sensors(now)
@@ -505,6 +500,7 @@ class PressureEstimator:
                            f"{name}.late": stats.late, f"{name}.invalid": stats.invalid,
                            f"{name}.nis_settling": stats.nis_settling,
                            f"{name}.mean_nis": round(stats.mean_nis(), 3)})
+        values.update({f"{name}.recent_nis": round(nis, 3) for name, nis in self.nis_evidence().items()})
         estimate = self.estimate(now)
         if estimate is not None:
             values.update({"gauge_pa": round(estimate.gauge_pa, 1), "std_pa": round(estimate.std_pa, 1)})

@@ -22,6 +22,7 @@ import typing
 
 import yaml
 
+from softgrip_ros.health import Health, Report
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.geometry import CHAMBER_COUNT
 from softgrip_ros.model.kinematics import TipTable
@@ -166,6 +167,19 @@ class Evaluation:
     bound_m: float
     meets_tolerance: bool
     message: str
+
+    def report(self, l2_solves: int) -> Report:
+        """OK while the pressure lies in the validated range and the bound meets the tolerance."""
+        good = self.in_validated_range and self.meets_tolerance
+        message = (f"{self.model} at {self.pressure_pa:.0f} Pa, {self.message}"
+                   + ("" if self.in_validated_range else "; outside the validated range")
+                   + ("" if self.meets_tolerance else
+                      f"; error bound {1e3 * self.bound_m:.2f} mm exceeds the tolerance"))
+        return Report(Health.OK if good else Health.WARN, message, {
+            "model_fidelity": self.model, "scene_class": self.scene_class,
+            "error_bound_m": f"{self.bound_m:.3g}",
+            "pressure_in_validated_range": bool(self.in_validated_range),
+            "contact_force_n": f"{self.contact_force_n:.3f}", "l2_solves": l2_solves})
 
 
 class _RodSolve(typing.NamedTuple):

@@ -9,14 +9,13 @@ import threading
 
 import can
 import rclpy
-from rclpy.exceptions import InvalidHandle, ParameterException
-from rclpy._rclpy_pybind11 import RCLError
-from rclpy.time import Time
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.time import Time
 
+from softgrip_ros.nodes.rclpy_compat import RCLError, SHUTDOWN_ERRORS, shutdown_executor
 from softgrip_ros.realtime import TimerThread
 
-P_ATM_PA = 101_325.0
 SHUTDOWN_POLL_S = 0.5   # longest wait for a SIGINT/SIGTERM whose wake the executor missed (see run_node)
 
 
@@ -63,7 +62,7 @@ def listened(node, publisher) -> bool:
     take them by direct call, and a DDS publish holds the GIL for its serialisation and write."""
     try:
         return publisher.get_subscription_count() > 0
-    except (RCLError, InvalidHandle):
+    except SHUTDOWN_ERRORS:
         if node.context.ok():
             raise
         return False
@@ -158,26 +157,10 @@ def run_node(node_factory, args=None, executor_factory=None) -> int:
         # the executor first: a callback still running in its pool while its node is destroyed
         # fails ("destruction was requested") in a task whose exception nobody retrieves
         if executor is not None:
-            executor.shutdown(timeout_sec=1.0)
-            pool = getattr(executor, "_executor", None)   # Jazzy's shutdown() leaves its thread pool running
-            if pool is not None:
-                pool.shutdown(wait=True)
-            _read_errors_of_unfinished_callbacks(executor)
+            shutdown_executor(executor, timeout_sec=1.0)
         close_all(nodes)
         rclpy.try_shutdown()
     return 0
-
-
-def _read_errors_of_unfinished_callbacks(executor) -> None:
-    """A callback that was running in the executor's pool when SIGINT/SIGTERM or the end of
-    :func:`spinning` shut the executor down fails on a handle the shutdown destroyed (in Jazzy,
-    rclpy's own task wrapper can, triggering the executor's guard condition); its task's error
-    would otherwise be printed as "exception never retrieved". Those are read and dropped here;
-    any other error is reported."""
-    for future in list(getattr(executor, "_futures", [])):
-        error = future.exception() if future.done() else None
-        if error is not None and not isinstance(error, (InvalidHandle, RCLError)):
-            print(f"{sys.argv[0]}: a callback failed during shutdown: {type(error).__name__}: {error}", file=sys.stderr)
 
 
 def close_all(nodes) -> None:
@@ -212,8 +195,4 @@ def spinning(*nodes, context=None, threads: int = 4):
     finally:
         stop.set()
         thread.join(timeout=5.0)
-        executor.shutdown(timeout_sec=2.0)
-        pool = getattr(executor, "_executor", None)   # Jazzy's shutdown() leaves its thread pool running
-        if pool is not None:
-            pool.shutdown(wait=True)
-        _read_errors_of_unfinished_callbacks(executor)
+        shutdown_executor(executor, timeout_sec=2.0)

@@ -16,62 +16,25 @@ from __future__ import annotations
 
 import threading
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
 from sensor_msgs.msg import FluidPressure
-from std_msgs.msg import Header
 
 from softgrip_interfaces.msg import ControllerStatus, PressureCommand
-from softgrip_ros.estimation.estimator import EstimatorConfig, Health, PressureEstimator, Report, SensorConfig
+from softgrip_ros.estimation.estimator import PressureEstimator
+from softgrip_ros.health import Health
 from softgrip_ros.model.pneumatics import Valve
-from softgrip_ros.nodes.common import (P_ATM_PA, NodeTimers, future_stamp_reason, listened, notify, publish, run_node,
-                                       stamp_msg, stamp_seconds)
-from softgrip_ros.nodes.parameters import ParamSpec, check_all, declare
+from softgrip_ros.nodes import messages
+from softgrip_ros.nodes.common import (NodeTimers, future_stamp_reason, listened, notify, publish,
+                                       run_node, stamp_seconds)
+from softgrip_ros.nodes.parameters import check_all, declare
+from softgrip_ros.nodes.specs import ESTIMATOR_SPECS as SPECS
+from softgrip_ros.nodes.specs import estimator_config
 
-_DEFAULTS = EstimatorConfig()
-SPECS = [
-    ParamSpec("frequency", 200.0, "largest pressure/estimate rate (predictions while silent: at most 50 Hz)", "Hz", 1.0, 2000.0),
-    ParamSpec("rest_frequency", 20.0, "pressure/estimate rate while the chamber rests (see fusion_window); "
-              "<= frequency", "Hz", 1.0, 2000.0),
-    ParamSpec("sensor_timeout", _DEFAULTS.sensor_timeout_s, "a sensor silent this long is dropped from fusion", "s", 0.001, 10.0),
-    ParamSpec("filter_type", _DEFAULTS.filter_type, "the filter", choices=("kf", "ekf", "ukf")),
-    ParamSpec("fusion_window", 0.02, "while the chamber rests, samples this close are fused in one filter step "
-              "(0: each at once; 20 ms: one fusion every other bus batch while the controller rests)", "s", 0.0, 0.02),
-    ParamSpec("input_timing_std", _DEFAULTS.input_timing_std_s, "how far an input's effect at the device may lie "
-              "from its stamp (1 sigma); P grows by the change in rate times this at each input change", "s", 0.0, 0.1),
-    ParamSpec("nis_input_settle", _DEFAULTS.nis_input_settle_s, "samples this soon after an input change stay out "
-              "of the NIS window (still gated and fused): the input's timing is uncertain there", "s", 0.0, 1.0),
-    ParamSpec("max_fusion_shift_pa", _DEFAULTS.max_fusion_shift_pa, "the chamber rests (see fusion_window) while its "
-              "modelled change over the window stays within this", "Pa", 1.0, 1000.0),
-    ParamSpec("sensors.names", ["chamber_a", "chamber_b"], "sensors fused: topics pressure/sensor/<name>"),
-    ParamSpec("sensors.noise_std_pa", [300.0, 150.0], "1-sigma noise of each sensor (R = noise^2)", "Pa"),
-    ParamSpec("sensors.rejection_threshold", [16.0, 16.0], "Mahalanobis gate of each sensor, chi-square with 1 dof (16 = 4 sigma)"),
-    ParamSpec("process_noise_covariance", list(_DEFAULTS.process_noise_pa2_per_s),
-              "Q spectral density over [chamber, regulator]: 2 values (diagonal) or 4 (full, row-major)", "Pa^2/s"),
-    ParamSpec("nis_window", _DEFAULTS.nis_window, "samples per sensor in the NIS consistency window", "", 10, 100000),
-    ParamSpec("max_consecutive_rejections", _DEFAULTS.max_consecutive_rejections,
-              "rejections in a row from every live sensor before re-initialising", "", 1, 100000),
-    ParamSpec("stamp_tolerance", 0.5, "a sample, status or command stamped further ahead of this node's clock than "
-              "this is ignored (and counted)", "s", 0.0, 60.0),
-]
+ESTIMATOR_STATUS = "softgrip: estimator"   # its /diagnostics status (the pressure controller reads its NIS)
 EVIDENCE_PERIOD_S = 0.1        # the NIS evidence handed to the composed pressure controller this often
 REFUSAL_REPORTED_S = 5.0       # a refused message keeps the diagnostics at WARN this long
 PREDICTION_RATE_LIMIT_HZ = 50.0
-LEVELS = {Health.OK: DiagnosticStatus.OK, Health.WARN: DiagnosticStatus.WARN, Health.ERROR: DiagnosticStatus.ERROR}
-
-
-def config_from(values: dict) -> EstimatorConfig:
-    """The estimator's configuration from the parameter values; ValueError names a bad one."""
-    names, noise, gates = values["sensors.names"], values["sensors.noise_std_pa"], values["sensors.rejection_threshold"]
-    if not (len(names) == len(noise) == len(gates)):
-        raise ValueError(f"sensors.names, sensors.noise_std_pa and sensors.rejection_threshold need one entry per "
-                         f"sensor; got {len(names)}, {len(noise)} and {len(gates)}")
-    sensors = tuple(SensorConfig(n, float(s), float(g)) for n, s, g in zip(names, noise, gates))
-    return EstimatorConfig(filter_type=values["filter_type"], sensors=sensors, sensor_timeout_s=values["sensor_timeout"],
-                           process_noise_pa2_per_s=tuple(float(v) for v in values["process_noise_covariance"]),
-                           nis_window=values["nis_window"], max_consecutive_rejections=values["max_consecutive_rejections"],
-                           fusion_window_s=values["fusion_window"], max_fusion_shift_pa=values["max_fusion_shift_pa"],
-                           input_timing_std_s=values["input_timing_std"], nis_input_settle_s=values["nis_input_settle"])
 
 
 class EstimatorNode(Node):
@@ -93,12 +56,9 @@ class EstimatorNode(Node):
         self.closed = False
         specs = {s.name: s for s in SPECS}
         self.values = declare(self, SPECS)
-        self.estimator = PressureEstimator(config_from(self.values))
+        self.estimator = PressureEstimator(estimator_config(self.values))
         self.add_on_set_parameters_callback(
             lambda params: check_all(specs, params, lambda _: "estimator parameters apply at start-up: restart the node"))
-        if self.values["rest_frequency"] > self.values["frequency"]:
-            raise ValueError(f"rest_frequency ({self.values['rest_frequency']:g} Hz) must not exceed frequency "
-                             f"({self.values['frequency']:g} Hz)")
         self.period_s = 1.0 / self.values["frequency"]
         self.rest_period_s = 1.0 / self.values["rest_frequency"]
         self.last_publish_s = self.last_sample_s = -float("inf")
@@ -161,7 +121,7 @@ class EstimatorNode(Node):
     def _on_sensor_message(self, name: str, msg: FluidPressure) -> None:
         stamp_s = stamp_seconds(msg.header.stamp)
         if not self._refused(f"pressure/sensor/{name}", stamp_s):
-            self.on_sensor_samples([(name, msg.fluid_pressure - P_ATM_PA, stamp_s)])
+            self.on_sensor_samples([(name, messages.gauge_pa(msg), stamp_s)])
 
     def on_status(self, msg: ControllerStatus) -> None:
         """The process model's inputs: the regulator command and the valve state."""
@@ -203,9 +163,8 @@ class EstimatorNode(Node):
         if estimate is None:
             return
         if listened(self, self.estimate_pub):
-            publish(self, self.estimate_pub, FluidPressure(
-                header=Header(stamp=stamp_msg(estimate.stamp_s), frame_id="softgrip_chamber"),
-                fluid_pressure=estimate.gauge_pa + P_ATM_PA, variance=estimate.variance_pa2))
+            publish(self, self.estimate_pub, messages.fluid_pressure(
+                estimate.gauge_pa, estimate.variance_pa2, estimate.stamp_s, "softgrip_chamber"))
         notify(self.estimate_listeners, estimate.stamp_s, estimate.gauge_pa, estimate.variance_pa2)
 
     def _share_evidence(self) -> None:
@@ -222,11 +181,9 @@ class EstimatorNode(Node):
             report = self.estimator.report(self._now())
         report.values["future_stamps_ignored"] = self.future_stamps
         if self._now() - self.last_refusal_at < REFUSAL_REPORTED_S:
-            report = Report(max(report.health, Health.WARN), f"{report.message}; {self.last_refusal}", report.values)
-        status = DiagnosticStatus(name="softgrip: estimator", hardware_id="pressure", level=LEVELS[report.health],
-                                  message=report.message,
-                                  values=[KeyValue(key=k, value=str(v)) for k, v in report.values.items()])
-        publish(self, self.diagnostics_pub, DiagnosticArray(header=Header(stamp=self.get_clock().now().to_msg()), status=[status]))
+            report = report.with_note(Health.WARN, self.last_refusal)
+        publish(self, self.diagnostics_pub, messages.diagnostics(
+            report, ESTIMATOR_STATUS, "pressure", self.get_clock().now().to_msg()))
 
 
 def main(args=None) -> int:

@@ -20,6 +20,7 @@ class ParamSpec:
     choices: tuple = ()
     read_only: bool = False
     allow_empty: bool = False       # for strings: '' is a meaningful value (e.g. "no fault")
+    field: str = ""                 # the core's configuration field it sets ("safety.x": a nested one)
 
     def descriptor(self) -> ParameterDescriptor:
         text = self.description + (f" [{self.unit}]" if self.unit else "")
@@ -57,6 +58,23 @@ def declare(node, specs) -> dict:
         if problem:
             raise ValueError(f"parameter {problem}")
     return values
+
+
+def replace_fields(config, specs, values: dict):
+    """``config`` (a frozen dataclass) with the field of each spec that names one set to its value
+    in ``values``; a field "a.b" sets b of the nested dataclass a. The dataclass's own checks
+    (``__post_init__``) raise ValueError for a bad combination."""
+    changes, nested = {}, {}
+    for spec in specs:
+        if spec.field:
+            head, _, rest = spec.field.partition(".")
+            if rest:
+                nested.setdefault(head, {})[rest] = values[spec.name]
+            else:
+                changes[head] = values[spec.name]
+    for head, fields in nested.items():
+        changes[head] = dataclasses.replace(getattr(config, head), **fields)
+    return dataclasses.replace(config, **changes)
 
 
 def check_all(specs_by_name: dict, parameters, extra_check=None) -> SetParametersResult:

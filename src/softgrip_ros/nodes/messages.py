@@ -1,0 +1,167 @@
+"""Conversions between the cores' values and ROS messages, each in one place: the nodes publish
+and read messages only through these. Pressures in messages are absolute where the type says
+so (sensor_msgs/FluidPressure) and gauge everywhere else."""
+from __future__ import annotations
+
+import math
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Point, PoseWithCovarianceStamped
+from sensor_msgs.msg import FluidPressure
+from std_msgs.msg import ColorRGBA, Header
+from visualization_msgs.msg import Marker, MarkerArray
+
+from softgrip_interfaces.msg import (ControllerStatus, GraspCommand, GraspScene, GripperState,
+                                     PressureCommand)
+from softgrip_ros.control.grasp_fsm import GraspRequest, GraspState
+from softgrip_ros.control.pressure import Source
+from softgrip_ros.health import Health, Report
+from softgrip_ros.model.fidelity import FREE, Scene
+from softgrip_ros.model.pneumatics import P_ATM_PA
+from softgrip_ros.model.rod import Circle, Sheet
+from softgrip_ros.nodes.common import stamp_msg
+
+_SOURCES = {Source.SUPPLY: PressureCommand.SUPPLY, Source.VACUUM: PressureCommand.VACUUM,
+            Source.VENT: PressureCommand.VENT, Source.HOLD: PressureCommand.HOLD}
+
+
+_LEVELS = {Health.OK: DiagnosticStatus.OK, Health.WARN: DiagnosticStatus.WARN,
+           Health.ERROR: DiagnosticStatus.ERROR}   # the field is a byte, not an int
+
+
+def diagnostics(report: Report, name: str, hardware_id: str, stamp) -> DiagnosticArray:
+    """One DiagnosticStatus (its level the report's health) in a DiagnosticArray."""
+    status = DiagnosticStatus(name=name, hardware_id=hardware_id, level=_LEVELS[report.health],
+                              message=report.message,
+                              values=[KeyValue(key=k, value=str(v))
+                                      for k, v in report.values.items()])
+    return DiagnosticArray(header=Header(stamp=stamp), status=[status])
+
+
+def estimator_nis(msg: DiagnosticArray, status_name: str, sensor_names) -> list:
+    """[(sensor, recent NIS, its upper bound)] from the estimator's /diagnostics status (its
+    ``<sensor>.recent_nis`` and ``nis_upper_bound`` values); [] when the array has none."""
+    evidence = []
+    for status in msg.status:
+        if status.name != status_name:
+            continue
+        values = {kv.key: kv.value for kv in status.values}
+        try:
+            bound = float(values["nis_upper_bound"])
+            evidence += [(name, float(values[f"{name}.recent_nis"]), bound)
+                         for name in sensor_names if f"{name}.recent_nis" in values]
+        except (KeyError, ValueError):
+            continue
+    return evidence
+
+
+def controller_status(output, link, header: Header, note: str) -> ControllerStatus:
+    """The ControllerStatus of a control ``output`` (a ControlOutput) and the ``link``'s counts;
+    ``note``: what the last command's handling said, after the output's own message."""
+    now = link.clock()
+    return ControllerStatus(
+        header=header, mode=int(output.mode), setpoint_gauge_pressure_pa=output.setpoint_gauge_pa,
+        measured_gauge_pressure_pa=link.controller.measured(now),
+        estimated_gauge_pressure_pa=link.controller.estimate_gauge_pa(now),
+        regulator_actual_gauge_pressure_pa=link.regulator_actual_gauge_pa,
+        regulator_command_gauge_pressure_pa=output.regulator_setpoint_gauge_pa,
+        regulator_enabled=output.regulator_enabled,
+        valve_states=[int(v) for v in output.valves], frames_rx=link.frames_rx,
+        frames_tx=link.frames_tx, frames_bad=link.frames_bad,
+        last_sensor_frame_age_s=link.last_sensor_age_s(), fault_flags=int(output.fault_flags),
+        message="; ".join(m for m in (output.message, note) if m))
+
+
+def fluid_pressure(gauge_pa: float, variance_pa2: float, stamp_s: float,
+                   frame_id: str) -> FluidPressure:
+    return FluidPressure(header=Header(stamp=stamp_msg(stamp_s), frame_id=frame_id),
+                         fluid_pressure=gauge_pa + P_ATM_PA, variance=variance_pa2)
+
+
+def gauge_pa(msg: FluidPressure) -> float:
+    return msg.fluid_pressure - P_ATM_PA
+
+
+def pressure_command(target_gauge_pa: float, source: Source, header: Header) -> PressureCommand:
+    return PressureCommand(header=header, target_gauge_pressure_pa=target_gauge_pa,
+                           max_rate_pa_per_s=math.nan, source=_SOURCES[source])
+
+
+def grasp_request(msg: GraspCommand) -> GraspRequest:
+    """A GraspCommand's request; a friction coefficient of 0 (unset) means the default."""
+    friction = math.nan if msg.friction_coefficient == 0.0 else msg.friction_coefficient
+    return GraspRequest(mode=msg.mode, object_diameter_m=msg.object_diameter_m,
+                        object_mass_kg=msg.object_mass_kg,
+                        target_tip_spacing_m=msg.target_tip_spacing_m,
+                        friction_coefficient=friction, open_pressure_pa=msg.open_pressure_pa,
+                        clamp_pressure_pa=msg.clamp_pressure_pa, command_id=msg.command_id)
+
+
+def gripper_state(state: GraspState, header: Header) -> GripperState:
+    s = state
+    return GripperState(
+        header=header, phase=int(s.phase), mode=int(s.mode), command_id=s.command_id,
+        command_rejected=s.command_rejected, target_gauge_pressure_pa=s.target_gauge_pa,
+        estimated_gauge_pressure_pa=s.estimated_gauge_pa,
+        estimated_gauge_pressure_std_pa=s.estimated_std_pa,
+        included_angle_rad=s.included_angle_rad, tip_spacing_m=s.tip_spacing_m,
+        root_spacing_m=s.root_spacing_m, clamp_force_n=s.clamp_force_n,
+        model_fidelity=s.model_fidelity, pressure_in_validated_range=s.in_validated_range,
+        message=s.message)
+
+
+def scene_message(scene: Scene) -> GraspScene:
+    message = GraspScene(kind=GraspScene.FREE,
+                         opening_gauge_pressure_pa=float(scene.opening_gauge_pa))
+    if isinstance(scene.obstacle, Circle):
+        message.kind, message.object_diameter_m = GraspScene.CYLINDER, 2.0 * scene.obstacle.radius_m
+        message.object_center_z_m = scene.obstacle.center_z_m
+    elif isinstance(scene.obstacle, Sheet):
+        message.kind, message.object_diameter_m = GraspScene.SHEET, scene.obstacle.thickness_m
+    return message
+
+
+def scene_from_message(message: GraspScene) -> Scene:
+    """The Scene of a GraspScene; ValueError (with the reason) for an unknown kind or a bad
+    number."""
+    opening = float(message.opening_gauge_pressure_pa)
+    if not math.isfinite(opening):
+        raise ValueError(f"opening_gauge_pressure_pa must be finite, got {opening}")
+    if message.kind == GraspScene.FREE:
+        return FREE
+    if message.kind == GraspScene.CYLINDER:
+        radius_m = 0.5 * float(message.object_diameter_m)
+        return Scene(Circle(0.0, float(message.object_center_z_m), radius_m), opening)
+    if message.kind == GraspScene.SHEET:
+        return Scene(Sheet(float(message.object_diameter_m)), opening)
+    raise ValueError(f"unknown scene kind {message.kind}")
+
+
+def tip_pose(tip, tip_slope, variance_pa2: float, sign: float,
+             header: Header) -> PoseWithCovarianceStamped:
+    """The pose of the left finger's tip (``sign`` 1) or the right's (-1), mirrored in x, from the
+    model's ``tip`` (x, z, tip angle) and ``tip_slope`` d(x, z, angle)/dp. Its covariance is the
+    pressure variance pushed through that derivative, J var J'."""
+    (x_left, z, angle_left), slope = tip, tip_slope
+    x, angle = x_left * sign, angle_left * sign
+    jacobian = (sign * slope[0], 0.0, slope[1], 0.0, sign * slope[2], 0.0)   # over x y z rx ry rz
+    message = PoseWithCovarianceStamped(header=header)
+    message.pose.pose.position.x, message.pose.pose.position.z = x, z
+    orientation = message.pose.pose.orientation
+    orientation.y, orientation.w = math.sin(0.5 * angle), math.cos(0.5 * angle)   # about +y
+    message.pose.covariance = [a * b * variance_pa2 for a in jacobian for b in jacobian]
+    return message
+
+
+def finger_markers(backbone, header: Header) -> MarkerArray:
+    """Line strips of both fingers' backbones (``backbone``: the left's (x, z) points)."""
+    markers = MarkerArray()
+    for marker_id, sign in enumerate((1.0, -1.0)):
+        marker = Marker(header=header, ns="softgrip_fingers", id=marker_id,
+                        type=Marker.LINE_STRIP, action=Marker.ADD)
+        marker.scale.x = 0.004
+        marker.pose.orientation.w = 1.0
+        marker.color = ColorRGBA(r=0.9, g=0.5, b=0.1, a=1.0)
+        marker.points = [Point(x=sign * x, y=0.0, z=z) for x, z in backbone]
+        markers.markers.append(marker)
+    return markers
