@@ -17,9 +17,9 @@ from here, as an arm would:
 * ``sensor_to_tip_pose_received_ms``: the same, to the pose's reception here (the rmw's reception
   timestamp): one DDS hop more, what a subscriber in another process sees.
 * ``controller_cpu_pct_idle`` / ``_grasp``: the user + system CPU time of the controller process
-  and its child (the L2 rod solver) over wall time (100 = one core), in windows while IDLE and while grasping at the default
-  500 Hz control rate; median over the windows. The device simulation runs in its own
-  process and is not counted.
+  and its child (the L2 rod solver) over wall time (100 = one core), in windows while IDLE and
+  while grasping at the default 500 Hz control rate; median over the windows. The device simulation
+  runs in its own process and is not counted.
 * ``controller_rss_mb``: resident memory at the end (VmRSS), and its peak (VmHWM); the L2
   solver child's VmRSS separately (``controller_children_rss_mb``: summing shared pages twice
   would overstate the total).
@@ -32,7 +32,6 @@ shared 2-core VM a p99 or a CPU median moves by about a millisecond or a percent
 Writes its section of docs/benchmarks.md; --json prints the figures instead.
 Reproduce: scripts/env.sh sourced, then  python scripts/bench_e2e.py
 """
-import argparse
 import bisect
 import json
 import os
@@ -44,27 +43,30 @@ import time
 import uuid
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 40))   # not the default domain 0
+os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 40))  # not the default domain 0
 
-import can  # noqa: E402
-import numpy as np  # noqa: E402
-import rclpy  # noqa: E402
-from geometry_msgs.msg import PoseWithCovarianceStamped  # noqa: E402
-from rclpy.node import Node  # noqa: E402
+import can
+import numpy as np
+import rclpy
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from rclpy.node import Node
 
-from demo_grasp import command, wait_phase  # noqa: E402
-from softgrip_interfaces.msg import GraspCommand, GripperState  # noqa: E402
-from softgrip_ros.devtools.benchmarking import figure_rows, machine_line, update_section  # noqa: E402
-from softgrip_ros.canbus.codec import FrameCodec  # noqa: E402
-from softgrip_ros.canbus.reader import BatchReader  # noqa: E402
-from softgrip_ros.nodes.common import spinning, stamp_seconds  # noqa: E402
-from softgrip_ros.devtools.processes import installed_executable, stop_process  # noqa: E402
+from demo_grasp import command, wait_phase
+from softgrip_interfaces.msg import GraspCommand, GripperState
+from softgrip_ros.devtools.benchmarking import (benchmark_parser, figure_rows, machine_line,
+                                                update_section)
+from softgrip_ros.canbus.codec import FrameCodec
+from softgrip_ros.canbus.reader import BatchReader
+from softgrip_ros.nodes.common import spinning, stamp_seconds
+from softgrip_ros.devtools.processes import installed_executable, stop_process
 
-TARGETS = {"cmd_to_valve_frame_ms_p99": (10.0, True), "sensor_to_tip_pose_ms_p99": (5.0, True),
-           "controller_cpu_pct_idle": (15.0, True), "controller_cpu_pct_grasp": (40.0, True)}
+TARGETS = {
+    "cmd_to_valve_frame_ms_p99": (10.0, True), "sensor_to_tip_pose_ms_p99": (5.0, True),
+    "controller_cpu_pct_idle": (15.0, True), "controller_cpu_pct_grasp": (40.0, True)
+}
 SENSOR_FRAMES = ("PressureSensor1", "PressureSensor2")
-STAMP_MATCH_S = 2e-4        # well under the 1.4 ms between sensor frames
-WATCH_PERIOD_S = 0.02       # the bus watch reads the frames queued this often
+STAMP_MATCH_S = 2e-4  # well under the 1.4 ms between sensor frames
+WATCH_PERIOD_S = 0.02  # the bus watch reads the frames queued this often
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
 
 
@@ -86,11 +88,11 @@ class BusWatch:
         self.codec = FrameCodec(max_counter_delta=15, sync_frames=0)
         self._sensor_ids = {self.codec.frame_ids[name] for name in SENSOR_FRAMES}
         self._valve_id = self.codec.frame_ids["ValveCommand"]
-        self.valve_times: list = []     # sender time of each ValveCommand, and its channel-0 state
+        self.valve_times: list = []  # sender time of each ValveCommand, and its channel-0 state
         self.valve_states: list = []
         self.sensor_times: list = []
-        self._reader = BatchReader(self.bus, self._on_frames, rest_period_s=WATCH_PERIOD_S, resting=lambda: True,
-                                   name="bench-bus")
+        self._reader = BatchReader(self.bus, self._on_frames, rest_period_s=WATCH_PERIOD_S,
+                                   resting=lambda: True, name="bench-bus")
 
     def _on_frames(self, frames):
         for frame in frames:
@@ -101,10 +103,11 @@ class BusWatch:
                 self.valve_states.append(int(decoded.signals["Channel0"]))
 
     def first_valve_change_after(self, sent_s: float, timeout_s: float = 2.0):
-        """Sender time of the first valve frame after ``sent_s`` whose state differs from the last one before it."""
+        """Sender time of the first valve frame after ``sent_s`` whose state differs from the last
+        one before it."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
-            count = len(self.valve_states)      # appended after the times: both hold this many
+            count = len(self.valve_states)  # appended after the times: both hold this many
             first_after = bisect.bisect_right(self.valve_times, sent_s, 0, count)
             previous = self.valve_states[first_after - 1] if first_after else None
             for index in range(first_after, count):
@@ -149,7 +152,7 @@ def cpu_seconds(pid: int) -> float:
                 fields = stat.read().rsplit(")", 1)[1].split()
         except FileNotFoundError:
             continue
-        total += (int(fields[11]) + int(fields[12])) / CLOCK_TICKS     # utime, stime
+        total += (int(fields[11]) + int(fields[12])) / CLOCK_TICKS  # utime, stime
     return total
 
 
@@ -164,7 +167,8 @@ def memory_mb(pid: int) -> dict:
 
 
 def cpu_windows(pid: int, seconds: float, window_s: float, during=None) -> list:
-    """CPU % of one core in consecutive windows over ``seconds``; ``during()`` is called repeatedly meanwhile."""
+    """CPU % of one core in consecutive windows over ``seconds``; ``during()`` is called repeatedly
+    meanwhile."""
     percents, end = [], time.monotonic() + seconds
     while time.monotonic() < end:
         wall0, cpu0 = time.monotonic(), cpu_seconds(pid)
@@ -184,20 +188,24 @@ def p99(values) -> float:
 
 def measure(idle_s: float, grasp_s: float, window_s: float) -> tuple[dict, dict]:
     channel = f"bench-e2e-{uuid.uuid4().hex[:8]}"
-    ros_args = ["--ros-args", "-p", "can.interface:=softgrip_ipc", "-p", f"can.channel:={channel}",
-                "--log-level", "warn"]
+    ros_args = [
+        "--ros-args", "-p", "can.interface:=softgrip_ipc", "-p", f"can.channel:={channel}",
+        "--log-level", "warn"
+    ]
     watch = BusWatch(channel)
     device = subprocess.Popen([installed_executable("sim_device"), *ros_args])
     controller = subprocess.Popen([installed_executable("controller"), *ros_args])
     rclpy.init()
     node = Node("softgrip_bench_e2e")
-    states, poses = [], []        # poses: (published, received, stamp), matched to their frames once the watch has read them
+    # poses: (published, received, stamp), matched to their frames once the watch has read them
+    states, poses = [], []
     clock_offsets = []
 
     def on_pose(msg, info):
         received_s = info["received_timestamp"] * 1e-9
         clock_offsets.append(time.time() - received_s)
-        poses.append((info["source_timestamp"] * 1e-9, received_s, stamp_seconds(msg.header.stamp)))
+        poses.append(
+            (info["source_timestamp"] * 1e-9, received_s, stamp_seconds(msg.header.stamp)))
 
     node.create_subscription(GripperState, "grasp_state", states.append, 100)
     node.create_subscription(PoseWithCovarianceStamped, "tip_pose/left", on_pose, 100)
@@ -214,14 +222,17 @@ def measure(idle_s: float, grasp_s: float, window_s: float) -> tuple[dict, dict]
 
     def one_grasp():
         n = cycles["done"] + cycles["failed"]
-        send("ENVELOP_CLAMP", command(GraspCommand.ENVELOP_CLAMP, f"bench-{n}", object_diameter_m=0.04, object_mass_kg=0.2))
+        send(
+            "ENVELOP_CLAMP",
+            command(GraspCommand.ENVELOP_CLAMP, f"bench-{n}", object_diameter_m=0.04,
+                    object_mass_kg=0.2))
         ok = wait_phase(states, GripperState.ENVELOPED, 5.0) is not None
         send("CLAMP", command(GraspCommand.CLAMP, f"bench-{n}-clamp"))
         ok = ok and wait_phase(states, GripperState.HOLDING, 5.0) is not None
         time.sleep(0.2)
         send("STOP", command(GraspCommand.STOP, f"bench-{n}-stop"))
         ok = ok and wait_phase(states, GripperState.IDLE, 5.0) is not None
-        time.sleep(0.3)                       # vented before the next grasp
+        time.sleep(0.3)  # vented before the next grasp
         cycles["done" if ok else "failed"] += 1
 
     try:
@@ -229,17 +240,21 @@ def measure(idle_s: float, grasp_s: float, window_s: float) -> tuple[dict, dict]
             deadline = time.monotonic() + 60.0
             while not (states and publisher.get_subscription_count() and watch.sensor_times):
                 if time.monotonic() > deadline or controller.poll() is not None:
-                    raise RuntimeError("the controller did not come up (no grasp_state or no sensor frames in 60 s)")
+                    raise RuntimeError(
+                        "the controller did not come up (no grasp_state or no sensor frames in 60 "
+                        "s)"
+                    )
                 time.sleep(0.05)
-            time.sleep(2.0)                                   # past start-up
+            time.sleep(2.0)  # past start-up
             progress(f"idle: CPU over {idle_s:.0f} s")
             idle = cpu_windows(controller.pid, idle_s, window_s)
             progress(f"grasping: ENVELOP_CLAMP 40 mm -> CLAMP -> STOP cycles for {grasp_s:.0f} s")
             poses.clear()
             grasp = cpu_windows(controller.pid, grasp_s, window_s, during=one_grasp)
-            grasp_poses = list(poses)    # not the predictions while the device is paused
+            grasp_poses = list(poses)  # not the predictions while the device is paused
             memory = memory_mb(controller.pid)
-            children_rss = sum(memory_mb(p).get("VmRSS", 0.0) for p in process_tree(controller.pid)[1:])
+            children_rss = sum(
+                memory_mb(p).get("VmRSS", 0.0) for p in process_tree(controller.pid)[1:])
             progress(f"device paused: CPU over {idle_s:.0f} s without bus traffic")
             device.send_signal(signal.SIGSTOP)
             try:
@@ -279,27 +294,33 @@ def measure(idle_s: float, grasp_s: float, window_s: float) -> tuple[dict, dict]
         "controller_children_rss_mb": children_rss,
     }
     details = {
-        "cmd_to_valve_frame_ms": {k: {"n": len(v), "median": statistics.median(v) if v else None,
-                                      "p99": p99(v) if v else None, "max": max(v) if v else None}
-                                  for k, v in command_latencies.items()},
+        "cmd_to_valve_frame_ms": {
+            k: {
+                "n": len(v), "median": statistics.median(v) if v else None,
+                "p99": p99(v) if v else None, "max": max(v) if v else None
+            }
+            for k, v in command_latencies.items()
+        },
         "sensor_to_tip_pose_samples": len(to_pose),
         "dds_hop_ms": {"median": statistics.median(hops), "p99": p99(hops), "max": max(hops)},
         "cpu_windows_pct": {"idle": idle, "grasp": grasp, "device_paused": paused},
         "grasp_cycles": cycles,
-        "reception_clock_offset_ms_median": 1e3 * statistics.median(clock_offsets) if clock_offsets else None,
+        "reception_clock_offset_ms_median": 1e3 *
+        statistics.median(clock_offsets) if clock_offsets else None,
     }
     return figures, details
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--json", action="store_true", help="print the figures as JSON, write nothing")
-    parser.add_argument("--idle-s", type=float, default=10.0, help="seconds of idle CPU measurement")
+    parser = benchmark_parser(__doc__, "one short run (2 s idle, 6 s of grasps); writes nothing")
+    parser.add_argument("--idle-s", type=float, default=10.0,
+                        help="seconds of idle CPU measurement")
     parser.add_argument("--grasp-s", type=float, default=30.0, help="seconds of grasp cycles")
-    parser.add_argument("--window-s", type=float, default=2.0, help="CPU window (median over windows)")
-    parser.add_argument("--runs", type=int, default=3,
-                        help="whole measurements, each with fresh processes; each figure is the median over them")
-    parser.add_argument("--quick", action="store_true", help="one short run (2 s idle, 6 s of grasps); writes nothing")
+    parser.add_argument("--window-s", type=float, default=2.0,
+                        help="CPU window (median over windows)")
+    parser.add_argument(
+        "--runs", type=int, default=3,
+        help="whole measurements, each with fresh processes; each figure is the median over them")
     args = parser.parse_args(argv)
     if args.quick:
         args.runs, args.idle_s, args.grasp_s, args.window_s = 1, 3.0, 6.0, 1.0
@@ -312,93 +333,150 @@ def main(argv=None) -> int:
     for run in range(args.runs):
         progress(f"run {run + 1} of {args.runs}")
         runs.append(measure(args.idle_s, args.grasp_s, args.window_s))
-    # a p99 of one run on a shared 2-core VM moves by a millisecond from run to run: the median of runs
+    # a p99 of one run on a shared 2-core VM moves by a millisecond from run to run: the median of
+    # runs
     figures = {key: statistics.median(f[key] for f, _ in runs) for key in runs[0][0]}
     details = {**runs[-1][1], "runs": {key: [f[key] for f, _ in runs] for key in runs[0][0]}}
     if args.json or args.quick:
-        print(json.dumps({**figures, "details": details}, indent=2) if args.json else "\n".join(figure_rows(figures, TARGETS)))
+        print(
+            json.dumps({**figures, "details": details}, indent=2) if args.json else "\n".
+            join(figure_rows(figures, TARGETS)))
         return 0
     rows = figure_rows(figures, TARGETS)
-    per_command = "; ".join(f"{k} {v['median']:.2f} ms median, {v['p99']:.2f} ms p99 (n = {v['n']})"
-                            for k, v in details["cmd_to_valve_frame_ms"].items() if v["n"])
+    per_command = "; ".join(
+        f"{k} {v['median']:.2f} ms median, {v['p99']:.2f} ms p99 (n = {v['n']})"
+        for k, v in details["cmd_to_valve_frame_ms"].items() if v["n"])
     per_run = "; ".join(f"{key} " + ", ".join(f"{v:.3g}" for v in values)
                         for key, values in details["runs"].items() if key in TARGETS)
     idle_windows = ", ".join(f"{v:.0f}" for v in details["cpu_windows_pct"]["idle"])
     grasp_windows = ", ".join(f"{v:.0f}" for v in details["cpu_windows_pct"]["grasp"])
     notes = (
-        f"Each figure is the median over {args.runs} runs (fresh processes each); the runs gave {per_run}. "
+        f"Each figure is the median over {args.runs} runs (fresh processes each); the runs gave "
+        f"{per_run}. "
         "The rest of this section's figures are from the last run.\n\n"
         "**What is measured**\n\n"
-        f"- Command to valve frame: {per_command}. From this process over DDS to the grasp manager, its state "
-        "machine, the direct call to the pressure controller (which steps in the calling thread and sends "
+        f"- Command to valve frame: {per_command}. From this process over DDS to the grasp "
+        "manager, its state "
+        "machine, the direct call to the pressure controller (which steps in the calling thread "
+        "and sends "
         "the frames at once) and the CAN send.\n"
-        f"- Sensor frame to `tip_pose/left`: {details['sensor_to_tip_pose_samples']} poses, through the frame's "
-        "reception, the estimator and kinematics to the publish (the DDS sample's source timestamp), as the "
-        "target is defined; `_received` adds the DDS hop to this process (its reception timestamp), "
-        f"{details['dds_hop_ms']['median']:.2f} ms median and {details['dds_hop_ms']['p99']:.2f} ms p99 "
-        "in the last run. Frames carry their sender's time; this process's bus watch reads them in batches "
-        "every 20 ms and matches poses to frames after the run. The three timestamps come from this host's one clock.\n"
+        f"- Sensor frame to `tip_pose/left`: {details['sensor_to_tip_pose_samples']} poses, "
+        "through the frame's "
+        "reception, the estimator and kinematics to the publish (the DDS sample's source "
+        "timestamp), as the "
+        "target is defined; `_received` adds the DDS hop to this process (its reception "
+        "timestamp), "
+        f"{details['dds_hop_ms']['median']:.2f} ms median and {details['dds_hop_ms']['p99']:.2f} "
+        "ms p99 "
+        "in the last run. Frames carry their sender's time; this process's bus watch reads them "
+        "in batches "
+        "every 20 ms and matches poses to frames after the run. The three timestamps come from "
+        "this host's one clock.\n"
         "- Until 2026-11-22 `sensor_to_tip_pose_ms` was taken to the reception here, which the "
         "`_received` row now gives; the figures quoted below from before then are that one.\n"
-        f"- CPU of the controller process (the L2 solver's child included), windows of {args.window_s:g} s: "
-        f"idle {idle_windows} %; grasping {grasp_windows} %. Grasp cycles: {details['grasp_cycles']['done']} "
-        f"complete, {details['grasp_cycles']['failed']} not. The simulated device runs in its own process and "
+        "- CPU of the controller process (the L2 solver's child included), windows of "
+        f"{args.window_s:g} s: "
+        f"idle {idle_windows} %; grasping {grasp_windows} %. Grasp cycles: "
+        f"{details['grasp_cycles']['done']} "
+        f"complete, {details['grasp_cycles']['failed']} not. The simulated device runs in its own "
+        "process and "
         "is not counted.\n"
-        f"- With the device paused (no frames) the controller uses {figures['controller_cpu_pct_device_paused']:.0f} %: "
-        "the control loop at its 50 Hz rest rate (`rest_rate_hz`) with controller/status at 50 Hz, the "
-        "composed nodes' timer threads, and the estimator's predictions at 50 Hz while no sample comes. The "
+        "- With the device paused (no frames) the controller uses "
+        f"{figures['controller_cpu_pct_device_paused']:.0f} %: "
+        "the control loop at its 50 Hz rest rate (`rest_rate_hz`) with controller/status at 50 "
+        "Hz, the "
+        "composed nodes' timer threads, and the estimator's predictions at 50 Hz while no sample "
+        "comes. The "
         "rest of the idle figure is the device's ~700 sensor frames a second.\n\n"
         "**Doing less at rest** (2026-11-22)\n\n"
-        "- The control loop rests at 50 Hz (was 100, `rest_rate_hz`); the estimator fuses a resting "
-        "chamber's samples every 20 ms (was 10, `fusion_window`: every other 10 ms bus batch) and predicts "
-        "such a window in one filter step while the regulator rests too (a fusion took ~320 us of thread "
+        "- The control loop rests at 50 Hz (was 100, `rest_rate_hz`); the estimator fuses a "
+        "resting "
+        "chamber's samples every 20 ms (was 10, `fusion_window`: every other 10 ms bus batch) and "
+        "predicts "
+        "such a window in one filter step while the regulator rests too (a fusion took ~320 us of "
+        "thread "
         "CPU in the controller: four 5 ms predictions and an update).\n"
-        "- Against the code before (02b8aa4), one run each in turn (`--runs 1`), 8 pairs in two sessions of "
-        "4 (medians of each session's 4): idle CPU 14.4 -> 12.5 % and 14.9 -> 13.2 %, lower in all 8 pairs; "
-        "with the device paused 8.5 -> 8.5 % and 9.7 -> 8.0 %; grasping 31.9 -> 33.7 % and 33.2 -> 33.3 %; "
-        "pose p99 4.4 -> 4.9 ms and 4.6 -> 4.4 ms, command-to-valve p99 7.1 -> 7.4 ms and 7.1 -> 7.6 ms: no "
-        "difference beyond the host's swing. (The first session ran before the last estimator commit, "
+        "- Against the code before (02b8aa4), one run each in turn (`--runs 1`), 8 pairs in two "
+        "sessions of "
+        "4 (medians of each session's 4): idle CPU 14.4 -> 12.5 % and 14.9 -> 13.2 %, lower in "
+        "all 8 pairs; "
+        "with the device paused 8.5 -> 8.5 % and 9.7 -> 8.0 %; grasping 31.9 -> 33.7 % and 33.2 "
+        "-> 33.3 %; "
+        "pose p99 4.4 -> 4.9 ms and 4.6 -> 4.4 ms, command-to-valve p99 7.1 -> 7.4 ms and 7.1 -> "
+        "7.6 ms: no "
+        "difference beyond the host's swing. (The first session ran before the last estimator "
+        "commit, "
         "which made a sample fused at once cheaper again.)\n"
-        "- Explored first, 3 runs each in sequence: taking the resting batches every 20 ms too saved a "
-        "little more CPU (idle 11.0 %) but raised the pose p99 to 5.7-6.4 ms: ~16 readings then went "
-        "through the estimator before a resting estimate. Traced with temporary timestamps (one run), 46 of "
-        "the 74 slowest poses came from resting batches, whose estimator stage took 2.0 ms (median of those "
+        "- Explored first, 3 runs each in sequence: taking the resting batches every 20 ms too "
+        "saved a "
+        "little more CPU (idle 11.0 %) but raised the pose p99 to 5.7-6.4 ms: ~16 readings then "
+        "went "
+        "through the estimator before a resting estimate. Traced with temporary timestamps (one "
+        "run), 46 of "
+        "the 74 slowest poses came from resting batches, whose estimator stage took 2.0 ms "
+        "(median of those "
         "74) against 0.26 ms over all poses. Reception stays at 10 ms.\n"
-        "- Traced again on the final code (one run, 2506 poses): 53 of the 76 slowest came from resting "
-        "batches; in 33 of them the longest stage was the newest frame's wait for the batch (it arrives "
-        "0-2 ms before the wake; 1.2 ms median in those 76), in 26 the estimator (1.25 ms median).\n\n"
+        "- Traced again on the final code (one run, 2506 poses): 53 of the 76 slowest came from "
+        "resting "
+        "batches; in 33 of them the longest stage was the newest frame's wait for the batch (it "
+        "arrives "
+        "0-2 ms before the wake; 1.2 ms median in those 76), in 26 the estimator (1.25 ms "
+        "median).\n\n"
         "**Where the time goes, and what did not help**\n\n"
-        "- Python runs several times slower woken or interleaved with other threads than in a warm loop: a "
-        "frame's decode 5 us in a loop, 11-19 us in the controller; a 20 ms resting batch's estimator work ~110 us "
-        "warm, ~700 us in place. A thread wake costs 45-80 us before any work. So the cost is per wake and "
+        "- Python runs several times slower woken or interleaved with other threads than in a "
+        "warm loop: a "
+        "frame's decode 5 us in a loop, 11-19 us in the controller; a 20 ms resting batch's "
+        "estimator work ~110 us "
+        "warm, ~700 us in place. A thread wake costs 45-80 us before any work. So the cost is per "
+        "wake and "
         "per call more than per computation, and doing less at rest paid more than faster code.\n"
-        "- rclpy's `rcl_publish` keeps the GIL: a DDS publish that blocks (1.5-6 ms seen) stalls every "
-        "thread of the process. The composed nodes therefore pass readings, statuses and estimates by "
+        "- rclpy's `rcl_publish` keeps the GIL: a DDS publish that blocks (1.5-6 ms seen) stalls "
+        "every "
+        "thread of the process. The composed nodes therefore pass readings, statuses and "
+        "estimates by "
         "direct call and publish a topic only while it has a subscriber.\n"
-        "- The L2 solver's child runs 10 above the controller's nice value (`l2_nice_increment`): in four "
+        "- The L2 solver's child runs 10 above the controller's nice value (`l2_nice_increment`): "
+        "in four "
         "pairs of runs the pose p99 was lower with it every time, by 0.05-0.7 ms.\n"
-        "- The simulated bus once dropped frames: Unix datagram sockets queue ~10 per receiver, so a "
-        "resting batch that started late lost its newest frames silently. `softgrip_ipc` now runs on "
+        "- The simulated bus once dropped frames: Unix datagram sockets queue ~10 per receiver, "
+        "so a "
+        "resting batch that started late lost its newest frames silently. `softgrip_ipc` now runs "
+        "on "
         "loopback UDP, which queues hundreds, and counts what a full receiver drops.\n"
-        "- Tried and not adopted: a GIL switch interval of 0.1 or 0.5 ms (no change); taking the resting "
-        "batches in the control loop's tick (the same CPU); `gc.freeze()` after start-up (no change); a "
-        "50 ms fusion window (it changes the estimator's lag rule); refilling two preallocated pose "
-        "messages instead of building them (77 against 80 us per pose, warm: not worth a shared message "
-        "and its lock); ending each resting batch on a frame that has just arrived (a second wake per "
-        "batch; 3 pairs: pose p99 3.96 -> 4.12, 4.63 -> 4.69, 4.56 -> 4.17 ms, idle CPU no lower, paused "
-        "+1 %); timing each resting wake to just after the fastest sensor stream's next frame (its period "
-        "and phase learnt from the timestamps; no extra wake): the newest reading's wait for its batch "
-        "fell from 0.66 to 0.41 ms median and 1.66 to 0.75 ms p90 (one traced run each), but in 3 pairs "
-        "the pose p99 went 3.61 -> 3.63, 3.93 -> 3.23, 3.89 -> 4.19 ms and the idle CPU did not move; "
-        "the estimator's silence check sleeping until the silence deadline it knows, instead of waking "
-        "every 20 ms while samples flow: its thread woke 34 instead of 53 times a second (0.53 against "
-        "0.60 % of a core, one run each), but in 8 pairs the idle CPU (mean of the windows) was higher "
+        "- Tried and not adopted: a GIL switch interval of 0.1 or 0.5 ms (no change); taking the "
+        "resting "
+        "batches in the control loop's tick (the same CPU); `gc.freeze()` after start-up (no "
+        "change); a "
+        "50 ms fusion window (it changes the estimator's lag rule); refilling two preallocated "
+        "pose "
+        "messages instead of building them (77 against 80 us per pose, warm: not worth a shared "
+        "message "
+        "and its lock); ending each resting batch on a frame that has just arrived (a second wake "
+        "per "
+        "batch; 3 pairs: pose p99 3.96 -> 4.12, 4.63 -> 4.69, 4.56 -> 4.17 ms, idle CPU no lower, "
+        "paused "
+        "+1 %); timing each resting wake to just after the fastest sensor stream's next frame "
+        "(its period "
+        "and phase learnt from the timestamps; no extra wake): the newest reading's wait for its "
+        "batch "
+        "fell from 0.66 to 0.41 ms median and 1.66 to 0.75 ms p90 (one traced run each), but in 3 "
+        "pairs "
+        "the pose p99 went 3.61 -> 3.63, 3.93 -> 3.23, 3.89 -> 4.19 ms and the idle CPU did not "
+        "move; "
+        "the estimator's silence check sleeping until the silence deadline it knows, instead of "
+        "waking "
+        "every 20 ms while samples flow: its thread woke 34 instead of 53 times a second (0.53 "
+        "against "
+        "0.60 % of a core, one run each), but in 8 pairs the idle CPU (mean of the windows) was "
+        "higher "
         "with it in 6, by up to 1.2 %.")
-    update_section("bench_e2e", "## End to end, the installed controller (`scripts/bench_e2e.py`)\n\n"
-                   f"Command: `python scripts/bench_e2e.py` ({machine_line()}; {args.idle_s:g} s idle, "
-                   f"{args.grasp_s:g} s of grasp cycles, {args.runs} runs; latencies as median and p99 over every "
-                   f"sample of a run, each figure the median over the runs)\n\n"
-                   + "\n".join(rows) + "\n\n" + notes)
+    update_section(
+        "bench_e2e", "## End to end, the installed controller (`scripts/bench_e2e.py`)\n\n"
+        f"Command: `python scripts/bench_e2e.py` ({machine_line()}; {args.idle_s:g} s idle, "
+        f"{args.grasp_s:g} s of grasp cycles, {args.runs} runs; latencies as median and p99 over "
+        "every "
+        f"sample of a run, each figure the median over the runs)\n\n" + "\n".join(rows) + "\n\n" +
+        notes)
     print("\n".join(rows))
     print(notes)
     progress(f"done in {time.perf_counter() - started:.0f} s; wrote docs/benchmarks.md")

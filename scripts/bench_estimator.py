@@ -11,7 +11,6 @@ ANEES inside the 95 % chi-square interval.
 Writes its section of docs/benchmarks.md and docs/estimator_speed_accuracy.png; --json prints
 the figures instead. Reproduce: scripts/env.sh sourced, then  python scripts/bench_estimator.py
 """
-import argparse
 import json
 import pathlib
 import statistics
@@ -19,15 +18,18 @@ import sys
 import time
 
 import numpy as np
-from softgrip_ros.devtools.benchmarking import figure_rows, interleaved_seconds, machine_line, repeat_count, update_section
+from softgrip_ros.devtools.benchmarking import (benchmark_parser, figure_rows, interleaved_seconds,
+                                                machine_line, update_section)
 from softgrip_ros.devtools import estimator_simulation as sim
 from softgrip_ros.estimation.estimator import PressureEstimator
 from softgrip_ros.estimation.filters import FILTER_TYPES
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 CHART = ROOT / "docs" / "estimator_speed_accuracy.png"
-TARGETS = {"kf_step_us": (40.0, True), "ekf_step_us": (80.0, True), "ukf_step_us": (250.0, True),
-           "rmse_ratio_vs_best_sensor": (0.85, True)}
+TARGETS = {
+    "kf_step_us": (40.0, True), "ekf_step_us": (80.0, True), "ukf_step_us": (250.0, True),
+    "rmse_ratio_vs_best_sensor": (0.85, True)
+}
 
 
 def progress(text: str) -> None:
@@ -50,18 +52,29 @@ def step_costs_us(trajectory, repeat: int) -> dict:
             feed.until(estimator, t)
             estimator.add_measurements(samples, t)
 
-    passes = {f: (lambda config=sim.config_for(trajectory, f): one_pass(config)) for f in FILTER_TYPES}
-    return {f: [1e6 * s / len(pairs) for s in seconds] for f, seconds in interleaved_seconds(passes, repeat).items()}
+    passes = {
+        f: (lambda config=sim.config_for(trajectory, f): one_pass(config))
+        for f in FILTER_TYPES
+    }
+    return {
+        f: [1e6 * s / len(pairs) for s in seconds]
+        for f, seconds in interleaved_seconds(passes, repeat).items()
+    }
 
 
 def measure(repeat: int, runs: int) -> tuple[dict, dict]:
     trajectory = sim.simulate(seed=7)
     raw = {name: trajectory.raw_rmse(name) for name in trajectory.sensor_std}
     best_name = min(raw, key=raw.get)
-    figures, details = {}, {"raw_rmse_pa": raw, "rmse_pa": {}, "anees": {}, "best_sensor_alone_rmse_pa": {}}
+    figures, details = {}, {
+        "raw_rmse_pa": raw, "rmse_pa": {}, "anees": {}, "best_sensor_alone_rmse_pa": {}
+    }
     progress(f"step costs ({repeat} rounds, one pass of each filter a round)")
     costs = step_costs_us(trajectory, repeat)
-    details["step_us_quartiles"] = {f: [float(q) for q in np.percentile(c, [25, 50, 75])] for f, c in costs.items()}
+    details["step_us_quartiles"] = {
+        f: [float(q) for q in np.percentile(c, [25, 50, 75])]
+        for f, c in costs.items()
+    }
     for filter_type in FILTER_TYPES:
         figures[f"{filter_type}_step_us"] = statistics.median(costs[filter_type])
         run = sim.run(trajectory, sim.config_for(trajectory, filter_type))
@@ -93,10 +106,12 @@ def chart(figures: dict, details: dict, path: pathlib.Path = CHART) -> None:
                 label=f"{filter_type.upper()}, {details['best_sensor']} alone")
     for name, rmse in details["raw_rmse_pa"].items():
         ax.axhline(rmse, ls="--", lw=1, color="grey")
-        ax.text(1.02 * min(figures[f"{f}_step_us"] for f in FILTER_TYPES) / 2, rmse * 1.04, f"raw {name}", color="grey")
+        ax.text(1.02 * min(figures[f"{f}_step_us"] for f in FILTER_TYPES) / 2, rmse * 1.04,
+                f"raw {name}", color="grey")
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlim(min(figures[f"{f}_step_us"] for f in FILTER_TYPES) / 2.5, 2 * figures["ukf_step_us"])
+    ax.set_xlim(
+        min(figures[f"{f}_step_us"] for f in FILTER_TYPES) / 2.5, 2 * figures["ukf_step_us"])
     ax.set_xlabel("cost of one predict + 2-sensor update [us] (median)")
     ax.set_ylabel("RMSE against the plant's truth [Pa]")
     ax.set_title("Pressure estimators: accuracy against cost")
@@ -108,12 +123,9 @@ def chart(figures: dict, details: dict, path: pathlib.Path = CHART) -> None:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--json", action="store_true", help="print the figures as JSON, write nothing")
-    parser.add_argument("--repeat", type=repeat_count, default=15,
-                        help="rounds of timed passes, one of each filter a round (median)")
+    parser = benchmark_parser(__doc__, "3 rounds, 10 Monte Carlo runs; writes nothing", 15,
+                              "rounds of timed passes, one of each filter a round (median)")
     parser.add_argument("--runs", type=int, default=50, help="Monte Carlo runs for the NEES check")
-    parser.add_argument("--quick", action="store_true", help="3 rounds, 10 Monte Carlo runs; writes nothing")
     args = parser.parse_args(argv)
     if args.quick:
         args.repeat, args.runs = 3, 10
@@ -122,33 +134,53 @@ def main(argv=None) -> int:
     started = time.perf_counter()
     figures, details = measure(args.repeat, args.runs)
     if args.json or args.quick:
-        print(json.dumps({**figures, "details": details}, indent=2) if args.json else "\n".join(figure_rows(figures, TARGETS)))
+        print(
+            json.dumps({**figures, "details": details}, indent=2) if args.json else "\n".
+            join(figure_rows(figures, TARGETS)))
         return 0
     chart(figures, details)
     rows = figure_rows(figures, TARGETS)
     anees_text = ", ".join(f"{f} {d['value']:.2f}" for f, d in details["anees"].items())
     low, high = details["nees_bounds"]
-    notes = (f"RMSE on the scripted trajectory: raw sensors {', '.join(f'{n} {v:.0f} Pa' for n, v in details['raw_rmse_pa'].items())}; "
-             f"fused {', '.join(f'{f} {v:.0f} Pa' for f, v in details['rmse_pa'].items())}; the same filters on "
-             f"{details['best_sensor']} alone {', '.join(f'{f} {v:.0f} Pa' for f, v in details['best_sensor_alone_rmse_pa'].items())}. "
-             f"`rmse_ratio_vs_best_sensor` is the worst of the three filters. Time-averaged ANEES over {args.runs} runs: "
-             f"{anees_text} (95 % interval [{low:.2f}, {high:.2f}], 2 states). Most of each step is the plant model in "
-             "pure Python (one backward-Euler Newton solve per step, five for the UKF's sigma points) and filterpy's "
-             "per-call overhead. Step costs, quartiles over the rounds: "
-             + "; ".join(f"{f} {q[0]:.0f}-{q[2]:.0f} us" for f, q in details["step_us_quartiles"].items())
-             + ". The three filters' passes are interleaved, round after round, so that a busy moment of this "
-             "shared host falls on all of them; timed as 7 passes of one filter in a row, the kf's median read "
-             "31.6, 33.7 and 51.6 us in three runs a minute apart (2026-11-22). Compare the filters within one "
-             "run. Every filter widens P at each input change by the change in the state's rate times "
-             "`input_timing_std` (10 ms): on this trajectory, whose inputs are timed exactly, that costs about "
-             "10 % of the RMSE (kf 44, ekf 43, ukf 42 Pa without it, in the run before it); with inputs 4 ms late it "
-             "is what keeps the gate from rejecting a boosted fill (test_estimation). "
-             "Chart: `docs/estimator_speed_accuracy.png`.")
-    update_section("bench_estimator", "## Pressure estimators (`scripts/bench_estimator.py`)\n\n"
-                   f"Command: `python scripts/bench_estimator.py` ({machine_line()}, step cost median of {args.repeat} "
-                   f"interleaved passes over {2.2:.1f} s of trajectory at 200 Hz)\n\n" + "\n".join(rows) + "\n\n" + notes)
+    notes = (
+        "RMSE on the scripted trajectory: raw sensors "
+        f"{', '.join(f'{n} {v:.0f} Pa' for n, v in details['raw_rmse_pa'].items())}; "
+        f"fused {', '.join(f'{f} {v:.0f} Pa' for f, v in details['rmse_pa'].items())}; the same "
+        "filters on "
+        f"{details['best_sensor']} alone "
+        f"{', '.join(f'{f} {v:.0f} Pa' for f, v in details['best_sensor_alone_rmse_pa'].items())}"
+        ". "
+        "`rmse_ratio_vs_best_sensor` is the worst of the three filters. Time-averaged ANEES over "
+        f"{args.runs} runs: "
+        f"{anees_text} (95 % interval [{low:.2f}, {high:.2f}], 2 states). Most of each step is "
+        "the plant model in "
+        "pure Python (one backward-Euler Newton solve per step, five for the UKF's sigma points) "
+        "and filterpy's "
+        "per-call overhead. Step costs, quartiles over the rounds: " +
+        "; ".join(f"{f} {q[0]:.0f}-{q[2]:.0f} us"
+                  for f, q in details["step_us_quartiles"].items()) +
+        ". The three filters' passes are interleaved, round after round, so that a busy moment of "
+        "this "
+        "shared host falls on all of them; timed as 7 passes of one filter in a row, the kf's "
+        "median read "
+        "31.6, 33.7 and 51.6 us in three runs a minute apart (2026-11-22). Compare the filters "
+        "within one "
+        "run. Every filter widens P at each input change by the change in the state's rate times "
+        "`input_timing_std` (10 ms): on this trajectory, whose inputs are timed exactly, that "
+        "costs about "
+        "10 % of the RMSE (kf 44, ekf 43, ukf 42 Pa without it, in the run before it); with "
+        "inputs 4 ms late it "
+        "is what keeps the gate from rejecting a boosted fill (test_estimation). "
+        "Chart: `docs/estimator_speed_accuracy.png`.")
+    update_section(
+        "bench_estimator", "## Pressure estimators (`scripts/bench_estimator.py`)\n\n"
+        f"Command: `python scripts/bench_estimator.py` ({machine_line()}, step cost median of "
+        f"{args.repeat} "
+        f"interleaved passes over {2.2:.1f} s of trajectory at 200 Hz)\n\n" + "\n".join(rows) +
+        "\n\n" + notes)
     print("\n".join(rows))
-    progress(f"done in {time.perf_counter() - started:.0f} s; wrote docs/benchmarks.md and {CHART.relative_to(ROOT)}")
+    progress(f"done in {time.perf_counter() - started:.0f} s; wrote docs/benchmarks.md and "
+             f"{CHART.relative_to(ROOT)}")
     return 0
 
 

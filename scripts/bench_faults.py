@@ -16,19 +16,19 @@ Keys of --json: ``limit_violations`` (must be 0), ``false_alarms_fault_free`` (m
 Writes its section of docs/benchmarks.md unless --json or --quick; exits 1 when a case fails.
 Reproduce: source scripts/env.sh; python scripts/bench_faults.py
 """
-import argparse
 import json
 import os
 import sys
 import time
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 40))   # not the default domain 0
+os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 40))  # not the default domain 0
 
-import rclpy  # noqa: E402
+import rclpy
 
-from softgrip_ros.devtools.benchmarking import machine_line, update_section  # noqa: E402
-from softgrip_ros.devtools.fault_matrix import FAULTS, FAULTS_BY_NAME, PHASES, Rig, false_alarms, run_case, summarise  # noqa: E402
+from softgrip_ros.devtools.benchmarking import benchmark_parser, machine_line, update_section
+from softgrip_ros.devtools.fault_matrix import (FAULTS, FAULTS_BY_NAME, PHASES, Rig, false_alarms,
+                                                run_case, summarise)
 
 
 def cases(args) -> list:
@@ -40,56 +40,74 @@ def cases(args) -> list:
 
 
 def markdown(results, summary, false_count, warnings, grasps, seconds, command) -> str:
-    lines = [f"Reproduce: `{command}` ({machine_line()}; {seconds / 60:.1f} min).", "",
-             "Each fault injected in each grasp phase of an ENVELOP_CLAMP 40 mm grasp on the composed suite over DDS "
-             "(`softgrip_ros/devtools/fault_matrix.py`). *True* pressures are the simulated device's plant, every "
-             "plant step, not what a sensor said; the limits are [-65, 55] kPa (min - margin, max + margin). "
-             "Detection: from the injection to the first status flag or diagnostic that names the fault; a fault that "
-             "shows only once the pressure moves is named once the grasp moves it.", "",
-             "| key | value | target |", "|---|---|---|",
-             f"| `limit_violations` | {summary['limit_violations']} of {summary['cases']} | 0 |",
-             f"| `false_alarms_fault_free` | {false_count} over {grasps} grasps | 0 |",
-             f"| `undetected` | {summary['undetected']} | 0 |",
-             f"| `wrong_end_state` | {summary['wrong_end_state']} | 0 |",
-             f"| `not_recovered` | {summary['not_recovered']} | 0 |",
-             f"| true pressure range | {summary['true_range_pa'][0] / 1e3:.1f} to {summary['true_range_pa'][1] / 1e3:.1f} kPa"
-             f" | within [-65, 55] |", "",
-             "Detection latency per fault (s, over its phases), and the evidence that named it in its first case:", "",
-             "| fault | what | median | max | end state | evidence (first case) |", "|---|---|---|---|---|---|"]
+    lines = [
+        f"Reproduce: `{command}` ({machine_line()}; {seconds / 60:.1f} min).", "",
+        "Each fault injected in each grasp phase of an ENVELOP_CLAMP 40 mm grasp on the composed "
+        "suite over DDS "
+        "(`softgrip_ros/devtools/fault_matrix.py`). *True* pressures are the simulated device's "
+        "plant, every "
+        "plant step, not what a sensor said; the limits are [-65, 55] kPa (min - margin, max + "
+        "margin). "
+        "Detection: from the injection to the first status flag or diagnostic that names the "
+        "fault; a fault that "
+        "shows only once the pressure moves is named once the grasp moves it.", "",
+        "| key | value | target |", "|---|---|---|",
+        f"| `limit_violations` | {summary['limit_violations']} of {summary['cases']} | 0 |",
+        f"| `false_alarms_fault_free` | {false_count} over {grasps} grasps | 0 |",
+        f"| `undetected` | {summary['undetected']} | 0 |",
+        f"| `wrong_end_state` | {summary['wrong_end_state']} | 0 |",
+        f"| `not_recovered` | {summary['not_recovered']} | 0 |",
+        f"| true pressure range | {summary['true_range_pa'][0] / 1e3:.1f} to "
+        f"{summary['true_range_pa'][1] / 1e3:.1f} kPa"
+        f" | within [-65, 55] |", "",
+        "Detection latency per fault (s, over its phases), and the evidence that named it in its "
+        "first case:", "", "| fault | what | median | max | end state | evidence (first case) |",
+        "|---|---|---|---|---|---|"
+    ]
     for fault in FAULTS:
         mine = [r for r in results if r.fault == fault.name]
         if not mine:
             continue
         latency = summary["detection_s"].get(fault.name)
         evidence = next((r.evidence for r in mine if r.evidence), "").replace("|", "/")
-        lines.append(f"| `{fault.name}` | {fault.what} | {latency['median']:.3f} | {latency['max']:.3f} | {fault.end} | "
-                     f"{evidence[:110]} |" if latency else f"| `{fault.name}` | {fault.what} | - | - | {fault.end} | "
-                     f"**not detected** |")
-    lines += ["", "Every case (true low / high kPa, detection s; PASS needs the limits, the evidence, the end state and "
-              "the recovery grasp):", "", "| fault | " + " | ".join(PHASES) + " |", "|---|" + "---|" * len(PHASES)]
+        lines.append(
+            f"| `{fault.name}` | {fault.what} | {latency['median']:.3f} | {latency['max']:.3f} | "
+            f"{fault.end} | "
+            f"{evidence[:110]} |"
+            if latency else f"| `{fault.name}` | {fault.what} | - | - | {fault.end} | "
+            f"**not detected** |")
+    lines += [
+        "",
+        "Every case (true low / high kPa, detection s; PASS needs the limits, the evidence, the "
+        "end state and "
+        "the recovery grasp):", "", "| fault | " + " | ".join(PHASES) + " |",
+        "|---|" + "---|" * len(PHASES)
+    ]
     for fault in FAULTS:
         row = []
         for phase in PHASES:
             r = next((r for r in results if r.fault == fault.name and r.phase == phase), None)
-            row.append("" if r is None else f"{'PASS' if r.passed else '**FAIL**'} {r.true_low_pa / 1e3:.0f}/"
+            row.append("" if r is
+                       None else f"{'PASS' if r.passed else '**FAIL**'} {r.true_low_pa / 1e3:.0f}/"
                        f"{r.true_high_pa / 1e3:.0f}, {r.detection_s:.2f}")
         if any(row):
             lines.append(f"| `{fault.name}` | " + " | ".join(row) + " |")
     failures = [r for r in results if not r.passed]
     if failures:
-        lines += ["", "Failed cases:", ""] + [f"- `{r.fault}` in {r.phase}: {r.problem or r.end_state}" for r in failures]
+        lines += (["", "Failed cases:", ""] +
+                  [f"- `{r.fault}` in {r.phase}: {r.problem or r.end_state}" for r in failures])
     if warnings:
         lines += ["", "Fault-free warnings:", ""] + [f"- {w}" for w in warnings[:20]]
     return "\n".join(lines)
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--quick", action="store_true", help="each fault once, phases rotating; 2 fault-free grasps")
-    parser.add_argument("--json", action="store_true", help="print the figures as JSON (writes no doc)")
-    parser.add_argument("--faults", nargs="+", choices=sorted(FAULTS_BY_NAME), help="only these faults")
+    parser = benchmark_parser(__doc__, "each fault once, phases rotating; 2 fault-free grasps")
+    parser.add_argument("--faults", nargs="+", choices=sorted(FAULTS_BY_NAME),
+                        help="only these faults")
     parser.add_argument("--phases", nargs="+", choices=PHASES, help="only these phases")
-    parser.add_argument("--grasps", type=int, default=None, help="fault-free grasps (default 20; --quick 2)")
+    parser.add_argument("--grasps", type=int, default=None,
+                        help="fault-free grasps (default 20; --quick 2)")
     args = parser.parse_args(argv)
     grasps = args.grasps if args.grasps is not None else (2 if args.quick else 20)
     if grasps < 0:
@@ -103,21 +121,27 @@ def main(argv=None) -> int:
             for index, (fault, phase) in enumerate(todo, 1):
                 result = run_case(rig, fault, phase)
                 results.append(result)
-                print(f"[{index}/{len(todo)}] {fault.name:24s} {phase:9s} {'PASS' if result.passed else 'FAIL'}  true "
-                      f"{result.true_low_pa / 1e3:6.1f} .. {result.true_high_pa / 1e3:5.1f} kPa, named after "
-                      f"{result.detection_s:.3f} s  {result.problem}", file=sys.stderr, flush=True)
+                print(
+                    f"[{index}/{len(todo)}] {fault.name:24s} {phase:9s} "
+                    f"{'PASS' if result.passed else 'FAIL'}  true "
+                    f"{result.true_low_pa / 1e3:6.1f} .. {result.true_high_pa / 1e3:5.1f} kPa, "
+                    "named after "
+                    f"{result.detection_s:.3f} s  {result.problem}", file=sys.stderr, flush=True)
             print(f"fault-free: {grasps} grasps ...", file=sys.stderr, flush=True)
             false_count, warnings = false_alarms(rig, grasps) if grasps else (0, [])
     finally:
         rclpy.try_shutdown()
     seconds = time.monotonic() - started
     summary = summarise(results)
-    figures = {**summary, "case_list": [[r.fault, r.phase] for r in results],
-               "false_alarms_fault_free": false_count, "fault_free_grasps": grasps,
-               "fault_free_warnings": warnings[:20], "seconds": round(seconds, 1),
-               "failures": [{"fault": r.fault, "phase": r.phase, "problem": r.problem or r.end_state,
-                             "within_limits": r.within_limits, "detected": r.detected, "end_state_ok": r.end_state_ok,
-                             "recovered": r.recovered} for r in results if not r.passed]}
+    figures = {
+        **summary, "case_list": [[r.fault, r.phase] for r in results],
+        "false_alarms_fault_free": false_count, "fault_free_grasps": grasps,
+        "fault_free_warnings": warnings[:20], "seconds": round(seconds, 1), "failures": [{
+            "fault": r.fault, "phase": r.phase, "problem": r.problem or r.end_state,
+            "within_limits": r.within_limits, "detected": r.detected,
+            "end_state_ok": r.end_state_ok, "recovered": r.recovered
+        } for r in results if not r.passed]
+    }
     if args.json:
         print(json.dumps(figures, indent=2))
     else:

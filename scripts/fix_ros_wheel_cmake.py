@@ -49,13 +49,15 @@ def main() -> int:
         return 1
     changed, still_broken = remap(share_dir)
     for path in still_broken:
-        print(f"fix_ros_wheel_cmake: unrecognised build-machine path left in {path}", file=sys.stderr)
+        print(f"fix_ros_wheel_cmake: unrecognised build-machine path left in {path}",
+              file=sys.stderr)
     if still_broken:
         return 1
     for needed in (sysconfig.get_paths()["include"], numpy.get_include()):
         if not pathlib.Path(needed).is_dir():
-            print(f"fix_ros_wheel_cmake: include directory {needed} does not exist "
-                  "(install the Python development headers)", file=sys.stderr)
+            print(
+                f"fix_ros_wheel_cmake: include directory {needed} does not exist "
+                "(install the Python development headers)", file=sys.stderr)
             return 1
     print(f"fix_ros_wheel_cmake: {changed} file(s) remapped, all CMake exports verified")
     return 0

@@ -44,8 +44,9 @@ def ros_node(rclpy_context, request):
     """A node on the fresh context, destroyed afterwards."""
     import rclpy.node
 
-    node = rclpy.node.Node(f"test_{request.node.name[:40].replace('[', '_').replace(']', '_')}"
-                           .replace("-", "_").replace(".", "_"), context=rclpy_context)
+    node = rclpy.node.Node(
+        f"test_{request.node.name[:40].replace('[', '_').replace(']', '_')}".replace(
+            "-", "_").replace(".", "_"), context=rclpy_context)
     try:
         yield node
     finally:

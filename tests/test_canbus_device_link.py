@@ -1,4 +1,5 @@
-"""The controller link and the simulated device over python-can's virtual bus (the simulated CAN loopback)."""
+"""The controller link and the simulated device over python-can's virtual bus (the simulated CAN
+loopback)."""
 import math
 import time
 import uuid
@@ -9,17 +10,22 @@ import pytest
 
 from softgrip_ros.canbus.controller_link import ControllerLink, SensorBinding
 from softgrip_ros.canbus.sim_device import SimDeviceConfig, SimulatedDevice
-from softgrip_ros.control.pressure import Fault, PressureMode, PressureControlConfig, PressureController, Source
+from softgrip_ros.control.pressure import (Fault, PressureMode, PressureControlConfig,
+                                           PressureController, Source)
 from softgrip_ros.model.pneumatics import Valve
 
 from tests.helpers.ros import wait_for
 
-SENSORS = [SensorBinding("chamber_a", "PressureSensor1"), SensorBinding("chamber_b", "PressureSensor2")]
+SENSORS = [
+    SensorBinding("chamber_a", "PressureSensor1"),
+    SensorBinding("chamber_b", "PressureSensor2")
+]
 
 
 @pytest.fixture
 def rig():
-    """A device and a controller link on a private virtual channel; everything closed afterwards."""
+    """A device and a controller link on a private virtual channel; everything closed
+    afterwards."""
     channel = f"softgrip-test-{uuid.uuid4().hex[:8]}"
     device_bus = can.Bus(interface="virtual", channel=channel)
     controller_bus = can.Bus(interface="virtual", channel=channel)
@@ -55,10 +61,12 @@ def run(link, device, seconds, rate_hz=500):
 
 def test_positive_step_vacuum_and_vent(rig):
     device, link = rig
-    run(link, device, 0.2)                                           # sensors arrive, nothing commanded
+    # sensors arrive, nothing commanded
+    run(link, device, 0.2)
     link.command(25e3, Source.SUPPLY, math.nan)
     _, pressures, _ = run(link, device, 1.0)
-    # tolerances: within 0.5 kPa at the end (sensor noise 0.15-0.3 kPa, real-time jitter), overshoot <= 5 %
+    # tolerances: within 0.5 kPa at the end (sensor noise 0.15-0.3 kPa, real-time jitter),
+    # overshoot <= 5 %
     assert abs(pressures[-100:].mean() - 25e3) < 500.0
     assert pressures.max() < 25e3 * 1.05
     link.command(-20e3, Source.VACUUM, math.nan)
@@ -78,13 +86,15 @@ def test_sensor_dropout_holds_and_recovers(rig):
     run(link, device, 0.8)
     device.set_fault("sensor_dropout", "all")
     _, pressures, outputs = run(link, device, 0.4)
-    assert outputs[-1].mode == PressureMode.HOLD and Fault.SENSOR_TIMEOUT in outputs[-1].fault_flags
+    assert (outputs[-1].mode == PressureMode.HOLD and
+            Fault.SENSOR_TIMEOUT in outputs[-1].fault_flags)
     assert device.valves() == (Valve.CLOSED,)
-    assert np.ptp(pressures[-50:]) < 50.0                           # held: the air stays in
+    assert np.ptp(pressures[-50:]) < 50.0  # held: the air stays in
     device.set_fault("sensor_dropout", "")
     link.command(15e3, Source.SUPPLY, math.nan)
     _, _, outputs = run(link, device, 0.3)
-    assert outputs[-1].mode == PressureMode.REGULATE and Fault.SENSOR_TIMEOUT not in outputs[-1].fault_flags
+    assert (outputs[-1].mode == PressureMode.REGULATE and
+            Fault.SENSOR_TIMEOUT not in outputs[-1].fault_flags)
 
 
 def test_one_sensor_lost_the_other_carries_on(rig):
@@ -106,7 +116,8 @@ def test_corrupt_frames_are_counted_and_never_acted_on(rig):
     rejected = {k: link.codec.rejected[k] - before[k] for k in before}
     assert rejected["bad_crc"] > 20 and rejected["repeated_counter"] > 20
     assert outputs[-1].mode == PressureMode.REGULATE
-    assert abs(pressures[-100:].mean() - 20e3) < 700.0               # still regulating on the good frames
+    # still regulating on the good frames
+    assert abs(pressures[-100:].mean() - 20e3) < 700.0
 
 
 def test_silent_bus_is_detected(rig):
@@ -114,7 +125,8 @@ def test_silent_bus_is_detected(rig):
     run(link, device, 0.2)
     device.set_fault("bus_silent", True)
     _, _, outputs = run(link, device, 0.5)
-    assert Fault.BUS_SILENT in outputs[-1].fault_flags and Fault.SENSOR_TIMEOUT in outputs[-1].fault_flags
+    assert (Fault.BUS_SILENT in outputs[-1].fault_flags and
+            Fault.SENSOR_TIMEOUT in outputs[-1].fault_flags)
     device.set_fault("bus_silent", False)
     _, _, outputs = run(link, device, 0.3)
     assert Fault.BUS_SILENT not in outputs[-1].fault_flags
@@ -135,14 +147,15 @@ def test_at_rest_the_loop_slows_and_a_command_or_a_reading_beyond_the_limits_ste
         at_rest = loop.ticks
         assert at_rest <= 2
         link.command(20e3, Source.SUPPLY, math.nan)
-        wait_for(lambda: loop.ticks >= at_rest + 20 and device.valves() == (Valve.SUPPLY,), timeout=0.9,
-                 message="regulating at the full rate")
+        wait_for(lambda: loop.ticks >= at_rest + 20 and device.valves() == (Valve.SUPPLY,),
+                 timeout=0.9, message="regulating at the full rate")
         link.command(0.0, Source.HOLD, math.nan)
         wait_for(lambda: statuses[-1].mode == PressureMode.HOLD, timeout=0.9, message="HOLD")
         time.sleep(0.05)
         before = loop.ticks
-        device.set_fault("sensor_bias_pa", 70e3)   # every reading beyond 50 kPa + the 5 kPa margin
-        wait_for(lambda: statuses[-1].mode == PressureMode.FAULT, timeout=0.9, message="FAULT from the reading")
+        device.set_fault("sensor_bias_pa", 70e3)  # every reading beyond 50 kPa + the 5 kPa margin
+        wait_for(lambda: statuses[-1].mode == PressureMode.FAULT, timeout=0.9,
+                 message="FAULT from the reading")
         assert loop.ticks <= before + 3 and Fault.OVERPRESSURE in statuses[-1].fault_flags
         wait_for(lambda: device.valves() == (Valve.VENT,), timeout=0.9, message="vent")
     finally:
@@ -155,15 +168,18 @@ def test_a_command_steps_in_the_callers_thread_without_waiting_for_the_loop(rig)
     controller sends nothing."""
     from softgrip_ros.canbus.controller_link import make_control_loop
     device, link = rig
-    make_control_loop(link, 1.0, 1.0)          # sets link.wake; never started
+    make_control_loop(link, 1.0, 1.0)  # sets link.wake; never started
     wait_for(lambda: link.frames_rx > 20, message="sensor frames")
-    for _ in range(link.codec.sync_frames + 1):     # a controller that has been running: the device trusts its frames
+    # a controller that has been running: the device trusts its frames
+    for _ in range(link.codec.sync_frames + 1):
         link.step()
         time.sleep(link.command_frame_period_s)
-    seen = []    # the note reaches on_applied before the step the command runs sends anything
-    link.command(90e3, Source.SUPPLY, math.nan, on_applied=lambda note: seen.append((note, link.frames_tx)))
+    seen = []  # the note reaches on_applied before the step the command runs sends anything
+    link.command(90e3, Source.SUPPLY, math.nan,
+                 on_applied=lambda note: seen.append((note, link.frames_tx)))
     assert "clamped" in seen[0][0] and seen[0][1] < link.frames_tx
-    wait_for(lambda: device.valves() == (Valve.SUPPLY,), timeout=0.5, message="the supply valve open")
+    wait_for(lambda: device.valves() == (Valve.SUPPLY,), timeout=0.5,
+             message="the supply valve open")
     link.controller.active = False
     sent = link.frames_tx
     link.command(0.0, Source.VENT, math.nan)
@@ -198,9 +214,9 @@ def test_device_watchdog_closes_valves_without_commands(rig):
     link.command(20e3, Source.SUPPLY, math.nan)
     _, pressures, _ = run(link, device, 0.6)
     held = device.chamber_gauge_pa()
-    time.sleep(0.8)                                                   # the controller stops sending
+    # the controller stops sending
+    time.sleep(0.8)
     assert abs(device.chamber_gauge_pa() - held) < 2e3
-
 
 
 def test_stalled_controller_leaves_the_chamber_held_not_open_to_the_vacuum_pump(rig):
@@ -213,16 +229,18 @@ def test_stalled_controller_leaves_the_chamber_held_not_open_to_the_vacuum_pump(
     run(link, device, 0.03)
     assert device.valves() == (Valve.VACUUM,)
     stalled_at = device.chamber_gauge_pa()
-    time.sleep(0.4)                                                   # no steps, no frames
+    time.sleep(0.4)  # no steps, no frames
     assert device.valves() == (Valve.CLOSED,)
-    # the lifetime (25 ms) plus a plant tick (1 ms) at the pump's fastest rate (~330 kPa/s) is 8.6 kPa; allowed
-    # 12 kPa, for the device thread running behind on a loaded machine. Without it the chamber would reach
-    # the pump's -80 kPa within the stall (71 kPa lower; the plant integrated alone).
+    # the lifetime (25 ms) plus a plant tick (1 ms) at the pump's fastest rate (~330 kPa/s) is 8.6
+    # kPa; allowed 12 kPa, for the device thread running behind on a loaded machine. Without it the
+    # chamber would reach the pump's -80 kPa within the stall (71 kPa lower; the plant integrated
+    # alone).
     assert stalled_at - device.chamber_gauge_pa() < 12e3
     held = device.chamber_gauge_pa()
     time.sleep(0.1)
-    assert abs(device.chamber_gauge_pa() - held) < 100.0              # held: nothing flows
-    _, pressures, outputs = run(link, device, 1.0)                    # resumed: regulation carries on
+    assert abs(device.chamber_gauge_pa() - held) < 100.0  # held: nothing flows
+    # resumed: regulation carries on
+    _, pressures, outputs = run(link, device, 1.0)
     assert abs(pressures[-100:].mean() + 50e3) < 700.0 and pressures.min() > -55e3
 
 
@@ -232,7 +250,8 @@ def test_vent_does_not_expire(rig):
     run(link, device, 0.5)
     link.command(0.0, Source.VENT, math.nan)
     run(link, device, 0.02)
-    time.sleep(0.2)                                                   # beyond the lifetime, inside the watchdog
+    # beyond the lifetime, inside the watchdog
+    time.sleep(0.2)
     assert device.valves() == (Valve.VENT,) and abs(device.chamber_gauge_pa()) < 500.0
 
 
@@ -240,11 +259,15 @@ def test_valve_lifetime_must_outlast_two_resend_periods():
     bus = can.Bus(interface="virtual", channel=f"softgrip-test-{uuid.uuid4().hex[:8]}")
     try:
         with pytest.raises(ValueError, match="valve_lifetime_s must lie in"):
-            ControllerLink(bus, PressureController(), SENSORS, command_frame_period_s=0.02, valve_lifetime_s=0.03)
+            ControllerLink(bus, PressureController(), SENSORS, command_frame_period_s=0.02,
+                           valve_lifetime_s=0.03)
         with pytest.raises(ValueError, match="valve_lifetime_s must lie in"):
-            ControllerLink(bus, PressureController(), SENSORS, valve_lifetime_s=0.3)   # beyond the DBC's 255 ms
+            # beyond the DBC's 255 ms
+            ControllerLink(bus, PressureController(), SENSORS, valve_lifetime_s=0.3)
     finally:
         bus.shutdown()
+
+
 def test_fault_injection_rejects_bad_values():
     device = SimulatedDevice(can.Bus(interface="virtual", channel=f"x-{uuid.uuid4().hex[:6]}"))
     try:
@@ -263,7 +286,9 @@ def test_command_frames_go_out_on_change_and_else_once_per_frame_period():
     command_frame_period_s (cyclic for the device's watchdog), never every 2 ms unchanged."""
     from softgrip_ros.canbus.codec import FrameCodec
     channel = f"softgrip-test-{uuid.uuid4().hex[:8]}"
-    controller_bus, monitor = can.Bus(interface="virtual", channel=channel), can.Bus(interface="virtual", channel=channel)
+    controller_bus, monitor = can.Bus(interface="virtual",
+                                      channel=channel), can.Bus(interface="virtual",
+                                                                channel=channel)
     now = [100.0]
     link = ControllerLink(controller_bus, PressureController(PressureControlConfig()), SENSORS,
                           clock=lambda: now[0], command_frame_period_s=0.01)
@@ -273,7 +298,8 @@ def test_command_frames_go_out_on_change_and_else_once_per_frame_period():
     def frames_over(steps):
         sent = []
         for _ in range(steps):
-            link.controller.update_sensor("chamber_a", 0.0, now[0])    # a live sensor, so that commands act
+            # a live sensor, so that commands act
+            link.controller.update_sensor("chamber_a", 0.0, now[0])
             link.step()
             now[0] += 0.002
         while (frame := monitor.recv(timeout=0.05)) is not None:
@@ -283,7 +309,8 @@ def test_command_frames_go_out_on_change_and_else_once_per_frame_period():
         return sent
 
     try:
-        steady = frames_over(51)               # t = 0 ... 0.1 s unchanged: at 0, then every 10 ms (11 times)
+        # t = 0 ... 0.1 s unchanged: at 0, then every 10 ms (11 times)
+        steady = frames_over(51)
         assert sum(f.name == "ValveCommand" for f in steady) == 11
         assert sum(f.name == "RegulatorSetpoint" for f in steady) == 11
         link.command(20e3, Source.SUPPLY, math.nan)
@@ -292,9 +319,11 @@ def test_command_frames_go_out_on_change_and_else_once_per_frame_period():
         assert sorted(f.name for f in changed) == ["RegulatorSetpoint", "ValveCommand"]
         for frame in changed:
             assert frame.signals != [f for f in steady if f.name == frame.name][-1].signals
-        assert [f for f in changed if f.name == "ValveCommand"][0].signals["Channel0"] == int(Valve.SUPPLY)
+        assert [f for f in changed
+                if f.name == "ValveCommand"][0].signals["Channel0"] == int(Valve.SUPPLY)
         with pytest.raises(ValueError, match="command_frame_period_s"):
-            ControllerLink(monitor, PressureController(PressureControlConfig()), SENSORS, command_frame_period_s=0.5)
+            ControllerLink(monitor, PressureController(PressureControlConfig()), SENSORS,
+                           command_frame_period_s=0.5)
     finally:
         link.close()
         controller_bus.shutdown()
@@ -309,10 +338,12 @@ def test_readings_are_as_old_as_their_frames_not_their_late_processing():
     sender = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
     receiver = can.Bus(interface="virtual", channel=channel)
     # hand-made frames one by one: a receiver that trusts at once (E2E: test_canbus_codec)
-    link = ControllerLink(receiver, PressureController(PressureControlConfig(sensor_timeout_s=0.05)), SENSORS,
-                          codec=FrameCodec(sync_frames=0))
+    link = ControllerLink(receiver,
+                          PressureController(PressureControlConfig(sensor_timeout_s=0.05)),
+                          SENSORS, codec=FrameCodec(sync_frames=0))
     codec = FrameCodec()
     try:
+
         def send(gauge_pa, age_s):
             frame = codec.encode("PressureSensor1", {"GaugePressure": gauge_pa, "SensorStatus": 0})
             frame.timestamp = time.time() - age_s
@@ -322,15 +353,16 @@ def test_readings_are_as_old_as_their_frames_not_their_late_processing():
         wait = time.monotonic() + 2.0
         while link.frames_rx < 1 and time.monotonic() < wait:
             time.sleep(0.005)
-        assert math.isnan(link.controller.measured(link.clock()))      # 200 ms old: not fresh
+        assert math.isnan(link.controller.measured(link.clock()))  # 200 ms old: not fresh
         send(13e3, 0.0)
         while link.frames_rx < 2 and time.monotonic() < wait:
             time.sleep(0.005)
         assert link.controller.measured(link.clock()) == pytest.approx(13e3, abs=1.0)
         stale = can.Message(timestamp=time.time() - 0.3)
         assert frame_age_s(stale) == pytest.approx(0.3, abs=0.05)
-        assert frame_age_s(can.Message(timestamp=12.5)) == 0.0                 # an adapter's own clock
-        assert frame_age_s(can.Message(timestamp=time.time() + 0.01)) == 0.0   # never negative
+        # an adapter's own clock
+        assert frame_age_s(can.Message(timestamp=12.5)) == 0.0
+        assert frame_age_s(can.Message(timestamp=time.time() + 0.01)) == 0.0  # never negative
     finally:
         link.close()
         sender.shutdown()
@@ -344,10 +376,12 @@ def test_a_copy_of_an_applied_command_is_ignored_and_no_stamp_locks_out_the_next
     _, link = rig
     assert link.command(10e3, Source.SUPPLY, math.nan, stamp_s=5.0) == ""
     assert link.command(20e3, Source.SUPPLY, math.nan, stamp_s=5.1) == ""
-    assert link.command(10e3, Source.SUPPLY, math.nan, stamp_s=5.0) is None      # a late copy
+    assert link.command(10e3, Source.SUPPLY, math.nan, stamp_s=5.0) is None  # a late copy
     assert link.controller._target == 20e3
-    assert link.command(30e3, Source.SUPPLY, math.nan, stamp_s=3600.0) == ""     # far ahead ...
-    assert link.command(15e3, Source.SUPPLY, math.nan, stamp_s=5.2) == ""        # ... locks nothing out
+    assert link.command(30e3, Source.SUPPLY, math.nan, stamp_s=3600.0) == ""  # far ahead ...
+    # ... locks nothing out
+    assert link.command(15e3, Source.SUPPLY, math.nan, stamp_s=5.2) == ""
     assert link.controller._target == 15e3
-    assert link.command(5e3, Source.SUPPLY, math.nan) == ""                      # unstamped: applies
+    # unstamped: applies
+    assert link.command(5e3, Source.SUPPLY, math.nan) == ""
     assert link.controller._target == 5e3

@@ -1,4 +1,5 @@
-"""The batch reception thread, alone and under the controller link, over python-can's virtual bus."""
+"""The batch reception thread, alone and under the controller link, over python-can's virtual
+bus."""
 import threading
 import time
 import uuid
@@ -13,13 +14,17 @@ from softgrip_ros.control.pressure import PressureControlConfig, PressureControl
 
 from tests.helpers.ros import wait_for
 
-SENSORS = [SensorBinding("chamber_a", "PressureSensor1"), SensorBinding("chamber_b", "PressureSensor2")]
+SENSORS = [
+    SensorBinding("chamber_a", "PressureSensor1"),
+    SensorBinding("chamber_b", "PressureSensor2")
+]
 
 
 @pytest.fixture
 def buses():
     channel = f"softgrip-reader-{uuid.uuid4().hex[:8]}"
-    sender, receiver = can.Bus(interface="virtual", channel=channel), can.Bus(interface="virtual", channel=channel)
+    sender, receiver = can.Bus(interface="virtual",
+                               channel=channel), can.Bus(interface="virtual", channel=channel)
     yield sender, receiver
     sender.shutdown()
     receiver.shutdown()
@@ -30,6 +35,7 @@ def frame(k: int) -> can.Message:
 
 
 class Batches:
+
     def __init__(self):
         self.calls, self.lock = [], threading.Lock()
 
@@ -67,18 +73,20 @@ def test_while_resting_frames_wait_for_the_period_and_a_wake_ends_the_wait(buses
         sender.send(frame(0))
         wait_for(lambda: batches.ids() == [0], timeout=2.0, message="the first frame at once")
         sent = time.monotonic()
-        for k in range(1, 6):                     # arrive during the rest wait
+        for k in range(1, 6):  # arrive during the rest wait
             sender.send(frame(k))
             time.sleep(0.01)
         time.sleep(0.1)
         assert batches.ids() == [0], "read during the rest wait"
         resting.clear()
         reader.wake()
-        wait_for(lambda: len(batches.ids()) == 6, timeout=2.0, message="the waiting frames once woken")
-        assert time.monotonic() - sent < 0.8      # woken (~0.16 s), not the end of the 1 s period
+        wait_for(lambda: len(batches.ids()) == 6, timeout=2.0,
+                 message="the waiting frames once woken")
+        assert time.monotonic() - sent < 0.8  # woken (~0.16 s), not the end of the 1 s period
         assert batches.calls[1] == [1, 2, 3, 4, 5]
-        sender.send(frame(6))                     # not resting: at once
-        wait_for(lambda: batches.ids()[-1:] == [6], timeout=0.2, message="a frame at once after the rest")
+        sender.send(frame(6))  # not resting: at once
+        wait_for(lambda: batches.ids()[-1:] == [6], timeout=0.2,
+                 message="a frame at once after the rest")
     finally:
         reader.stop()
 
@@ -125,9 +133,14 @@ def test_the_link_takes_readings_in_batches_while_resting_and_at_once_after_a_co
     sender, receiver = buses
     codec = FrameCodec()
     batches = []
-    link = ControllerLink(receiver, PressureController(PressureControlConfig(sensor_timeout_s=5.0)), SENSORS,
-                          on_readings=batches.append, rest_receive_period_s=1.0,
-                          codec=FrameCodec(sync_frames=0))   # hand-made frames: trusted at once (E2E: test_canbus_codec)
+    link = ControllerLink(
+        receiver,
+        PressureController(PressureControlConfig(sensor_timeout_s=5.0)),
+        SENSORS,
+        on_readings=batches.append,
+        rest_receive_period_s=1.0,
+        # hand-made frames: trusted at once (E2E: test_canbus_codec)
+        codec=FrameCodec(sync_frames=0))
     link.controller.active = True
 
     def reading(value):
@@ -135,7 +148,7 @@ def test_the_link_takes_readings_in_batches_while_resting_and_at_once_after_a_co
 
     try:
         link.command(0.0, Source.VENT, float("nan"))
-        link.step()                               # no control loop here: step by hand
+        link.step()  # no control loop here: step by hand
         assert link.resting
         for k in range(5):
             reading(float(k))
@@ -144,7 +157,8 @@ def test_the_link_takes_readings_in_batches_while_resting_and_at_once_after_a_co
         assert [value for batch in batches for _, value, _ in batch] == [0.0, 1.0, 2.0, 3.0, 4.0]
         assert len(batches) <= 2 and len(batches[-1]) >= 4, [len(batch) for batch in batches]
         link.command(20e3, Source.SUPPLY, float("nan"))
-        link.step()                               # the reader is in its 1 s rest wait: this ends it
+        # the reader is in its 1 s rest wait: this ends it
+        link.step()
         assert not link.resting
         count = len(batches)
         for k in range(5, 8):

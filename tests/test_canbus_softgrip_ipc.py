@@ -28,12 +28,13 @@ def test_a_receiver_that_reads_late_still_gets_every_frame_in_order(channel):
     sender, receiver = (can.Bus(interface="softgrip_ipc", channel=channel) for _ in range(2))
     try:
         for i in range(300):
-            sender.send(can.Message(arbitration_id=i, data=bytes([i % 256, 1, 2]), is_extended_id=False))
+            sender.send(
+                can.Message(arbitration_id=i, data=bytes([i % 256, 1, 2]), is_extended_id=False))
         frames = drain(receiver)
         assert [f.arbitration_id for f in frames] == list(range(300))
         assert frames[7].data == bytearray([7, 1, 2]) and frames[7].dlc == 3
         assert sender.frames_dropped == 0
-        assert receiver.recv(0.05) is None                  # nothing else, and a timed wait ends
+        assert receiver.recv(0.05) is None  # nothing else, and a timed wait ends
     finally:
         sender.shutdown()
         receiver.shutdown()
@@ -45,10 +46,10 @@ def test_every_other_bus_gets_each_frame_and_a_closed_one_is_forgotten(channel):
         a.send(can.Message(arbitration_id=0x10, data=b"\x01", is_extended_id=False))
         assert [f.arbitration_id for f in drain(b)] == [0x10]
         assert [f.arbitration_id for f in drain(c)] == [0x10]
-        assert drain(a) == []                               # not its own frames
+        assert drain(a) == []  # not its own frames
         c.shutdown()
         assert len(list(softgrip_ipc.channel_directory(channel).glob("*.port"))) == 2
-        a._peers_read = -1.0                                # look at the channel again now
+        a._peers_read = -1.0  # look at the channel again now
         a.send(can.Message(arbitration_id=0x11, data=b"", is_extended_id=False))
         assert len(a._peers) == 1 and [f.arbitration_id for f in drain(b)] == [0x11]
     finally:
@@ -57,7 +58,8 @@ def test_every_other_bus_gets_each_frame_and_a_closed_one_is_forgotten(channel):
 
 
 def test_the_announcement_of_a_process_that_died_is_removed(channel):
-    finished = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    finished = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                              capture_output=True, text=True)
     directory = softgrip_ipc.channel_directory(channel)
     directory.mkdir(parents=True, exist_ok=True)
     stale = directory / f"{int(finished.stdout)}-9.port"
@@ -68,7 +70,7 @@ def test_the_announcement_of_a_process_that_died_is_removed(channel):
         assert not stale.exists() and bus._peers == []
     finally:
         bus.shutdown()
-    assert list(directory.glob("*.port")) == []             # its own announcement goes at shutdown
+    assert list(directory.glob("*.port")) == []  # its own announcement goes at shutdown
 
 
 def test_a_datagram_that_is_not_a_frame_is_ignored(channel):
@@ -86,15 +88,18 @@ def test_a_datagram_that_is_not_a_frame_is_ignored(channel):
         receiver.shutdown()
 
 
-def test_the_interface_is_named_as_python_can_names_its_own_and_a_failed_send_is_a_can_error(channel):
+def test_the_interface_is_named_as_python_can_names_its_own_and_a_failed_send_is_a_can_error(
+        channel):
     """python-can's convention: interface ``virtual``, class ``VirtualBus``; its buses raise
     CanOperationError, never a bare OSError."""
     bus = can.Bus(interface="softgrip_ipc", channel=channel)
     peer = can.Bus(interface="softgrip_ipc", channel=channel)
     try:
         assert type(bus) is softgrip_ipc.SoftgripIpcBus
-        bus.send(can.Message(arbitration_id=1, data=b"\x01", is_extended_id=False))      # the peer is known now
-        bus._socket.close()                                                             # a send then fails
+        # the peer is known now
+        bus.send(can.Message(arbitration_id=1, data=b"\x01", is_extended_id=False))
+        # a send then fails
+        bus._socket.close()
         with pytest.raises(can.CanOperationError, match="softgrip_ipc send failed"):
             bus.send(can.Message(arbitration_id=1, data=b"\x01", is_extended_id=False))
     finally:

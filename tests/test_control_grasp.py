@@ -4,7 +4,8 @@ import math
 
 import pytest
 
-from softgrip_ros.control.grasp_fsm import GraspConfig, GraspRequest, GraspStateMachine, GraspMode, Phase
+from softgrip_ros.control.grasp_fsm import (GraspConfig, GraspRequest, GraspStateMachine,
+                                            GraspMode, Phase)
 from softgrip_ros.control.pressure import Source
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.grasp import ClampForceLaw, G_M_PER_S2
@@ -18,22 +19,27 @@ def kinematics():
 
 def test_envelop_clamp_40mm_runs_its_phases_in_order_and_holds(kinematics):
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.3))
-    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2, command_id="g1"))
+    loop.command(
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2,
+                     command_id="g1"))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     phases = [p for _, p in loop.phase_log]
     assert phases == [Phase.OPENING, Phase.ENVELOPED, Phase.CLAMPING, Phase.HOLDING]
     times = dict((p, t) for t, p in loop.phase_log)
-    assert times[Phase.ENVELOPED] - times[Phase.OPENING] < 1.0        # opening: well under its 3 s timeout
+    # opening: well under its 3 s timeout
+    assert times[Phase.ENVELOPED] - times[Phase.OPENING] < 1.0
     assert times[Phase.HOLDING] - times[Phase.CLAMPING] < 1.0
-    assert loop.spacing_at_enveloped >= 0.04 + 0.01                  # D2 cleared the object plus margin
+    # D2 cleared the object plus margin
+    assert loop.spacing_at_enveloped >= 0.04 + 0.01
     target = loop.fsm.request.target_gauge_pa
     expected = ClampForceLaw().clamp_pressure_pa(0.2, kinematics.pressure_for_tip_spacing(0.04))
     assert target == pytest.approx(expected)
-    loop.run_for(2.0)                                                # HOLDING stays put for 2 s
+    loop.run_for(2.0)  # HOLDING stays put for 2 s
     assert loop.fsm.state.phase == Phase.HOLDING
     assert max(abs(p - target) for p in loop.pressures_since(loop.now - 2.0)) < 2.5e3
     force = loop.fsm.state.clamp_force_n
-    assert 2 * 0.5 * force >= 0.2 * G_M_PER_S2 * 0.9 * ClampForceLaw().safety_factor   # holds with margin
+    # holds with margin
+    assert 2 * 0.5 * force >= 0.2 * G_M_PER_S2 * 0.9 * ClampForceLaw().safety_factor
 
 
 def test_release_vents_then_opens_then_idles(kinematics):
@@ -52,11 +58,12 @@ def test_pinch_holds_a_tenth_of_a_millimetre_sheet(kinematics):
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     assert [p for _, p in loop.phase_log] == [Phase.CLAMPING, Phase.HOLDING]
     assert loop.fsm.request.source == Source.VACUUM and loop.fsm.state.clamp_force_n > 0.0
-    assert all(p <= 0.5e3 for p in loop.pressures_since(0.0))      # negative pressure only (noise aside)
+    # negative pressure only (noise aside)
+    assert all(p <= 0.5e3 for p in loop.pressures_since(0.0))
 
 
 def test_enveloped_waits_for_the_arm_then_clamps_on_request(kinematics):
-    loop = GraspLoop(kinematics)          # no automatic clamp
+    loop = GraspLoop(kinematics)  # no automatic clamp
     loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
     loop.run_until(lambda s: s.phase == Phase.ENVELOPED, 5.0)
     loop.run_for(1.0)
@@ -72,8 +79,10 @@ def test_stop_during_opening_vents_at_once(kinematics):
     assert loop.fsm.state.phase == Phase.OPENING
     loop.command(GraspRequest(GraspMode.STOP))
     assert loop.fsm.request.source == Source.VENT and loop.fsm.state.phase == Phase.RELEASING
-    loop.run_until(lambda s: s.phase == Phase.IDLE, 0.5)           # IDLE only once the pressure says vented
-    assert abs(loop.gauge()) < loop.fsm.config.vented_below_pa and "stopped: vented" in loop.fsm.state.message
+    # IDLE only once the pressure says vented
+    loop.run_until(lambda s: s.phase == Phase.IDLE, 0.5)
+    assert abs(loop.gauge()
+               ) < loop.fsm.config.vented_below_pa and "stopped: vented" in loop.fsm.state.message
     loop.run_for(0.3)
     assert abs(loop.pressures_since(loop.now - 0.05)[-1]) < 1e3
 
@@ -83,7 +92,8 @@ def test_stop_and_release_never_report_success_while_the_pressure_stays(kinemati
     anywhere. Fed a pressure that never vents, STOP and RELEASE time out into FAULT instead."""
     for mode in (GraspMode.STOP, GraspMode.RELEASE):
         fsm = GraspStateMachine(kinematics, GraspConfig(releasing_timeout_s=0.5))
-        fsm.command(GraspRequest(GraspMode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.05), 0.0)
+        fsm.command(GraspRequest(GraspMode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.05),
+                    0.0)
         fsm.command(GraspRequest(mode), 0.0)
         for k in range(70):
             fsm.update(0.01 * k, -9e3)
@@ -99,7 +109,8 @@ def test_a_controller_fault_while_holding_gives_fault_and_vents(kinematics):
     loop.run_for(0.02)
     assert loop.fsm.state.phase == Phase.FAULT and "sensor disagree" in loop.fsm.state.message
     assert loop.fsm.request.source == Source.VENT and "venting" in loop.fsm.state.message
-    assert "fault" in loop.fsm.command(GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.05), loop.now, "sensor disagree")
+    assert "fault" in loop.fsm.command(GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.05),
+                                       loop.now, "sensor disagree")
     loop.controller_fault = ""
     assert loop.fsm.command(GraspRequest(GraspMode.STOP), loop.now) == ""
     assert loop.fsm.state.phase == Phase.RELEASING and loop.fsm.request.source == Source.VENT
@@ -134,7 +145,8 @@ def test_a_blind_controller_gives_fault_with_the_valves_held_and_says_so(kinemat
     loop.controller_fault, loop.controller_blind = "sensor timeout, bus silent", True
     loop.run_for(0.02)
     assert loop.fsm.state.phase == Phase.FAULT and loop.fsm.request.source == Source.HOLD
-    assert "venting" not in loop.fsm.state.message and "holds the valves closed" in loop.fsm.state.message
+    assert ("venting" not in loop.fsm.state.message and
+            "holds the valves closed" in loop.fsm.state.message)
 
 
 def test_a_regulator_overshoot_while_holding_is_detected_and_gives_fault(kinematics):
@@ -151,7 +163,8 @@ def test_holding_pressure_drifting_off_target_gives_fault(kinematics):
     loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     target, t = loop.fsm.request.target_gauge_pa, loop.now
-    for k in range(40):                  # a leak the controller cannot make up: 8 kPa off for 0.4 s
+    # a leak the controller cannot make up: 8 kPa off for 0.4 s
+    for k in range(40):
         loop.fsm.update(t + 0.01 * k, target + 8e3)
     assert loop.fsm.state.phase == Phase.FAULT and "holding lost" in loop.fsm.state.message
 
@@ -166,7 +179,8 @@ def test_a_phase_that_cannot_finish_times_out_into_fault(kinematics):
     assert "opening timed out" in fsm.state.message and fsm.request.source == Source.VENT
 
 
-def test_a_valve_that_does_not_open_is_named_by_the_controller_before_the_phase_times_out(kinematics):
+def test_a_valve_that_does_not_open_is_named_by_the_controller_before_the_phase_times_out(
+        kinematics):
     """Valves stuck closed: the pressure controller's response check finds that the chamber does
     not follow the supply valve, and the grasp ends in FAULT on that, not on the 3 s timeout."""
     loop = GraspLoop(kinematics, GraspConfig(), valve_stuck=True)
@@ -179,37 +193,53 @@ def test_a_valve_that_does_not_open_is_named_by_the_controller_before_the_phase_
 NAN = math.nan
 REJECTIONS = [
     (GraspRequest(9), "unknown mode 9"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=NAN, object_mass_kg=0.1), "object_diameter_m must be finite"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=NAN), "object_mass_kg must be finite"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=-0.01, object_mass_kg=0.1), "object_diameter_m must be finite and >= 0"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=-1.0), "object_mass_kg must be finite and >= 0"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.15, object_mass_kg=0.1), "wider than the gripper opens"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, open_pressure_pa=80e3), "beyond the pressure limits"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, clamp_pressure_pa=-90e3), "beyond the pressure limits"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, open_pressure_pa=5e3), "short of the object plus margin"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=5.0), "too heavy"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, friction_coefficient=-0.2), "friction_coefficient"),
-    (GraspRequest(GraspMode.PINCH, object_diameter_m=0.02, object_mass_kg=0.1), "PINCH takes objects up to 5.0 mm"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=NAN,
+                  object_mass_kg=0.1), "object_diameter_m must be finite"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04,
+                  object_mass_kg=NAN), "object_mass_kg must be finite"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=-0.01,
+                  object_mass_kg=0.1), "object_diameter_m must be finite and >= 0"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04,
+                  object_mass_kg=-1.0), "object_mass_kg must be finite and >= 0"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.15,
+                  object_mass_kg=0.1), "wider than the gripper opens"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1,
+                  open_pressure_pa=80e3), "beyond the pressure limits"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1,
+                  clamp_pressure_pa=-90e3), "beyond the pressure limits"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1,
+                  open_pressure_pa=5e3), "short of the object plus margin"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04,
+                  object_mass_kg=5.0), "too heavy"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1,
+                  friction_coefficient=-0.2), "friction_coefficient"),
+    (GraspRequest(GraspMode.PINCH, object_diameter_m=0.02,
+                  object_mass_kg=0.1), "PINCH takes objects up to 5.0 mm"),
     (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=-0.01), "OPEN needs a finite"),
     (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=math.inf), "OPEN needs a finite"),
     (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.3), "wider than the gripper opens"),
     (GraspRequest(GraspMode.CLAMP), "CLAMP needs the ENVELOPED phase"),
     # #20: commands that contradict their mode
-    (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.1, open_pressure_pa=-20e3), "open_pressure_pa must be > 0"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, open_pressure_pa=-20e3),
-     "open_pressure_pa must be > 0"),
-    (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.1, open_pressure_pa=5e3), "short of target_tip_spacing_m"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1, clamp_pressure_pa=5e3),
-     "clamp_pressure_pa must be <= 0"),
-    (GraspRequest(GraspMode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1, clamp_pressure_pa=5e3),
-     "clamp_pressure_pa must be <= 0"),
-    (GraspRequest(GraspMode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1, open_pressure_pa=10e3), "PINCH does not open"),
-    (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.05, clamp_pressure_pa=-10e3), "OPEN does not clamp"),
+    (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.1,
+                  open_pressure_pa=-20e3), "open_pressure_pa must be > 0"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1,
+                  open_pressure_pa=-20e3), "open_pressure_pa must be > 0"),
+    (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.1,
+                  open_pressure_pa=5e3), "short of target_tip_spacing_m"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1,
+                  clamp_pressure_pa=5e3), "clamp_pressure_pa must be <= 0"),
+    (GraspRequest(GraspMode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1,
+                  clamp_pressure_pa=5e3), "clamp_pressure_pa must be <= 0"),
+    (GraspRequest(GraspMode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1,
+                  open_pressure_pa=10e3), "PINCH does not open"),
+    (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.05,
+                  clamp_pressure_pa=-10e3), "OPEN does not clamp"),
 ]
 
 
 @pytest.mark.parametrize("request_, reason", REJECTIONS, ids=[r for _, r in REJECTIONS])
-def test_every_invalid_command_is_rejected_with_its_reason_and_nothing_moves(kinematics, request_, reason):
+def test_every_invalid_command_is_rejected_with_its_reason_and_nothing_moves(
+        kinematics, request_, reason):
     fsm = GraspStateMachine(kinematics)
     before = (fsm.state.phase, fsm.request)
     got = fsm.command(request_, 0.0)
@@ -231,57 +261,70 @@ def test_controller_feedback_prefers_a_fresh_estimate_and_reports_silence():
     feedback = ControllerFeedback(estimate_timeout_s=0.1, status_timeout_s=1.0)
     assert math.isnan(feedback.pressure(0.0)[0])
     assert feedback.fault(0.0, idle=True) == ""
-    # a grasp commanded before the first status (the suite still starting) waits status_timeout for it
+    # a grasp commanded before the first status (the suite still starting) waits status_timeout for
+    # it
     assert feedback.fault(0.0, idle=False) == "" and feedback.fault(1.0, idle=False) == ""
     assert "no controller/status in 1.1 s" in feedback.fault(1.1, idle=False)
     feedback.on_status(int(Fault.SETPOINT_CLAMPED), 9e3, 0.0)
     feedback.on_estimate(10e3, 80.0, 0.0)
-    assert feedback.pressure(0.05) == (10e3, 80.0)                   # the estimate while fresh
-    assert feedback.pressure(0.2)[0] == 9e3 and math.isnan(feedback.pressure(0.2)[1])   # then the measurement
-    assert feedback.fault(0.5, idle=False) == ""                     # a clamped setpoint does not stop a grasp
+    assert feedback.pressure(0.05) == (10e3, 80.0)  # the estimate while fresh
+    # then the measurement
+    assert feedback.pressure(0.2)[0] == 9e3 and math.isnan(feedback.pressure(0.2)[1])
+    # a clamped setpoint does not stop a grasp
+    assert feedback.fault(0.5, idle=False) == ""
     feedback.on_status(int(Fault.SENSOR_TIMEOUT | Fault.REGULATOR), math.nan, 0.5)
-    assert feedback.fault(0.6, idle=False) == "regulator"             # the sensor timeout within its grace
+    # the sensor timeout within its grace
+    assert feedback.fault(0.6, idle=False) == "regulator"
     assert feedback.fault(0.85, idle=False) == "sensor timeout, regulator"
     assert "no controller/status for 1.6 s" in feedback.fault(2.1, idle=False)
 
 
 def test_a_sensor_timeout_stops_a_grasp_only_once_it_lasts():
     """The controller holds during a sensor timeout and resumes by itself: a grasp rides out a gap
-    shorter than the grace (frames delayed on a loaded machine), and faults on a dropout that lasts."""
+    shorter than the grace (frames delayed on a loaded machine), and faults on a dropout that
+    lasts."""
     from softgrip_ros.control.grasp_fsm import ControllerFeedback
     from softgrip_ros.control.pressure import Fault
-    feedback = ControllerFeedback(estimate_timeout_s=0.1, status_timeout_s=1.0, transient_grace_s=0.3)
+    feedback = ControllerFeedback(estimate_timeout_s=0.1, status_timeout_s=1.0,
+                                  transient_grace_s=0.3)
     feedback.on_status(int(Fault.SENSOR_TIMEOUT), math.nan, 0.0)
     assert feedback.fault(0.29, idle=False) == ""
-    feedback.on_status(0, 1e3, 0.1)                                    # readings back: the clock restarts
+    # readings back: the clock restarts
+    feedback.on_status(0, 1e3, 0.1)
     feedback.on_status(int(Fault.SENSOR_TIMEOUT), math.nan, 0.2)
     assert feedback.fault(0.45, idle=False) == ""
     assert feedback.fault(0.51, idle=False) == "sensor timeout"
-    feedback = ControllerFeedback(estimate_timeout_s=0.1, status_timeout_s=1.0, transient_grace_s=0.3)
+    feedback = ControllerFeedback(estimate_timeout_s=0.1, status_timeout_s=1.0,
+                                  transient_grace_s=0.3)
     feedback.on_status(int(Fault.OVERPRESSURE | Fault.SENSOR_TIMEOUT), math.nan, 0.0)
-    assert feedback.fault(0.0, idle=False) == "overpressure"           # no grace for the rest
+    assert feedback.fault(0.0, idle=False) == "overpressure"  # no grace for the rest
 
 
 def test_controller_feedback_tells_the_safe_state_from_other_faults():
     from softgrip_ros.control.grasp_fsm import ControllerFeedback
     from softgrip_ros.control.pressure import Fault
     feedback = ControllerFeedback(estimate_timeout_s=0.1, status_timeout_s=1.0)
-    assert not feedback.safe_state(0.0)                                 # no status yet
+    assert not feedback.safe_state(0.0)  # no status yet
     feedback.on_status(int(Fault.COMMAND_TIMEOUT | Fault.SENSOR_TIMEOUT), 0.0, 0.0)
     assert not feedback.safe_state(0.1)
     feedback.on_status(int(Fault.SENSOR_NOISE), 0.0, 0.2)
-    assert feedback.safe_state(0.3) and not feedback.safe_state(1.3)    # a stale status says nothing
+    # a stale status says nothing
+    assert feedback.safe_state(0.3) and not feedback.safe_state(1.3)
 
 
 def test_a_rejected_command_leaves_a_running_grasp_untouched(kinematics):
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
     loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
-    before = (loop.fsm.request, loop.fsm.state.phase, loop.fsm._contact_pa, loop.fsm._clamp_pa, loop.fsm._open_pa)
+    before = (loop.fsm.request, loop.fsm.state.phase, loop.fsm._contact_pa, loop.fsm._clamp_pa,
+              loop.fsm._open_pa)
     force = loop.fsm.state.clamp_force_n
-    assert "too heavy" in loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.01, object_mass_kg=5.0))
-    assert "does not squeeze" in loop.command(GraspRequest(GraspMode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1,
-                                                          clamp_pressure_pa=0.0))
-    assert (loop.fsm.request, loop.fsm.state.phase, loop.fsm._contact_pa, loop.fsm._clamp_pa, loop.fsm._open_pa) == before
+    assert "too heavy" in loop.command(
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.01, object_mass_kg=5.0))
+    assert "does not squeeze" in loop.command(
+        GraspRequest(GraspMode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1,
+                     clamp_pressure_pa=0.0))
+    assert (loop.fsm.request, loop.fsm.state.phase, loop.fsm._contact_pa, loop.fsm._clamp_pa,
+            loop.fsm._open_pa) == before
     loop.run_for(0.1)
     assert loop.fsm.state.clamp_force_n == pytest.approx(force, rel=0.1)

@@ -4,17 +4,20 @@ import math
 import numpy as np
 import pytest
 
-from softgrip_ros.control.pressure import Fault, PressureMode, PressureControlConfig, PressureController, Source
+from softgrip_ros.control.pressure import (Fault, PressureMode, PressureControlConfig,
+                                           PressureController, Source)
 from softgrip_ros.model.pneumatics import Valve
 from tests.helpers.closed_loop import rise_time_s, step_response
 
 
 @pytest.mark.parametrize("seed", range(3))
 def test_step_to_25_kpa_is_near_time_optimal(seed):
-    """Tolerances: rise <= 1.3x the valve-fully-open rise, overshoot <= 3 %, steady state within 0.2 kPa."""
+    """Tolerances: rise <= 1.3x the valve-fully-open rise, overshoot <= 3 %, steady state within
+    0.2 kPa."""
     times, pressures, _ = step_response(25e3, seed=seed)
     optimal_times, optimal_pressures, _ = step_response(25e3, time_optimal=True)
-    ratio = rise_time_s(times, pressures, 25e3) / rise_time_s(optimal_times, optimal_pressures, 25e3)
+    ratio = rise_time_s(times, pressures, 25e3) / rise_time_s(optimal_times, optimal_pressures,
+                                                              25e3)
     assert ratio <= 1.3
     assert pressures.max() <= 25e3 * 1.03
     assert abs(pressures[-200:].mean() - 25e3) <= 200.0
@@ -56,7 +59,8 @@ def active(config=None, pressure=0.0, now=0.0):
 def test_inactive_controller_outputs_nothing():
     controller = PressureController()
     out = controller.step(0.0)
-    assert out.mode == PressureMode.INACTIVE and out.valves == (Valve.CLOSED,) and not out.regulator_enabled
+    assert out.mode == PressureMode.INACTIVE and out.valves == (
+        Valve.CLOSED,) and not out.regulator_enabled
 
 
 def test_setpoint_above_the_limit_is_clamped_and_reported():
@@ -81,20 +85,25 @@ def test_overpressure_vents_and_latches_until_a_new_command_once_the_evidence_is
     controller = active(pressure=56e3)
     controller.command(40e3, Source.SUPPLY, math.nan, 0.0)
     out = controller.step(0.001)
-    assert out.mode == PressureMode.FAULT and out.valves == (Valve.VENT,) and not out.regulator_enabled
+    assert out.mode == PressureMode.FAULT and out.valves == (
+        Valve.VENT,) and not out.regulator_enabled
     assert Fault.OVERPRESSURE in out.fault_flags
     rng, now = np.random.default_rng(0), 0.001
 
-    def vent_for(seconds):                                        # readings as a vent makes them
+    def vent_for(seconds):  # readings as a vent makes them
         nonlocal now
         for _ in range(int(seconds / 0.002)):
             now += 0.002
-            controller.update_sensor("s", 56e3 * math.exp(-now / 0.08) + 300.0 * rng.standard_normal(), now)
-            assert controller.step(now).mode == PressureMode.FAULT      # pressure back, but no new command
+            controller.update_sensor("s",
+                                     56e3 * math.exp(-now / 0.08) + 300.0 * rng.standard_normal(),
+                                     now)
+            # pressure back, but no new command
+            assert controller.step(now).mode == PressureMode.FAULT
 
     vent_for(0.1)
     assert "still in the safe state" in controller.command(20e3, Source.SUPPLY, math.nan, now)
-    assert controller.step(now + 0.001).mode == PressureMode.FAULT      # too soon after the evidence
+    # too soon after the evidence
+    assert controller.step(now + 0.001).mode == PressureMode.FAULT
     vent_for(controller.config.safety.clear_time_s)
     assert controller.command(20e3, Source.SUPPLY, math.nan, now) == ""
     out = controller.step(now + 0.001)
@@ -105,17 +114,20 @@ def test_regulator_overshoot_fault_never_exceeds_limit_plus_margin():
     config = PressureControlConfig()
     _, pressures, outputs = step_response(45e3, duration_s=1.5, overshoot_fault_pa=30e3)
     assert any(out.mode == PressureMode.FAULT for out in outputs)
-    assert pressures.max() <= config.max_gauge_pa + config.overpressure_margin_pa + 1e3  # + one control period
+    # + one control period
+    assert pressures.max() <= config.max_gauge_pa + config.overpressure_margin_pa + 1e3
     assert outputs[-1].valves == (Valve.VENT,)
 
 
 def test_sensor_timeout_holds_then_recovers():
     times, pressures, outputs = step_response(20e3, duration_s=0.6, sensor_until_s=0.3)
     after = [o for t, o in zip(np.arange(len(outputs)) * 0.002, outputs) if t > 0.36]
-    assert after and all(o.mode == PressureMode.HOLD and o.valves == (Valve.CLOSED,) for o in after)
+    assert after and all(o.mode == PressureMode.HOLD and o.valves == (Valve.CLOSED,)
+                         for o in after)
     assert all(Fault.SENSOR_TIMEOUT in o.fault_flags for o in after)
     held = pressures[int(0.36 / 1e-3):]
-    assert np.ptp(held) < 1.0                                       # valves closed: the air stays in
+    # valves closed: the air stays in
+    assert np.ptp(held) < 1.0
     controller = active()
     controller.command(10e3, Source.SUPPLY, math.nan, 0.0)
     assert controller.step(1.0).mode == PressureMode.HOLD
@@ -124,13 +136,15 @@ def test_sensor_timeout_holds_then_recovers():
     assert out.mode == PressureMode.REGULATE and Fault.SENSOR_TIMEOUT not in out.fault_flags
 
 
-@pytest.mark.parametrize("action, mode, valve", [("hold", PressureMode.HOLD, Valve.CLOSED), ("vent", PressureMode.VENT, Valve.VENT)])
+@pytest.mark.parametrize("action, mode, valve", [("hold", PressureMode.HOLD, Valve.CLOSED),
+                                                 ("vent", PressureMode.VENT, Valve.VENT)])
 def test_command_timeout_takes_the_safe_action(action, mode, valve):
-    controller = active(PressureControlConfig(command_timeout_s=0.5, command_timeout_action=action), pressure=9e3)
+    controller = active(
+        PressureControlConfig(command_timeout_s=0.5, command_timeout_action=action), pressure=9e3)
     controller.command(10e3, Source.SUPPLY, math.nan, 0.0)
     rng = np.random.default_rng(1)
-    for i in range(260):                 # 20 ms past the timeout (a chamber that does not vent is
-        now = i * 0.002                  # the response check's fault some 0.1 s later)
+    for i in range(260):  # 20 ms past the timeout (a chamber that does not vent is
+        now = i * 0.002  # the response check's fault some 0.1 s later)
         controller.update_sensor("s", 9e3 + 300.0 * rng.standard_normal(), now)
         out = controller.step(now)
     assert out.mode == mode and out.valves == (valve,) and Fault.COMMAND_TIMEOUT in out.fault_flags
@@ -175,10 +189,10 @@ def test_severity_of_outputs():
     controller.command(5e3, Source.SUPPLY, math.nan, 0.0)
     assert severity(controller.step(0.001)) == Health.OK
     controller.command(90e3, Source.SUPPLY, math.nan, 0.002)
-    assert severity(controller.step(0.003)) == Health.WARN            # clamped setpoint
-    assert severity(controller.step(1.0)) == Health.ERROR             # no sensor: blind
+    assert severity(controller.step(0.003)) == Health.WARN  # clamped setpoint
+    assert severity(controller.step(1.0)) == Health.ERROR  # no sensor: blind
     controller.update_sensor("s", 70e3, 1.001)
-    assert severity(controller.step(1.002)) == Health.ERROR           # overpressure
+    assert severity(controller.step(1.002)) == Health.ERROR  # overpressure
 
 
 def test_a_clamp_during_the_settle_after_a_boost_evacuates_at_once():
@@ -189,24 +203,26 @@ def test_a_clamp_during_the_settle_after_a_boost_evacuates_at_once():
     controller = active(pressure=0.0)
     controller.update_regulator_status(0.0, 0)
     controller.command(30e3, Source.SUPPLY, math.nan, 0.0)
-    assert controller.step(0.002).valves == (Valve.SUPPLY,)                  # boost
+    assert controller.step(0.002).valves == (Valve.SUPPLY,)  # boost
     now = 0.002
-    for pressure in np.linspace(2e3, 29.5e3, 20):                            # a fast rise near the target
+    # a fast rise near the target
+    for pressure in np.linspace(2e3, 29.5e3, 20):
         now += 0.002
         controller.update_sensor("s", pressure, now)
         out = controller.step(now)
-    controller.update_regulator_status(controller.config.regulator_max_gauge_pa, 0)   # still high
+    controller.update_regulator_status(controller.config.regulator_max_gauge_pa, 0)  # still high
     now += 0.002
     controller.update_sensor("s", 29.8e3, now)
     out = controller.step(now)
     assert controller._phase == "settle" and out.valves == (Valve.CLOSED,)
     controller.command(-20e3, Source.VACUUM, math.nan, now)
     valves = []
-    for _ in range(10):                                                      # 20 ms at 500 Hz
+    for _ in range(10):  # 20 ms at 500 Hz
         now += 0.002
         controller.update_sensor("s", 29.8e3, now)
         valves.append(controller.step(now).valves[0])
-    assert valves[0] == Valve.VACUUM, valves             # the setpoint 5 ms ahead is already far below
+    # the setpoint 5 ms ahead is already far below
+    assert valves[0] == Valve.VACUUM, valves
 
 
 @pytest.mark.parametrize("rate_pa_per_s, first_vacuum_tick", [(math.nan, 0), (1e6, 0), (50e3, 47)])
@@ -217,7 +233,7 @@ def test_a_fast_clamp_opens_the_pump_at_once_and_a_slow_ramp_when_its_setpoint_i
     command's latency in bench_e2e); a 50 kPa/s ramp is followed on the regulated line until its
     setpoint lies the band (less the 250 Pa it slews in boost_lead_s) below the chamber."""
     controller = active(pressure=0.0)
-    controller.step(0.0)                                 # running: the slew starts from here
+    controller.step(0.0)  # running: the slew starts from here
     controller.command(-20e3, Source.VACUUM, rate_pa_per_s, 0.0)
     valves = []
     for tick in range(1, 60):

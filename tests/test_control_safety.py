@@ -9,12 +9,13 @@ import math
 import numpy as np
 import pytest
 
-from softgrip_ros.control.pressure import Fault, PressureMode, PressureControlConfig, PressureController, Source, boost_ceiling_pa
+from softgrip_ros.control.pressure import (Fault, PressureMode, PressureControlConfig,
+                                           PressureController, Source, boost_ceiling_pa)
 from softgrip_ros.control.safety import SAFETY_FAULTS, SafetyConfig
 from softgrip_ros.model.pneumatics import PneumaticPlant, Valve
 from tests.helpers.closed_loop import FaultyLoop
 
-LIMITS = (-65e3, 55e3)       # min - margin, max + margin
+LIMITS = (-65e3, 55e3)  # min - margin, max + margin
 
 
 def within_limits(loop, since=0.0):
@@ -23,7 +24,8 @@ def within_limits(loop, since=0.0):
 
 
 def in_safe_state(output):
-    return output.mode == PressureMode.FAULT and output.valves == (Valve.VENT,) and not output.regulator_enabled
+    return output.mode == PressureMode.FAULT and output.valves == (
+        Valve.VENT,) and not output.regulator_enabled
 
 
 def held_at(target_pa, seconds=0.6, seed=0):
@@ -32,11 +34,12 @@ def held_at(target_pa, seconds=0.6, seed=0):
     return loop.run_for(seconds)
 
 
-@pytest.mark.parametrize("target_pa, seconds", [(50e3, 1.0), (25e3, 1.0), (-50e3, 1.0), (-10e3, 1.5)])
+@pytest.mark.parametrize("target_pa, seconds", [(50e3, 1.0), (25e3, 1.0), (-50e3, 1.0),
+                                                (-10e3, 1.5)])
 @pytest.mark.parametrize("seed", range(3))
 def test_fault_free_steps_raise_no_finding(target_pa, seconds, seed):
     loop = held_at(target_pa, seconds, seed)
-    loop.command(19e3)                                        # and from there a step the other way
+    loop.command(19e3)  # and from there a step the other way
     loop.run_for(0.8)
     assert loop.first_fault() is None, loop.first_fault()[1].message
     assert not any(o.fault_flags & SAFETY_FAULTS for _, o in loop.outputs)
@@ -52,7 +55,8 @@ def test_one_stuck_sensor_cannot_drive_the_chamber_past_its_limit():
     loop.command(50e3)
     loop.run_for(1.0)
     when, output = loop.first_fault()
-    assert output.fault_flags & (Fault.SENSOR_DISAGREE | Fault.SENSOR_STUCK) and "chamber_a" in output.message
+    assert output.fault_flags & (Fault.SENSOR_DISAGREE
+                                 | Fault.SENSOR_STUCK) and "chamber_a" in output.message
     assert when < 0.3 and within_limits(loop) and in_safe_state(loop.outputs[-1][1])
 
 
@@ -60,11 +64,12 @@ def test_a_sensor_frozen_at_its_reading_is_named_once_the_pressure_moves():
     loop = held_at(10e3)
     loop.stuck["chamber_b"] = None
     loop.run_for(0.3)
-    assert loop.first_fault() is None                       # frozen while nothing moves: harmless
+    assert loop.first_fault() is None  # frozen while nothing moves: harmless
     loop.command(30e3)
     loop.run_for(0.5)
     _, output = loop.first_fault()
-    assert output.fault_flags & (Fault.SENSOR_STUCK | Fault.SENSOR_DISAGREE) and "chamber_b" in output.message
+    assert output.fault_flags & (Fault.SENSOR_STUCK
+                                 | Fault.SENSOR_DISAGREE) and "chamber_b" in output.message
     assert within_limits(loop)
 
 
@@ -78,17 +83,20 @@ def test_a_stalled_sender_is_not_a_frozen_sensor():
     for k in range(50):
         monitor.add_reading("chamber_a", 10e3 + 300.0 * rng.standard_normal(), 0.002 * k)
     last = monitor.sensors["chamber_a"].value
-    monitor.add_reading("chamber_a", last, 0.098 + 0.15)       # the same value, after the stall
+    monitor.add_reading("chamber_a", last, 0.098 + 0.15)  # the same value, after the stall
     assert not [f for f in monitor.check(0.25, 0.05) if f.flag == Fault.SENSOR_STUCK]
-    for k in range(1, 6):                                     # then repeats: that is frozen
+    for k in range(1, 6):  # then repeats: that is frozen
         monitor.add_reading("chamber_a", last, 0.248 + 0.002 * k)
     assert [f for f in monitor.check(0.26, 0.05) if f.flag == Fault.SENSOR_STUCK]
 
 
 def test_with_one_sensor_a_frozen_reading_is_named_from_the_plant():
-    """No second sensor to compare with: the plant, through the commanded valve, says it must move."""
+    """No second sensor to compare with: the plant, through the commanded valve, says it must
+    move."""
+
     class OneSensor(FaultyLoop):
         SENSORS = {"chamber_a": (300.0, 2)}
+
     loop = OneSensor()
     loop.command(20e3)
     loop.run_for(0.6)
@@ -96,7 +104,8 @@ def test_with_one_sensor_a_frozen_reading_is_named_from_the_plant():
     loop.command(0.0, Source.VENT)
     loop.run_for(0.5)
     _, output = loop.first_fault()
-    assert Fault.SENSOR_STUCK in output.fault_flags and "the plant, through the VENT valve" in output.message
+    assert (Fault.SENSOR_STUCK in output.fault_flags and
+            "the plant, through the VENT valve" in output.message)
 
 
 @pytest.mark.parametrize("bias_pa", [20e3, -20e3])
@@ -110,14 +119,16 @@ def test_a_sensor_bias_during_holding_is_named_and_does_not_triple_the_clamp(bia
     assert Fault.SENSOR_IMPLAUSIBLE in output.fault_flags and "jumped together" in output.message
     assert when - 1.0 < 0.02 and in_safe_state(loop.outputs[-1][1])
     low, high = loop.true_extremes(since=1.0)
-    assert low >= -10e3 - 1.5e3 and high <= 1.5e3           # vented from the clamp: never squeezed harder
+    # vented from the clamp: never squeezed harder
+    assert low >= -10e3 - 1.5e3 and high <= 1.5e3
 
 
 @pytest.mark.parametrize("rate_pa_per_s", [20e3, -20e3])
 def test_a_drifting_bias_is_named_from_the_regulator_before_it_moves_the_clamp_far(rate_pa_per_s):
     """A bias that grows slowly jumps nowhere. With the supply valve open, the chamber must settle
     at the regulator's output; sensors that read away from it, and stay there, are named (a
-    bias, or a valve that does not open) while the true clamp is still within 10 kPa of its target."""
+    bias, or a valve that does not open) while the true clamp is still within 10 kPa of its
+    target."""
     loop = held_at(-10e3, 1.0)
     loop.bias_rate_pa_per_s = rate_pa_per_s
     loop.run_for(2.0)
@@ -162,8 +173,10 @@ def test_a_valve_stuck_open_to_supply_keeps_the_chamber_inside_the_limit():
 def test_the_boost_ceiling_is_derived_from_the_plant():
     ceiling = PressureController().config.boost_ceiling_pa
     assert 55e3 < ceiling < PressureControlConfig().regulator_max_gauge_pa
-    slower = PneumaticPlant(dataclasses_replace(PneumaticPlant().parameters, regulator_rate_limit_pa_per_s=0.5e6))
-    assert boost_ceiling_pa(slower.parameters, PressureControlConfig()) < ceiling     # falls slower: a lower ceiling
+    slower = PneumaticPlant(
+        dataclasses_replace(PneumaticPlant().parameters, regulator_rate_limit_pa_per_s=0.5e6))
+    # falls slower: a lower ceiling
+    assert boost_ceiling_pa(slower.parameters, PressureControlConfig()) < ceiling
 
 
 def dataclasses_replace(instance, **changes):
@@ -177,10 +190,11 @@ def test_a_stuck_valve_is_named_when_the_chamber_moves_against_the_closed_comman
     loop = FaultyLoop()
     loop.command(25e3)
     loop.run_for(0.03)
-    loop.valve_stuck = True                                  # stuck in the boost's SUPPLY
+    loop.valve_stuck = True  # stuck in the boost's SUPPLY
     loop.run_for(0.5)
     _, output = loop.first_fault()
-    assert Fault.RESPONSE in output.fault_flags and "CLOSED valve" in output.message and within_limits(loop)
+    assert (Fault.RESPONSE in output.fault_flags and "CLOSED valve" in output.message and
+            within_limits(loop))
 
 
 @pytest.mark.parametrize("target_pa", [19e3, 45e3])
@@ -197,7 +211,8 @@ def test_a_regulator_overshoot_is_named_and_the_peak_stays_inside_the_limit(targ
 
 @pytest.mark.parametrize("seed", range(4))
 def test_a_fuzz_of_pressure_commands_never_leaves_the_limits(seed):
-    """#20.4: under a fuzz of PressureCommands (huge targets and rates) the peak reached 58.3 kPa."""
+    """#20.4: under a fuzz of PressureCommands (huge targets and rates) the peak reached 58.3
+    kPa."""
     rng = np.random.default_rng(100 + seed)
     loop = FaultyLoop(seed=seed)
     for _ in range(60):
@@ -217,7 +232,8 @@ def test_a_noisy_sensor_is_named():
     loop.noise_scale = 10.0
     loop.run_for(1.0)
     _, output = loop.first_fault(since=0.6)
-    assert output.fault_flags & (Fault.SENSOR_NOISE | Fault.SENSOR_DISAGREE | Fault.SENSOR_IMPLAUSIBLE)
+    assert output.fault_flags & (Fault.SENSOR_NOISE | Fault.SENSOR_DISAGREE
+                                 | Fault.SENSOR_IMPLAUSIBLE)
     assert within_limits(loop)
 
 
@@ -228,7 +244,8 @@ def test_the_estimators_nis_evidence_latches_a_named_fault():
         loop.controller.update_consistency("chamber_a", 6e4, 1.36, loop.now)
         loop.run_for(0.1)
     _, output = loop.first_fault()
-    assert Fault.SENSOR_INCONSISTENT in output.fault_flags and "chamber_a inconsistent" in output.message
+    assert (Fault.SENSOR_INCONSISTENT in output.fault_flags and
+            "chamber_a inconsistent" in output.message)
 
 
 def test_the_safe_state_clears_on_a_command_once_its_evidence_is_gone():
@@ -236,9 +253,10 @@ def test_the_safe_state_clears_on_a_command_once_its_evidence_is_gone():
     loop.bias_pa = 20e3
     loop.run_for(0.3)
     assert in_safe_state(loop.outputs[-1][1])
-    loop.bias_pa = 0.0                                        # the sensor repaired
+    loop.bias_pa = 0.0  # the sensor repaired
     loop.run_for(0.2)
-    assert "still in the safe state" in loop.command(20e3)    # too soon: the jump back is evidence too
+    # too soon: the jump back is evidence too
+    assert "still in the safe state" in loop.command(20e3)
     loop.run_for(loop.controller.config.safety.clear_time_s + 0.1)
     assert loop.command(20e3) == ""
     loop.run_for(0.6)
@@ -251,11 +269,13 @@ def test_an_explicit_vent_is_obeyed_while_blind_and_said_to_be_unconfirmed():
     controller.active = True
     controller.update_sensor("s", 20e3, 0.0)
     controller.command(20e3, Source.SUPPLY, math.nan, 0.0)
-    out = controller.step(1.0)                               # no reading for 1 s
-    assert out.mode == PressureMode.HOLD and out.valves == (Valve.CLOSED,) and "held closed" in out.message
+    out = controller.step(1.0)  # no reading for 1 s
+    assert out.mode == PressureMode.HOLD and out.valves == (
+        Valve.CLOSED,) and "held closed" in out.message
     controller.vent(1.0)
     out = controller.step(1.002)
-    assert out.valves == (Valve.VENT,) and "unconfirmed" in out.message and Fault.SENSOR_TIMEOUT in out.fault_flags
+    assert out.valves == (
+        Valve.VENT,) and "unconfirmed" in out.message and Fault.SENSOR_TIMEOUT in out.fault_flags
 
 
 def test_bad_safety_configuration_is_refused():

@@ -1,4 +1,5 @@
-"""The pressure estimators against ground truth from the pneumatic plant (devtools/estimator_simulation).
+"""The pressure estimators against ground truth from the pneumatic plant
+(devtools/estimator_simulation).
 
 Tolerances are stated where they are used. Sensors as on the simulated device: chamber_a
 500 Hz, 300 Pa; chamber_b 200 Hz, 150 Pa (plus quantisation).
@@ -12,12 +13,13 @@ import pytest
 
 from softgrip_ros.canbus.sim_device import DEFAULT_SENSORS
 from softgrip_ros.devtools import estimator_simulation as sim
-from softgrip_ros.estimation.estimator import EstimatorConfig, Health, PressureEstimator, SensorConfig
+from softgrip_ros.estimation.estimator import (EstimatorConfig, Health, PressureEstimator,
+                                               SensorConfig)
 from softgrip_ros.estimation.filters import FILTER_TYPES, plant_step
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 
-STEADY = ((0.45, 0.6), (1.05, 1.3))      # after the 25 kPa fill settles; the sealed hold
-STEPS = ((0.2, 0.35), (0.6, 0.75), (1.3, 1.45), (1.7, 1.85))   # fills, evacuation, vent
+STEADY = ((0.45, 0.6), (1.05, 1.3))  # after the 25 kPa fill settles; the sealed hold
+STEPS = ((0.2, 0.35), (0.6, 0.75), (1.3, 1.45), (1.7, 1.85))  # fills, evacuation, vent
 
 
 def _mask(t, windows):
@@ -67,7 +69,7 @@ def test_a_ten_sigma_spike_is_rejected_and_counted(filter_type):
     a, b = sim.run(clean, config), sim.run(spiked, config)
     assert b.estimator.stats["chamber_b"].rejected == a.estimator.stats["chamber_b"].rejected + 1
     moved = np.max(np.abs(b.estimate - a.estimate))
-    assert moved < np.sqrt(np.max(a.variance[a.t > 0.45]))   # less than 1 sigma
+    assert moved < np.sqrt(np.max(a.variance[a.t > 0.45]))  # less than 1 sigma
 
 
 @pytest.mark.parametrize("filter_type", FILTER_TYPES)
@@ -83,7 +85,8 @@ def test_one_sensor_lost_continues_on_the_other_with_larger_variance(filter_type
     assert np.median(run.variance[at_b]) > 1.1 * np.median(full.variance[full_at_b])
     assert run.rmse(during) < 1.2 / math.sqrt(2) * DEFAULT_SENSORS[1].noise_std_pa * math.sqrt(2)
     estimator = _replay_until(trajectory, filter_type, 0.8)
-    assert estimator.report(0.8).health == Health.WARN and "chamber_a" in estimator.report(0.8).message
+    assert (estimator.report(0.8).health == Health.WARN and
+            "chamber_a" in estimator.report(0.8).message)
     after = run.t > lost[1] + 0.1
     assert np.median(run.variance[after]) < 1.05 * np.median(full.variance[full.t > lost[1] + 0.1])
     assert run.estimator.report(1.2).health == Health.OK
@@ -100,7 +103,8 @@ def test_all_sensors_lost_predicts_with_growing_variance_and_warns_then_recovers
     trajectory = sim.simulate(duration_s=0.9, seed=9, dropouts={"all": silent})
     estimator = _replay_until(trajectory, filter_type, silent[0])
     fused = estimator.estimate().variance_pa2
-    variances = np.array([estimator.estimate(t).variance_pa2 for t in np.linspace(silent[0] + 0.01, silent[1], 15)])
+    variances = np.array(
+        [estimator.estimate(t).variance_pa2 for t in np.linspace(silent[0] + 0.01, silent[1], 15)])
     # it grows from the fused level towards the open-loop level of a stable plant (the valve
     # joins the chamber to a regulator that follows its known command), not without bound
     assert np.all(np.diff(variances[:5]) > 0.0) and variances.min() > fused
@@ -109,7 +113,7 @@ def test_all_sensors_lost_predicts_with_growing_variance_and_warns_then_recovers
     assert report.health == Health.WARN and "all sensors silent" in report.message
     truth = trajectory.truth_at(silent[1])[0]
     predicted = estimator.estimate(silent[1])
-    assert abs(predicted.gauge_pa - truth) < 3.0 * predicted.std_pa    # prediction stays honest
+    assert abs(predicted.gauge_pa - truth) < 3.0 * predicted.std_pa  # prediction stays honest
     run = sim.run(trajectory, sim.config_for(trajectory, filter_type))
     assert run.estimator.report(0.9).health == Health.OK
     after = run.t > silent[1] + 0.1
@@ -121,9 +125,14 @@ def test_nis_monitor_flags_a_wrong_noise_model_and_passes_the_right_one(filter_t
     right = sim.run(trajectory, sim.config_for(trajectory, filter_type)).estimator
     assert all(right.nis_verdict(name) == "" for name in right.stats)
     assert right.report(trajectory.truth_t[-1]).health == Health.OK
-    wrong_sensors = tuple(SensorConfig(s.name, s.noise_std_pa * 0.1) for s in sim.config_for(trajectory, "kf").sensors)
-    wrong = sim.run(trajectory, dataclasses.replace(sim.config_for(trajectory, filter_type), sensors=wrong_sensors)).estimator
-    verdicts = [wrong.nis_verdict(name) for name in wrong.stats]    # R x 0.01
+    wrong_sensors = tuple(
+        SensorConfig(s.name, s.noise_std_pa * 0.1)
+        for s in sim.config_for(trajectory, "kf").sensors)
+    wrong = sim.run(
+        trajectory,
+        dataclasses.replace(sim.config_for(trajectory, filter_type),
+                            sensors=wrong_sensors)).estimator
+    verdicts = [wrong.nis_verdict(name) for name in wrong.stats]  # R x 0.01
     assert any("overconfident" in v for v in verdicts)
     assert wrong.report(trajectory.truth_t[-1]).health == Health.WARN
 
@@ -132,7 +141,8 @@ def test_nis_monitor_flags_a_biased_sensor():
     sensors = (DEFAULT_SENSORS[0], dataclasses.replace(DEFAULT_SENSORS[1], bias_pa=1500.0))
     trajectory = sim.simulate(seed=11, sensors=sensors)
     estimator = sim.run(trajectory, sim.config_for(trajectory, "ekf")).estimator
-    assert "overconfident, or the sensor is biased" in estimator.report(trajectory.truth_t[-1]).message
+    assert ("overconfident, or the sensor is biased"
+            in estimator.report(trajectory.truth_t[-1]).message)
 
 
 @pytest.mark.parametrize("filter_type", FILTER_TYPES)
@@ -142,7 +152,9 @@ def test_covariance_stays_symmetric_positive_definite_when_ill_conditioned(filte
     sensors = (dataclasses.replace(DEFAULT_SENSORS[0], noise_std_pa=1e-3, quantisation_pa=0.0),
                dataclasses.replace(DEFAULT_SENSORS[1], noise_std_pa=100.0, quantisation_pa=0.0))
     trajectory = sim.simulate(duration_s=0.8, seed=4, sensors=sensors)
-    config = dataclasses.replace(sim.config_for(trajectory, filter_type), initial_regulator_std_pa=1e5)
+    config = dataclasses.replace(sim.config_for(trajectory, filter_type),
+                                 initial_regulator_std_pa=1e5)
+
     def check(estimator):
         P = estimator.filter.P
         assert np.array_equal(P, P.T)
@@ -157,7 +169,8 @@ def test_filter_recovers_when_the_gate_would_lock_it_out(filter_type):
     """The inputs claim a sealed chamber while it fills: every sample fails the gate; after
     max_consecutive_rejections the filter re-initialises from the data and says so."""
     trajectory = sim.simulate(duration_s=0.8, seed=2)
-    sealed = dataclasses.replace(trajectory, input_changes=[(0.0, PlantInputs(0.0, True, (Valve.CLOSED,)))])
+    sealed = dataclasses.replace(trajectory,
+                                 input_changes=[(0.0, PlantInputs(0.0, True, (Valve.CLOSED,)))])
     config = sim.config_for(trajectory, filter_type, process_noise_pa2_per_s=(1e3, 1e3))
     run = sim.run(sealed, config)
     assert run.estimator.reinitialisations >= 1
@@ -166,21 +179,26 @@ def test_filter_recovers_when_the_gate_would_lock_it_out(filter_type):
 
 def test_plant_step_jacobian_matches_finite_differences():
     plant = PneumaticPlant()
-    for valve, x in ((Valve.SUPPLY, (10e3, 30e3)), (Valve.SUPPLY, (29e3, 30e3)), (Valve.VACUUM, (20e3, 0.0)),
-                     (Valve.VENT, (-20e3, 5e3)), (Valve.CLOSED, (5e3, 0.0))):
+    for valve, x in ((Valve.SUPPLY, (10e3, 30e3)), (Valve.SUPPLY, (29e3, 30e3)),
+                     (Valve.VACUUM, (20e3, 0.0)), (Valve.VENT, (-20e3, 5e3)), (Valve.CLOSED,
+                                                                               (5e3, 0.0))):
         inputs = PlantInputs(40e3, True, (valve,))
         _, J = plant_step(plant, np.array(x), 2e-3, inputs, jacobian=True)
         for j in range(2):
             h = np.zeros(2)
             h[j] = 0.5
-            numeric = (plant_step(plant, np.array(x) + h, 2e-3, inputs) - plant_step(plant, np.array(x) - h, 2e-3, inputs))
+            numeric = (plant_step(plant,
+                                  np.array(x) + h, 2e-3, inputs) -
+                       plant_step(plant,
+                                  np.array(x) - h, 2e-3, inputs))
             np.testing.assert_allclose(J[:, j], numeric / 1.0, rtol=1e-5, atol=1e-7)
 
 
 def counting_fusions(estimator) -> list:
     """The sizes of ``estimator``'s filter updates from now on, one entry per update."""
     fusions, fuse = [], estimator._fuse
-    estimator._fuse = lambda samples, stamp_s: fusions.append(len(samples)) or fuse(samples, stamp_s)
+    estimator._fuse = (lambda samples, stamp_s:
+                       fusions.append(len(samples)) or fuse(samples, stamp_s))
     return fusions
 
 
@@ -195,23 +213,26 @@ def published(trajectory, config, period_s=0.005):
         if estimator.add_measurement(name, value, t) and t - last >= 0.9 * period_s:
             estimate = estimator.estimate()
             last = estimate.stamp_s
-            rows.append((estimate.stamp_s, estimate.gauge_pa - trajectory.truth_at(estimate.stamp_s)[0]))
+            rows.append(
+                (estimate.stamp_s, estimate.gauge_pa - trajectory.truth_at(estimate.stamp_s)[0]))
     rows = np.array(rows)
     return rows[:, 0], rows[:, 1], len(fusions)
 
 
 @pytest.mark.parametrize("filter_type", FILTER_TYPES)
 def test_a_fusion_window_batches_samples_at_rest_and_keeps_the_accuracy(trajectory, filter_type):
-    """With a 5 ms fusion window the samples of a chamber at rest wait and are fused together, while
-    each sample of a fill is fused at once; the published estimates are as accurate as with
+    """With a 5 ms fusion window the samples of a chamber at rest wait and are fused together,
+    while each sample of a fill is fused at once; the published estimates are as accurate as with
     per-sample fusion: the RMSE within 5 % at rest and in the steps."""
     t0, error0, updates0 = published(trajectory, sim.config_for(trajectory, filter_type))
-    t1, error1, updates1 = published(trajectory, sim.config_for(trajectory, filter_type, fusion_window_s=0.005))
+    t1, error1, updates1 = published(
+        trajectory, sim.config_for(trajectory, filter_type, fusion_window_s=0.005))
     assert updates0 >= len(trajectory.samples) - 1
-    assert updates1 <= 0.6 * len(trajectory.samples), f"{updates1} updates for {len(trajectory.samples)} samples"
+    assert updates1 <= 0.6 * len(
+        trajectory.samples), f"{updates1} updates for {len(trajectory.samples)} samples"
     for windows in (STEADY, STEPS):
-        rmse0 = np.sqrt(np.mean(error0[_mask(t0, windows)] ** 2))
-        rmse1 = np.sqrt(np.mean(error1[_mask(t1, windows)] ** 2))
+        rmse0 = np.sqrt(np.mean(error0[_mask(t0, windows)]**2))
+        rmse1 = np.sqrt(np.mean(error1[_mask(t1, windows)]**2))
         assert rmse1 <= 1.05 * rmse0, (windows, rmse0, rmse1)
 
 
@@ -220,7 +241,8 @@ def paired_errors(trajectory, config, period_s=0.005, rest_period_s=0.05):
     sample at once. At each estimate the first would publish (as the node does: at most one per
     period, per rest period while it rests) both are read at that instant: (t, error of the
     first, error of the second), and the first's number of filter updates."""
-    windowed, each = PressureEstimator(config), PressureEstimator(dataclasses.replace(config, fusion_window_s=0.0))
+    windowed, each = PressureEstimator(config), PressureEstimator(
+        dataclasses.replace(config, fusion_window_s=0.0))
     fusions = counting_fusions(windowed)
     feeds = [sim.InputFeed(trajectory.input_changes) for _ in range(2)]
     last, rows = -math.inf, []
@@ -228,7 +250,8 @@ def paired_errors(trajectory, config, period_s=0.005, rest_period_s=0.05):
         for feed, estimator in zip(feeds, (windowed, each)):
             feed.until(estimator, t)
         each.add_measurement(name, value, t)
-        if windowed.add_measurement(name, value, t) and t - last >= 0.9 * (rest_period_s if windowed.resting else period_s):
+        if (windowed.add_measurement(name, value, t) and
+                t - last >= 0.9 * (rest_period_s if windowed.resting else period_s)):
             a = windowed.estimate()
             last = a.stamp_s
             truth = trajectory.truth_at(a.stamp_s)[0]
@@ -239,17 +262,20 @@ def paired_errors(trajectory, config, period_s=0.005, rest_period_s=0.05):
 
 @pytest.mark.parametrize("filter_type", FILTER_TYPES)
 @pytest.mark.parametrize("window_s, most_updates", [(0.005, 0.52), (0.01, 0.47), (0.02, 0.45)])
-def test_at_the_nodes_cadence_a_fusion_window_is_as_accurate_as_fusing_each_sample(trajectory, filter_type,
-                                                                                   window_s, most_updates):
+def test_at_the_nodes_cadence_a_fusion_window_is_as_accurate_as_fusing_each_sample(
+        trajectory, filter_type, window_s, most_updates):
     """The estimates the node would publish with a 5, 10 or 20 ms window (20 ms, the node's: one
-    fusion every other bus batch while the controller rests), against per-sample fusion read at the same instants: the
-    RMSE within 5 % (+ 2 Pa) at rest and in the steps, with far fewer filter updates."""
+    fusion every other bus batch while the controller rests), against per-sample fusion read at the
+    same instants: the RMSE within 5 % (+ 2 Pa) at rest and in the steps, with far fewer filter
+    updates."""
     config = sim.config_for(trajectory, filter_type, fusion_window_s=window_s)
     t, windowed, each, updates = paired_errors(trajectory, config)
-    assert updates <= most_updates * len(trajectory.samples), f"{updates} updates for {len(trajectory.samples)} samples"
+    assert updates <= most_updates * len(
+        trajectory.samples), f"{updates} updates for {len(trajectory.samples)} samples"
     for windows in (STEADY, STEPS):
         mask = _mask(t, windows)
-        rmse_windowed, rmse_each = np.sqrt(np.mean(windowed[mask] ** 2)), np.sqrt(np.mean(each[mask] ** 2))
+        rmse_windowed = np.sqrt(np.mean(windowed[mask]**2))
+        rmse_each = np.sqrt(np.mean(each[mask]**2))
         assert rmse_windowed <= 1.05 * rmse_each + 2.0, (windows, rmse_each, rmse_windowed)
 
 
@@ -258,7 +284,7 @@ def test_pending_samples_are_fused_under_the_inputs_they_were_taken_with():
     estimator.set_inputs(0.0, True, Valve.CLOSED, 0.0)
     for k in range(4):
         estimator.add_measurement("chamber_a", 100.0, 0.001 * k)
-    assert len(estimator._pending) == 3           # the first one initialised the filter
+    assert len(estimator._pending) == 3  # the first one initialised the filter
     estimator.set_inputs(30e3, True, Valve.SUPPLY, 0.0035)
     assert not estimator._pending and estimator.stats["chamber_a"].accepted == 4
     assert estimator.estimate().stamp_s == pytest.approx(0.0035)
@@ -298,17 +324,20 @@ def test_waiting_samples_are_moved_by_the_straight_line_within_a_few_pascals_of_
     for (_, value, _), stamp in zip(moved, stamps):
         by_model = raw + end - plant_step(estimator.plant, start, stamp, estimator.inputs)[0]
         assert abs(value - by_model) < 10.0, (stamp, value, by_model)
-    assert moved[-1][1] == raw                    # the newest sample is at the fusion instant
+    assert moved[-1][1] == raw  # the newest sample is at the fusion instant
 
 
 @pytest.mark.parametrize("filter_type", FILTER_TYPES)
-@pytest.mark.parametrize("gap_pa, regulator_gauge_pa, valve, one_step", [
-    (1.0, 20e3, Valve.SUPPLY, True),       # settled
-    (50.0, 20e3, Valve.SUPPLY, True),      # still filling, by ~40 Pa over the window
-    (0.0, 40e3, Valve.CLOSED, False),      # the chamber held, the regulator slewing to its command
-], ids=["settled", "filling", "regulator-slewing"])
-def test_a_resting_window_is_predicted_in_one_step_unless_the_regulator_moves(filter_type, gap_pa,
-                                                                             regulator_gauge_pa, valve, one_step):
+@pytest.mark.parametrize(
+    "gap_pa, regulator_gauge_pa, valve, one_step",
+    [
+        (1.0, 20e3, Valve.SUPPLY, True),  # settled
+        (50.0, 20e3, Valve.SUPPLY, True),  # still filling, by ~40 Pa over the window
+        (0.0, 40e3, Valve.CLOSED, False),  # the chamber held, the regulator slewing to its command
+    ],
+    ids=["settled", "filling", "regulator-slewing"])
+def test_a_resting_window_is_predicted_in_one_step_unless_the_regulator_moves(
+        filter_type, gap_pa, regulator_gauge_pa, valve, one_step):
     """A 20 ms window at rest (the chamber's modelled change within 50 Pa). While the regulator's
     is too, the filter predicts across the window in one step, within 20 Pa of 5 ms sub-steps;
     while the regulator slews, in sub-steps. (The estimate's consistency with one step is
@@ -321,7 +350,7 @@ def test_a_resting_window_is_predicted_in_one_step_unless_the_regulator_moves(fi
     predictions = []
     predict = estimator.filter.predict
     estimator.filter.predict = lambda dt, inputs: (predictions.append(dt), predict(dt, inputs))
-    estimator._fuse = lambda samples, stamp_s: None          # the prediction alone
+    estimator._fuse = lambda samples, stamp_s: None  # the prediction alone
     for stamp in (0.004, 0.01, 0.016, 0.02):
         estimator.add_measurement("chamber_b", 20e3 - gap_pa, stamp)
     assert estimator.resting
@@ -343,20 +372,24 @@ def test_with_the_nodes_fusion_window_the_nees_is_consistent_too(filter_type):
 def test_a_sample_beyond_three_sigma_ends_a_rest_and_is_fused_at_once():
     estimator = PressureEstimator(EstimatorConfig(fusion_window_s=0.005))
     estimator.set_inputs(0.0, True, Valve.CLOSED, 0.0)
-    for k in range(400):                          # noise-free: the estimate converges on 10 kPa
+    for k in range(400):  # noise-free: the estimate converges on 10 kPa
         estimator.add_measurement("chamber_b", 10e3, 0.001 * k)
     estimator.add_measurement("chamber_b", 10e3, 0.3995)
     assert estimator.resting and estimator._pending
     x, P = estimator.filter.x[0, 0], estimator.filter.P[0, 0]
-    sigma = math.sqrt(P + 150.0 ** 2)
-    assert estimator.add_measurement("chamber_b", x + 3.5 * sigma, 0.4)      # inside the 4-sigma gate
+    sigma = math.sqrt(P + 150.0**2)
+    # inside the 4-sigma gate
+    assert estimator.add_measurement("chamber_b", x + 3.5 * sigma, 0.4)
     assert not estimator.resting and not estimator._pending
     assert estimator.estimate().stamp_s == pytest.approx(0.4) and estimator.estimate().gauge_pa > x
 
 
-BOOST = [(0.0, PlantInputs(0.0, True, (Valve.CLOSED,))), (0.2, PlantInputs(78.8e3, True, (Valve.SUPPLY,))),
-         (0.26, PlantInputs(19.8e3, True, (Valve.CLOSED,))), (0.4, PlantInputs(19.8e3, True, (Valve.SUPPLY,))),
-         (0.6, PlantInputs(0.0, True, (Valve.VENT,))), (0.8, PlantInputs(0.0, True, (Valve.CLOSED,)))]
+BOOST = [(0.0, PlantInputs(0.0, True, (Valve.CLOSED,))),
+         (0.2, PlantInputs(78.8e3, True, (Valve.SUPPLY,))),
+         (0.26, PlantInputs(19.8e3, True, (Valve.CLOSED,))),
+         (0.4, PlantInputs(19.8e3, True, (Valve.SUPPLY,))),
+         (0.6, PlantInputs(0.0, True, (Valve.VENT,))),
+         (0.8, PlantInputs(0.0, True, (Valve.CLOSED,)))]
 
 
 def boost_run(late_s, **changes):
@@ -369,7 +402,8 @@ def boost_run(late_s, **changes):
         feed.until(estimator, t)
         estimator.add_measurement(name, value, t)
         errors.append(estimator.estimate().gauge_pa - trajectory.truth_at(t)[0])
-    return sum(s.rejected for s in estimator.stats.values()), float(np.sqrt(np.mean(np.square(errors))))
+    return sum(s.rejected
+               for s in estimator.stats.values()), float(np.sqrt(np.mean(np.square(errors))))
 
 
 def test_input_timing_uncertainty_keeps_a_late_input_from_locking_the_gate():
@@ -388,7 +422,7 @@ def test_input_timing_uncertainty_keeps_a_late_input_from_locking_the_gate():
 def test_with_a_fusion_window_bad_samples_are_refused_as_without():
     estimator = PressureEstimator(EstimatorConfig(fusion_window_s=0.005))
     estimator.set_inputs(0.0, True, Valve.CLOSED, 0.0)
-    assert estimator.add_measurement("chamber_a", 100.0, 0.0)                  # initialised
+    assert estimator.add_measurement("chamber_a", 100.0, 0.0)  # initialised
     with pytest.raises(ValueError, match="unknown sensor 'chamber_z'"):
         estimator.add_measurement("chamber_z", 100.0, 0.001)
     assert estimator.add_measurement("chamber_a", math.nan, 0.002) is False
@@ -402,14 +436,16 @@ def test_bad_samples_and_settings_are_rejected_clearly():
     with pytest.raises(ValueError, match="unknown sensor 'chamber_z'"):
         estimator.add_measurement("chamber_z", 1.0, 0.0)
     assert estimator.add_measurement("chamber_a", 1e3, 1.0) is True
-    assert estimator.add_measurement("chamber_b", 1e3, 0.5) is False       # older than max_lag_s
+    assert estimator.add_measurement("chamber_b", 1e3, 0.5) is False  # older than max_lag_s
     assert estimator.stats["chamber_b"].late == 1
     with pytest.raises(ValueError, match="finite"):
         estimator.set_inputs(math.inf, True, Valve.SUPPLY, 1.0)
-    for changes, message in (({"filter_type": "pf"}, "filter_type"), ({"process_noise_pa2_per_s": (1.0, 2.0, 3.0)}, "2 values"),
-                             ({"process_noise_pa2_per_s": (1.0, 5.0, 5.0, 1.0)}, "positive semi-definite"),
-                             ({"sensors": ()}, "at least one sensor"), ({"nis_window": 3}, "nis_window"),
-                             ({"sensor_timeout_s": -1.0}, "sensor_timeout_s"),
+    for changes, message in (({"filter_type": "pf"}, "filter_type"), ({
+            "process_noise_pa2_per_s": (1.0, 2.0, 3.0)
+    }, "2 values"), ({"process_noise_pa2_per_s": (1.0, 5.0, 5.0, 1.0)},
+                     "positive semi-definite"), ({"sensors": ()}, "at least one sensor"),
+                             ({"nis_window": 3}, "nis_window"), ({"sensor_timeout_s": -1.0},
+                                                                 "sensor_timeout_s"),
                              ({"fusion_window_s": 0.05}, "fusion_window_s must lie in"),
                              ({"max_fusion_shift_pa": 0.0}, "max_fusion_shift_pa"),
                              ({"input_timing_std_s": 0.5}, "input_timing_std_s")):
@@ -420,7 +456,8 @@ def test_bad_samples_and_settings_are_rejected_clearly():
 
 
 def test_a_prediction_far_ahead_takes_a_bounded_number_of_filter_steps():
-    """#20.5: a stamp 1 h ahead was predicted in 5 ms steps (720,000 of them) under the node's lock."""
+    """#20.5: a stamp 1 h ahead was predicted in 5 ms steps (720,000 of them) under the node's
+    lock."""
     from softgrip_ros.estimation.estimator import MAX_PREDICTION_STEPS
     estimator = PressureEstimator()
     estimator.add_measurements({"chamber_a": 10e3, "chamber_b": 10e3}, 0.0)
@@ -437,24 +474,33 @@ def test_samples_just_after_an_input_change_stay_out_of_the_nis_window():
     nis_input_settle_s the innovations there are not evidence about the sensors."""
     estimator = PressureEstimator(EstimatorConfig(nis_window=20, nis_input_settle_s=0.05))
     estimator.add_measurements({"chamber_a": 10e3, "chamber_b": 10e3}, 0.0)
-    estimator.set_inputs(10e3, True, Valve.CLOSED, 0.01)  # the regulator told 10 kPa: a change that matters
-    estimator.set_inputs(10.2e3, True, Valve.CLOSED, 0.08)  # the trim's kind of step: no settle window
+    # the regulator told 10 kPa: a change that matters
+    estimator.set_inputs(10e3, True, Valve.CLOSED, 0.01)
+    # the trim's kind of step: no settle window
+    estimator.set_inputs(10.2e3, True, Valve.CLOSED, 0.08)
     assert estimator._inputs_changed_s == 0.01
-    estimator.set_inputs(10e3, True, Valve.VENT, 0.1)     # a vent: the timing of this one matters
+    estimator.set_inputs(10e3, True, Valve.VENT, 0.1)  # a vent: the timing of this one matters
     plant, rng = PneumaticPlant(), np.random.default_rng(0)
     truth = plant.initial_state(10e3)
-    for k in range(1, 41):                          # 2 ms apart, along the vent: 24 within the settle, 16 after
+    # 2 ms apart, along the vent: 24 within the settle, 16 after
+    for k in range(1, 41):
         truth = plant.step(truth, PlantInputs(10e3, True, (Valve.VENT,)), 0.002)
-        estimator.add_measurements({"chamber_a": rng.normal(truth.chamber_pa[0] - P_ATM_PA, 300.0)}, 0.1 + 0.002 * k)
+        estimator.add_measurements(
+            {"chamber_a": rng.normal(truth.chamber_pa[0] - P_ATM_PA, 300.0)}, 0.1 + 0.002 * k)
     stats = estimator.stats["chamber_a"]
-    assert stats.nis_settling == 24 and len(stats.nis) == 16 and stats.accepted + stats.rejected == 41
+    assert stats.nis_settling == 24 and len(
+        stats.nis) == 16 and stats.accepted + stats.rejected == 41
 
 
 def test_an_over_cautious_filter_is_reported_but_is_no_warning(trajectory):
     """Q is sized for fills: at rest the NIS falls below its bound by design. That is reported in
     the message; only an overconfident filter (or a faulty sensor) is a warning."""
-    loose_sensors = tuple(SensorConfig(s.name, s.noise_std_pa * 3.0) for s in sim.config_for(trajectory, "ekf").sensors)
-    loose = sim.run(trajectory, dataclasses.replace(sim.config_for(trajectory, "ekf"), sensors=loose_sensors)).estimator
+    loose_sensors = tuple(
+        SensorConfig(s.name, s.noise_std_pa * 3.0)
+        for s in sim.config_for(trajectory, "ekf").sensors)
+    loose = sim.run(trajectory,
+                    dataclasses.replace(sim.config_for(trajectory, "ekf"),
+                                        sensors=loose_sensors)).estimator
     report = loose.report(trajectory.truth_t[-1])
     assert "over-cautious" in report.message and report.health == Health.OK
 
@@ -462,18 +508,20 @@ def test_an_over_cautious_filter_is_reported_but_is_no_warning(trajectory):
 def test_the_nis_evidence_follows_a_sensor_back_within_a_few_samples():
     """The safety checks take the median of the last 25 NIS values: a stuck sensor's is huge, and
     once it reads true again the evidence is back to normal within 25 samples (the window's mean
-    took the window's length, a second for the 200 Hz sensor, and latched a fault after recovery)."""
+    took the window's length, a second for the 200 Hz sensor, and latched a fault after
+    recovery)."""
     from softgrip_ros.estimation.estimator import NIS_EVIDENCE_SAMPLES
     estimator = PressureEstimator(EstimatorConfig(nis_window=200))
     rng = np.random.default_rng(5)
     t = 0.0
-    for k in range(350):                                         # both true, then b stuck low
+    for k in range(350):  # both true, then b stuck low
         t += 0.002
         b = rng.normal(10e3, 150.0) if k < 50 else -40e3
         estimator.add_measurements({"chamber_a": rng.normal(10e3, 300.0), "chamber_b": b}, t)
     assert estimator.nis_evidence()["chamber_b"] > 1e3 * estimator.nis_bounds[1]
-    for k in range(NIS_EVIDENCE_SAMPLES):
+    for _ in range(NIS_EVIDENCE_SAMPLES):
         t += 0.002
-        estimator.add_measurements({"chamber_a": rng.normal(10e3, 300.0), "chamber_b": rng.normal(10e3, 150.0)}, t)
+        estimator.add_measurements(
+            {"chamber_a": rng.normal(10e3, 300.0), "chamber_b": rng.normal(10e3, 150.0)}, t)
     assert estimator.nis_evidence()["chamber_b"] < 5.0
-    assert estimator.stats["chamber_b"].mean_nis() > 100.0     # the window itself still remembers
+    assert estimator.stats["chamber_b"].mean_nis() > 100.0  # the window itself still remembers

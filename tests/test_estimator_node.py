@@ -23,19 +23,25 @@ def wired(rclpy_context, request):
     from softgrip_interfaces.msg import ControllerStatus
     from softgrip_ros.nodes.estimator import EstimatorNode
 
-    overrides = [Parameter(name, value=value) for name, value in getattr(request, "param", {}).items()]
+    overrides = [
+        Parameter(name, value=value) for name, value in getattr(request, "param", {}).items()
+    ]
     estimator = EstimatorNode(context=rclpy_context, parameter_overrides=overrides)
     feeder = Node("test_feeder", context=rclpy_context)
-    publishers = {name: feeder.create_publisher(FluidPressure, f"pressure/sensor/{name}", 50)
-                  for name in ("chamber_a", "chamber_b")}
+    publishers = {
+        name: feeder.create_publisher(FluidPressure, f"pressure/sensor/{name}", 50)
+        for name in ("chamber_a", "chamber_b")
+    }
     status_pub = feeder.create_publisher(ControllerStatus, "controller/status", 10)
     estimates, diagnostics = [], []
     feeder.create_subscription(FluidPressure, "pressure/estimate", estimates.append, 50)
-    feeder.create_subscription(DiagnosticArray, "/diagnostics",
-                               lambda m: diagnostics.extend(s for s in m.status if s.name == "softgrip: estimator"), 10)
+    feeder.create_subscription(
+        DiagnosticArray, "/diagnostics",
+        lambda m: diagnostics.extend(s for s in m.status if s.name == "softgrip: estimator"), 10)
     try:
         with spinning(rclpy_context, estimator, feeder, threads=1):
-            wait_for(lambda: all(p.get_subscription_count() for p in publishers.values()), message="estimator subscribed")
+            wait_for(lambda: all(p.get_subscription_count() for p in publishers.values()),
+                     message="estimator subscribed")
             yield feeder, publishers, status_pub, estimates, diagnostics
     finally:
         estimator.destroy_node()
@@ -51,8 +57,9 @@ def _feed(feeder, publishers, names, truth_pa, seconds, rng, rate_hz=250.0):
     while time.monotonic() < end:
         stamp = feeder.get_clock().now().to_msg()
         for name in names:
-            publishers[name].publish(FluidPressure(fluid_pressure=P_ATM_PA + truth_pa + rng.normal(0, noise[name]),
-                                                   variance=noise[name] ** 2, header=_header(stamp, name)))
+            publishers[name].publish(
+                FluidPressure(fluid_pressure=P_ATM_PA + truth_pa + rng.normal(0, noise[name]),
+                              variance=noise[name]**2, header=_header(stamp, name)))
         time.sleep(1.0 / rate_hz)
 
 
@@ -68,18 +75,22 @@ def test_fuses_sensor_topics_into_a_published_estimate_with_variance(wired):
     feeder, publishers, status_pub, estimates, diagnostics = wired
     rng = np.random.default_rng(0)
     truth = 20e3
-    status_pub.publish(ControllerStatus(header=_header(feeder.get_clock().now().to_msg(), ""), valve_states=[0],
-                                        regulator_command_gauge_pressure_pa=truth, regulator_enabled=True))
+    status_pub.publish(
+        ControllerStatus(header=_header(feeder.get_clock().now().to_msg(), ""), valve_states=[0],
+                         regulator_command_gauge_pressure_pa=truth, regulator_enabled=True))
     _feed(feeder, publishers, ("chamber_a", "chamber_b"), truth, 1.0, rng)
-    fed = len(estimates)      # the fused ones; after the feed come predictions
+    fed = len(estimates)  # the fused ones; after the feed come predictions
     assert fed > 100
     last = estimates[fed - 50:fed]
     values = np.array([m.fluid_pressure - P_ATM_PA for m in last])
     stds = np.sqrt([m.variance for m in last])
-    assert np.all(np.abs(values - truth) < 4 * stds + 1.0)       # within 4 sigma of the truth
-    assert np.median(stds) < 150.0 / math.sqrt(2)                 # tighter than the best sensor's one-sample noise
+    assert np.all(np.abs(values - truth) < 4 * stds + 1.0)  # within 4 sigma of the truth
+    # tighter than the best sensor's one-sample noise
+    assert np.median(stds) < 150.0 / math.sqrt(2)
     assert estimates[-1].header.stamp.sec > 0
-    wait_for(lambda: any(d.level == DiagnosticStatus.OK and "fusing 2 sensors" in d.message for d in diagnostics), message="diagnostics OK")
+    wait_for(
+        lambda: any(d.level == DiagnosticStatus.OK and "fusing 2 sensors" in d.message
+                    for d in diagnostics), message="diagnostics OK")
 
 
 def test_at_rest_estimates_go_out_at_the_rest_rate(wired):
@@ -91,36 +102,41 @@ def test_at_rest_estimates_go_out_at_the_rest_rate(wired):
     feeder, publishers, status_pub, estimates, _ = wired
     rng = np.random.default_rng(2)
     truth = 10e3
-    status_pub.publish(ControllerStatus(header=_header(feeder.get_clock().now().to_msg(), ""), valve_states=[0],
-                                        regulator_command_gauge_pressure_pa=truth, regulator_enabled=True))
-    _feed(feeder, publishers, ("chamber_a", "chamber_b"), truth, 0.3, rng)     # converge
+    status_pub.publish(
+        ControllerStatus(header=_header(feeder.get_clock().now().to_msg(), ""), valve_states=[0],
+                         regulator_command_gauge_pressure_pa=truth, regulator_enabled=True))
+    _feed(feeder, publishers, ("chamber_a", "chamber_b"), truth, 0.3, rng)  # converge
     start = len(estimates)
     _feed(feeder, publishers, ("chamber_a", "chamber_b"), truth, 1.0, rng)
     at_rest = estimates[start:]
     gaps = np.diff([stamp_s(m.header.stamp) for m in at_rest])
     # a 3-sigma sample ends a rest too: about 1 in 370 samples of pure noise, 1-2 of these 500
-    assert 5 <= len(at_rest) <= 27 and np.median(gaps) >= 0.045 - 1e-6 and np.sum(gaps < 0.045 - 1e-6) <= 4, gaps
+    assert 5 <= len(at_rest) <= 27 and np.median(gaps) >= 0.045 - 1e-6 and np.sum(gaps < 0.045 -
+                                                                                  1e-6) <= 4, gaps
     values = np.array([m.fluid_pressure - P_ATM_PA for m in at_rest])
     assert np.all(np.abs(values - truth) < 4 * np.sqrt([m.variance for m in at_rest]) + 1.0)
 
 
-
-def test_a_batch_of_readings_gives_one_estimate_at_its_newest_and_an_unknown_sensor_is_refused(rclpy_context):
+def test_a_batch_of_readings_gives_one_estimate_at_its_newest_and_an_unknown_sensor_is_refused(
+        rclpy_context):
     """The composed controller hands over the readings of a bus batch together (10 ms of them
     while it rests): one estimate comes of it, stamped at the newest sample, not at an older one
     that happened to make an estimate due."""
     from softgrip_ros.nodes.estimator import EstimatorNode
     estimator = EstimatorNode(in_process=True, context=rclpy_context)
     published = []
-    estimator.estimate_listeners.append(lambda stamp_s, gauge_pa, variance_pa2: published.append((stamp_s, gauge_pa)))
+    estimator.estimate_listeners.append(
+        lambda stamp_s, gauge_pa, variance_pa2: published.append((stamp_s, gauge_pa)))
     try:
         t0 = estimator._now()
         estimator.on_sensor_samples([("chamber_a", 10e3, t0)])
         assert [stamp for stamp, _ in published] == [t0]
-        estimator.on_sensor_samples([("chamber_b" if k % 2 else "chamber_a", 10e3, t0 + 0.006 * k) for k in range(1, 11)])
+        estimator.on_sensor_samples([("chamber_b" if k % 2 else "chamber_a", 10e3, t0 + 0.006 * k)
+                                     for k in range(1, 11)])
         assert len(published) == 2 and published[-1][0] == pytest.approx(t0 + 0.06)
         with pytest.raises(ValueError, match=r"unknown sensor 'chamber_z'"):
-            estimator.on_sensor_samples([("chamber_z", 1.0, t0 + 0.061), ("chamber_a", 10e3, t0 + 0.062)])
+            estimator.on_sensor_samples([("chamber_z", 1.0, t0 + 0.061),
+                                         ("chamber_a", 10e3, t0 + 0.062)])
         assert estimator.estimator.stats["chamber_a"].last_stamp_s == pytest.approx(t0 + 0.062)
     finally:
         estimator.close()
@@ -136,11 +152,13 @@ def test_silent_sensors_give_predictions_with_growing_variance_and_a_warning(wir
     count = len(estimates)
     wait_for(lambda: len(estimates) > count + 50, message="predictions while silent")
     assert estimates[-1].variance > fused_variance
-    wait_for(lambda: any(d.level == DiagnosticStatus.WARN and "all sensors silent" in d.message for d in diagnostics[-3:]),
-             message="a WARN while every sensor is silent")
+    wait_for(
+        lambda: any(d.level == DiagnosticStatus.WARN and "all sensors silent" in d.message
+                    for d in diagnostics[-3:]), message="a WARN while every sensor is silent")
     _feed(feeder, publishers, ("chamber_b",), 5e3, 0.5, rng)
-    wait_for(lambda: any(d.level == DiagnosticStatus.WARN and "sensors silent: chamber_a" in d.message for d in diagnostics[-3:]),
-             message="a WARN naming the lost sensor")
+    wait_for(
+        lambda: any(d.level == DiagnosticStatus.WARN and "sensors silent: chamber_a" in d.message
+                    for d in diagnostics[-3:]), message="a WARN naming the lost sensor")
 
 
 @pytest.mark.parametrize("argument, message", [
@@ -151,7 +169,8 @@ def test_silent_sensors_give_predictions_with_growing_variance_and_a_warning(wir
     ("fusion_window:=0.05", "fusion_window"),
 ])
 def test_bad_startup_parameter_exits_1_with_its_reason(argument, message):
-    run = subprocess.run([installed_executable("estimator"), "--ros-args", "-p", argument], capture_output=True, text=True, timeout=60)
+    run = subprocess.run([installed_executable("estimator"), "--ros-args", "-p", argument],
+                         capture_output=True, text=True, timeout=60)
     assert run.returncode == 1, run.stderr
     assert message in run.stderr
     assert "Traceback" not in run.stderr
@@ -166,9 +185,11 @@ def test_messages_stamped_far_ahead_are_ignored_and_the_estimates_go_on(wired):
     rng = np.random.default_rng(2)
     _feed(feeder, publishers, ("chamber_a", "chamber_b"), 5e3, 0.3, rng)
     ahead = stamp_msg(feeder.get_clock().now().nanoseconds * 1e-9 + 3600.0)
-    publishers["chamber_a"].publish(FluidPressure(fluid_pressure=P_ATM_PA + 5e3, variance=9e4, header=_header(ahead, "a")))
+    publishers["chamber_a"].publish(
+        FluidPressure(fluid_pressure=P_ATM_PA + 5e3, variance=9e4, header=_header(ahead, "a")))
     count = len(estimates)
     _feed(feeder, publishers, ("chamber_a", "chamber_b"), 5e3, 0.5, rng)
     assert len(estimates) - count > 5
     assert all(m.header.stamp.sec < ahead.sec - 1000 for m in estimates[count:])
-    wait_for(lambda: any("in the future" in d.message for d in diagnostics), message="the refusal reported")
+    wait_for(lambda: any("in the future" in d.message for d in diagnostics),
+             message="the refusal reported")

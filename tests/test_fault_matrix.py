@@ -16,8 +16,8 @@ pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 @pytest.fixture(scope="module")
 def quick_matrix():
-    result = subprocess.run([sys.executable, "scripts/bench_faults.py", "--quick", "--json"], cwd=REPO_ROOT,
-                            capture_output=True, text=True, timeout=900)
+    result = subprocess.run([sys.executable, "scripts/bench_faults.py", "--quick", "--json"],
+                            cwd=REPO_ROOT, capture_output=True, text=True, timeout=900)
     assert "Traceback" not in result.stderr, result.stderr[-3000:]
     return result.returncode, json.loads(result.stdout), result.stderr
 

@@ -16,9 +16,9 @@ pytestmark = pytest.mark.ros
 @pytest.fixture
 def peer_process():
     """The publisher/action-server peer as a separate process, ended by its PID afterwards."""
-    process = subprocess.Popen([sys.executable, "-m", "tests.helpers.roundtrip_peer"], cwd=REPO_ROOT,
-                               env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                               text=True)
+    process = subprocess.Popen([sys.executable, "-m", "tests.helpers.roundtrip_peer"],
+                               cwd=REPO_ROOT, env=dict(os.environ), stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
     try:
         yield process
     finally:
@@ -41,7 +41,8 @@ def test_every_message_type_round_trips_across_processes(peer_process, ros_node)
 
     received = {}
     for topic, (msg_type, _) in sample_messages.SAMPLES.items():
-        ros_node.create_subscription(msg_type, topic, lambda msg, t=topic: received.setdefault(t, msg), 10)
+        ros_node.create_subscription(msg_type, topic,
+                                     lambda msg, t=topic: received.setdefault(t, msg), 10)
     executor = SingleThreadedExecutor(context=ros_node.context)
     executor.add_node(ros_node)
     try:
@@ -57,8 +58,9 @@ def test_every_message_type_round_trips_across_processes(peer_process, ros_node)
         client = ActionClient(ros_node, Grasp, "roundtrip/grasp")
         assert client.wait_for_server(timeout_sec=20.0), "the peer's Grasp server never appeared"
         feedbacks = []
-        send_future = client.send_goal_async(sample_messages.grasp_goal(),
-                                             feedback_callback=lambda fb: feedbacks.append(fb.feedback))
+        send_future = client.send_goal_async(
+            sample_messages.grasp_goal(),
+            feedback_callback=lambda fb: feedbacks.append(fb.feedback))
         executor.spin_until_future_complete(send_future, timeout_sec=10.0)
         goal_handle = send_future.result()
         assert goal_handle is not None and goal_handle.accepted
@@ -84,7 +86,8 @@ def test_every_message_type_round_trips_across_processes(peer_process, ros_node)
 
 
 def test_differences_detects_a_changed_field():
-    """The comparison used above is not vacuous: it sees NaN vs number, sign of zero and list length."""
+    """The comparison used above is not vacuous: it sees NaN vs number, sign of zero and list
+    length."""
     sent, changed = sample_messages.controller_status(), sample_messages.controller_status()
     changed.measured_gauge_pressure_pa = 0.0
     changed.valve_states = [3]
@@ -92,5 +95,5 @@ def test_differences_detects_a_changed_field():
     state = sample_messages.gripper_state()
     flipped = sample_messages.gripper_state()
     flipped.clamp_force_n = 0.0
-    assert sample_messages.differences(state, flipped) == [
-        "msg.clamp_force_n: sent -0.0, received 0.0"]
+    assert sample_messages.differences(state,
+                                       flipped) == ["msg.clamp_force_n: sent -0.0, received 0.0"]

@@ -19,19 +19,24 @@ def wired(rclpy_context):
 
     node = KinematicsNode(context=rclpy_context)
     user = Node("kinematics_test_user", context=rclpy_context)
-    scenes = user.create_publisher(GraspScene, "grasp_scene", QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    scenes = user.create_publisher(
+        GraspScene, "grasp_scene", QoSProfile(depth=1,
+                                              durability=DurabilityPolicy.TRANSIENT_LOCAL))
     estimates = user.create_publisher(FluidPressure, "pressure/estimate", 10)
     stamp = [0.0]
 
     def estimate(gauge_pa):
         stamp[0] += 0.05
         message = FluidPressure(fluid_pressure=101_325.0 + gauge_pa, variance=100.0)
-        message.header.stamp.sec, message.header.stamp.nanosec = int(stamp[0]), int((stamp[0] % 1) * 1e9)
+        message.header.stamp.sec = int(stamp[0])
+        message.header.stamp.nanosec = int((stamp[0] % 1) * 1e9)
         estimates.publish(message)
 
     try:
         with spinning(rclpy_context, node, user, threads=2):
-            wait_for(lambda: estimates.get_subscription_count() and scenes.get_subscription_count(), message="discovery")
+            wait_for(
+                lambda: estimates.get_subscription_count() and scenes.get_subscription_count(),
+                message="discovery")
             yield node, scenes, estimate
     finally:
         node.close()
@@ -40,34 +45,42 @@ def wired(rclpy_context):
 
 
 def model_after(node, estimate, gauge_pa, wanted):
+
     def check():
         estimate(gauge_pa)
         return node.last and node.last[1].model == wanted and node.last[1]
+
     return wait_for(check, timeout=10.0, period=0.05, message=f"kinematics on {wanted}")
 
 
 def test_an_object_on_grasp_scene_switches_auto_to_l2_and_free_bending_back(wired):
     from softgrip_interfaces.msg import GraspScene
     node, scenes, estimate = wired
-    free = model_after(node, estimate, 20e3, "l1")                   # the default tolerance (1 mm) rules out L0 here
+    # the default tolerance (1 mm) rules out L0 here
+    free = model_after(node, estimate, 20e3, "l1")
     assert free.scene_class == "free" and free.contact_force_n == 0.0
-    scenes.publish(GraspScene(kind=GraspScene.CYLINDER, object_diameter_m=0.04, object_center_z_m=0.0981,
-                              opening_gauge_pressure_pa=30e3))
-    on_object = model_after(node, estimate, -10e3, "l2")              # solved on the worker thread
+    scenes.publish(
+        GraspScene(kind=GraspScene.CYLINDER, object_diameter_m=0.04, object_center_z_m=0.0981,
+                   opening_gauge_pressure_pa=30e3))
+    on_object = model_after(node, estimate, -10e3, "l2")  # solved on the worker thread
     assert on_object.scene_class == "contact" and on_object.contact_force_n > 0.0
-    assert on_object.tip[0] < -0.02                                  # held open by the object, not closed past it
+    # held open by the object, not closed past it
+    assert on_object.tip[0] < -0.02
     scenes.publish(GraspScene(kind=GraspScene.FREE))
     assert model_after(node, estimate, 20e3, "l1").scene_class == "free"
 
 
-@pytest.mark.parametrize("kind, diameter, opening, reason", [
-    (9, 0.04, 0.0, "unknown scene kind"), (1, -0.04, 0.0, "radius"), (1, 0.04, math.nan, "opening_gauge_pressure_pa")])
-def test_a_malformed_scene_is_refused_and_the_last_one_kept(wired, kind, diameter, opening, reason):
+@pytest.mark.parametrize("kind, diameter, opening, reason",
+                         [(9, 0.04, 0.0, "unknown scene kind"), (1, -0.04, 0.0, "radius"),
+                          (1, 0.04, math.nan, "opening_gauge_pressure_pa")])
+def test_a_malformed_scene_is_refused_and_the_last_one_kept(wired, kind, diameter, opening,
+                                                            reason):
     from softgrip_interfaces.msg import GraspScene
     from softgrip_ros.model.fidelity import FREE
     from softgrip_ros.nodes.messages import scene_from_message
     node, scenes, estimate = wired
-    message = GraspScene(kind=kind, object_diameter_m=diameter, object_center_z_m=0.1, opening_gauge_pressure_pa=opening)
+    message = GraspScene(kind=kind, object_diameter_m=diameter, object_center_z_m=0.1,
+                         opening_gauge_pressure_pa=opening)
     with pytest.raises(ValueError, match=reason):
         scene_from_message(message)
     scenes.publish(message)

@@ -1,4 +1,5 @@
-"""The stored calibration is what the calibration procedure gives, and meets the paper's numbers."""
+"""The stored calibration is what the calibration procedure gives, and meets the paper's
+numbers."""
 import math
 import pathlib
 
@@ -16,15 +17,18 @@ def test_vendored_paper_numbers_match_the_shared_reference():
     if not shared.is_file():
         pytest.skip("../shared is not beside this checkout")
     vendored = config_file("paper_results.yaml").read_text()
-    assert vendored.endswith(shared.read_text()), "config/paper_results.yaml drifted from ../shared"
+    assert vendored.endswith(
+        shared.read_text()), "config/paper_results.yaml drifted from ../shared"
 
 
 def test_stored_calibration_is_reproducible():
     fresh = calibration.calibrate_all(PAPER)
     for name, cal in fresh.items():
         stored = calibration.load_calibration(name)
-        for field in ("gain", "ballooning_compliance_per_pa", "saturation_pressure_pa", "saturation_width_pa"):
-            assert getattr(stored, field) == pytest.approx(getattr(cal, field), rel=1e-6), (name, field)
+        for field in ("gain", "ballooning_compliance_per_pa", "saturation_pressure_pa",
+                      "saturation_width_pa"):
+            assert getattr(stored, field) == pytest.approx(getattr(cal, field),
+                                                           rel=1e-6), (name, field)
 
 
 def test_type_ii_accuracy_targets():
@@ -45,7 +49,8 @@ def test_each_type_meets_its_own_alpha():
     for name in ("type_I", "type_II", "type_III"):
         kin = calibration.build_kinematics("l0", cavity_type=name)
         expected = math.degrees(PAPER.alpha_25kpa_rad[name])
-        assert math.degrees(kin.pose(25e3).included_angle_rad) == pytest.approx(expected, rel=1e-6), name
+        angle_deg = math.degrees(kin.pose(25e3).included_angle_rad)
+        assert angle_deg == pytest.approx(expected, rel=1e-6), name
 
 
 def test_saturation_fit_rejects_impossible_growth():

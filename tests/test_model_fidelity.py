@@ -6,7 +6,8 @@ import pytest
 
 from softgrip_ros.control.grasp_fsm import GraspConfig, GraspRequest, GraspMode, Phase
 from softgrip_ros.model.calibration import build_kinematics
-from softgrip_ros.model.fidelity import FREE, ErrorBounds, ModelSelector, Scene, SceneModel, cylinder_scene
+from softgrip_ros.model.fidelity import (FREE, ErrorBounds, ModelSelector, Scene, SceneModel,
+                                         cylinder_scene)
 from softgrip_ros.runtime.rod_solver import LatestSolveThread, RodSolverProcess
 from softgrip_ros.model.reference import ReferenceFinger
 from softgrip_ros.model.rod import Circle, Sheet
@@ -15,7 +16,7 @@ from tests.helpers.grasp_loop import GraspLoop
 MODEL = SceneModel("auto", 1e-3)
 BOUNDS = MODEL.selector.bounds
 CLAMP_40MM = cylinder_scene(MODEL.rod, 0.040, 30e3)
-LOOSE_M, TIGHT_M = 25e-3, 0.1e-3     # L0 lies 23 mm from the L1-driven reference at 45 kPa
+LOOSE_M, TIGHT_M = 25e-3, 0.1e-3  # L0 lies 23 mm from the L1-driven reference at 45 kPa
 
 
 def selector(fidelity="auto", tolerance_m=1e-3):
@@ -29,7 +30,8 @@ def test_the_shipped_bounds_order_the_models_as_the_benchmark_measured():
     assert cost["l0"] < cost["l1"] < cost["l2"]
     assert b["l1"]["free"] < TIGHT_M < b["l0"]["free"] < LOOSE_M
     assert b["l2"]["contact"] < 1e-3 < min(b["l0"]["contact"], b["l1"]["contact"])
-    assert b["l0"]["free_beyond"] > b["l0"]["free"]                 # the linear law runs away beyond 46 kPa
+    # the linear law runs away beyond 46 kPa
+    assert b["l0"]["free_beyond"] > b["l0"]["free"]
 
 
 def test_auto_picks_l0_loose_l1_tight_and_l2_in_contact():
@@ -38,21 +40,26 @@ def test_auto_picks_l0_loose_l1_tight_and_l2_in_contact():
     assert selector().choose(-10e3, CLAMP_40MM).model == "l2"
     assert selector().choose(-10e3, CLAMP_40MM).scene_class == "contact"
     beyond = selector(tolerance_m=LOOSE_M).choose(55e3)
-    assert beyond.scene_class == "free_beyond" and beyond.model == ("l0" if BOUNDS.tip_error_bound_m["l0"]["free_beyond"] <= LOOSE_M else "l1")
+    assert beyond.scene_class == "free_beyond" and beyond.model == (
+        "l0" if BOUNDS.tip_error_bound_m["l0"]["free_beyond"] <= LOOSE_M else "l1")
     fixed = selector("l0").choose(-10e3, CLAMP_40MM)
-    assert fixed.model == "l0" and not fixed.meets_tolerance     # a fixed model is kept, and flagged
+    # a fixed model is kept, and flagged
+    assert fixed.model == "l0" and not fixed.meets_tolerance
     impossible = selector(tolerance_m=1e-6).choose(-10e3, CLAMP_40MM)
     assert impossible.model == "l2" and not impossible.meets_tolerance
 
 
-@pytest.mark.parametrize("tolerance_m, pressure_pa, scene, expected", [
-    (LOOSE_M, 30e3, FREE, "l0"), (TIGHT_M, 30e3, FREE, "l1"), (1e-3, -10e3, CLAMP_40MM, "l2")])
-def test_the_chosen_model_is_within_the_tolerance_of_the_reference(tolerance_m, pressure_pa, scene, expected):
+@pytest.mark.parametrize("tolerance_m, pressure_pa, scene, expected",
+                         [(LOOSE_M, 30e3, FREE, "l0"), (TIGHT_M, 30e3, FREE, "l1"),
+                          (1e-3, -10e3, CLAMP_40MM, "l2")])
+def test_the_chosen_model_is_within_the_tolerance_of_the_reference(tolerance_m, pressure_pa, scene,
+                                                                   expected):
     model = SceneModel("auto", tolerance_m)
     evaluation = model.evaluate(pressure_pa, scene)
     assert evaluation.model == expected and evaluation.meets_tolerance
-    reference = ReferenceFinger(model.rod).solve(pressure_pa, obstacle=scene.obstacle,
-                                                 from_pressure_pa=scene.opening_gauge_pa if scene.contact else 0.0)
+    reference = ReferenceFinger(model.rod).solve(
+        pressure_pa, obstacle=scene.obstacle,
+        from_pressure_pa=scene.opening_gauge_pa if scene.contact else 0.0)
     assert reference.at_rest
     error = math.hypot(evaluation.tip[0] - reference.tip[0], evaluation.tip[1] - reference.tip[1])
     assert error <= tolerance_m
@@ -63,21 +70,21 @@ def test_l2_runs_again_only_when_the_pressure_moved_and_reports_its_force():
     first = model.evaluate(-10e3, CLAMP_40MM)
     assert first.model == "l2" and first.contact_force_n > 0 and model.solves == 1
     model.evaluate(-10.1e3, CLAMP_40MM)
-    assert model.solves == 1                                     # within 200 Pa: the last solve
+    assert model.solves == 1  # within 200 Pa: the last solve
     moved = model.evaluate(-11e3, CLAMP_40MM)
     assert model.solves == 2 and moved.contact_force_n > first.contact_force_n
-    assert moved.tip_slope[0] != 0.0                             # from the two solves, not L1's
+    assert moved.tip_slope[0] != 0.0  # from the two solves, not L1's
 
 
 def test_with_a_clock_l2_solves_at_most_once_per_interval_except_for_a_new_scene():
     """The clamp sweeps tens of kPa in a fraction of a second: the solves are rate-capped."""
     model = SceneModel("auto", 1e-3, resolve_pressure_pa=200.0, min_solve_interval_s=0.1)
     model.evaluate(-5e3, CLAMP_40MM, now_s=0.0)
-    model.evaluate(-8e3, CLAMP_40MM, now_s=0.05)                # moved 3 kPa, but only 50 ms later
+    model.evaluate(-8e3, CLAMP_40MM, now_s=0.05)  # moved 3 kPa, but only 50 ms later
     assert model.solves == 1
     assert model.evaluate(-8e3, CLAMP_40MM, now_s=0.1).contact_force_n > 0 and model.solves == 2
     sheet = Scene(Sheet(1e-4), 2e3)
-    model.evaluate(-8e3, sheet, now_s=0.11)                     # a new scene solves at once
+    model.evaluate(-8e3, sheet, now_s=0.11)  # a new scene solves at once
     assert model.solves == 3
     with pytest.raises(ValueError, match="min_solve_interval_s"):
         SceneModel("auto", 1e-3, min_solve_interval_s=-1.0)
@@ -129,7 +136,8 @@ def test_the_solve_thread_solves_the_latest_request_and_reports_failures():
         return MODEL.rod.solve(pressure, obstacle=obstacle, from_pressure_pa=opening, steps=4)
 
     model = SceneModel("auto", 1e-3, rod_solver=rod_solver)
-    thread = LatestSolveThread(model, on_error=lambda pressure, error: errors.append((pressure, str(error))))
+    thread = LatestSolveThread(
+        model, on_error=lambda pressure, error: errors.append((pressure, str(error))))
     try:
         thread.request(-5e3, CLAMP_40MM)
         assert started.wait(5.0)
@@ -158,9 +166,11 @@ def test_without_a_solve_it_says_l2_is_pending_and_uses_l1():
 
 
 def test_a_failed_l2_solve_falls_back_to_l1_and_says_why():
-    overlapping = Scene(Circle(0.0, 0.10, 0.02), opening_gauge_pa=0.0)     # the object sits in the start shape
+    # the object sits in the start shape
+    overlapping = Scene(Circle(0.0, 0.10, 0.02), opening_gauge_pa=0.0)
     evaluation = SceneModel("auto", 1e-3).evaluate(-10e3, overlapping)
-    assert evaluation.model == "l1" and "overlaps" in evaluation.message and "l1 used" in evaluation.message
+    assert (evaluation.model == "l1" and "overlaps" in evaluation.message and
+            "l1 used" in evaluation.message)
 
 
 def test_bad_settings_are_refused():
@@ -182,11 +192,14 @@ def test_a_malformed_bounds_table_is_refused(tmp_path):
 
 
 def test_the_grasp_reports_the_model_of_its_scene():
-    """ENVELOP_CLAMP 40 mm: free bending (L0 or L1) while opening, L2 on the cylinder while clamping
-    and holding; PINCH: L2 on a sheet."""
+    """ENVELOP_CLAMP 40 mm: free bending (L0 or L1) while opening, L2 on the cylinder while
+    clamping and holding; PINCH: L2 on a sheet."""
     kinematics = build_kinematics("l0")
-    loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.2), scene_model=SceneModel("auto", 1e-3))
-    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2, command_id="g"))
+    loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.2),
+                     scene_model=SceneModel("auto", 1e-3))
+    loop.command(
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2,
+                     command_id="g"))
     loop.run_until(lambda s: s.phase == Phase.ENVELOPED, 5.0)
     assert loop.fsm.scene() == FREE and loop.fsm.state.model_fidelity in ("l0", "l1")
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
@@ -195,7 +208,8 @@ def test_the_grasp_reports_the_model_of_its_scene():
     assert loop.fsm.state.model_fidelity == "l2"
     loop.command(GraspRequest(GraspMode.STOP, command_id="s"))
     loop.run_until(lambda s: s.phase == Phase.IDLE, 2.0)
-    loop.command(GraspRequest(GraspMode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.01, command_id="p"))
+    loop.command(
+        GraspRequest(GraspMode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.01, command_id="p"))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     assert loop.fsm.scene() == Scene(Sheet(1e-4), 0.0) and loop.fsm.state.model_fidelity == "l2"
 
@@ -207,11 +221,15 @@ def test_a_held_cylinder_keeps_the_reported_tip_spacing_where_the_rod_puts_the_t
     and opens until the fingers clear the object. Stopped, nothing held, D2 is free again."""
     kinematics = build_kinematics("l1")
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.1), scene_model=MODEL)
-    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=diameter_m, object_mass_kg=0.2, command_id="g"))
+    loop.command(
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=diameter_m, object_mass_kg=0.2,
+                     command_id="g"))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     state, scene = loop.fsm.state, loop.fsm.scene()
-    assert kinematics.pose(state.estimated_gauge_pa).tip_spacing_m < 1e-3 and state.tip_spacing_m == diameter_m
-    solution = MODEL.rod.solve(state.estimated_gauge_pa, obstacle=scene.obstacle, from_pressure_pa=scene.opening_gauge_pa)
+    assert kinematics.pose(
+        state.estimated_gauge_pa).tip_spacing_m < 1e-3 and state.tip_spacing_m == diameter_m
+    solution = MODEL.rod.solve(state.estimated_gauge_pa, obstacle=scene.obstacle,
+                               from_pressure_pa=scene.opening_gauge_pa)
     face_x_m = solution.surface_m[MODEL.rod.chamber_face_node(4)][0]
     assert solution.converged and solution.contact_force_n > 0.0
     assert -2.0 * face_x_m == pytest.approx(diameter_m, abs=0.5e-3)
@@ -219,14 +237,15 @@ def test_a_held_cylinder_keeps_the_reported_tip_spacing_where_the_rod_puts_the_t
     loop.command(GraspRequest(GraspMode.RELEASE, command_id="r"))
     loop.run_until(lambda s: s.phase == Phase.IDLE or releasing.append(s.tip_spacing_m), 5.0)
     assert len(releasing) > 10 and min(releasing) == diameter_m and scene.contact
-    assert loop.fsm.state.tip_spacing_m > diameter_m                 # opened past it: free bending
+    assert loop.fsm.state.tip_spacing_m > diameter_m  # opened past it: free bending
     loop.command(GraspRequest(GraspMode.STOP, command_id="s"))
     loop.run_for(0.5)
-    assert loop.fsm.state.tip_spacing_m < 2e-3                      # vented, nothing held
+    assert loop.fsm.state.tip_spacing_m < 2e-3  # vented, nothing held
 
 
 def test_a_pinched_sheet_is_the_reported_tip_spacing():
     loop = GraspLoop(build_kinematics("l0"), scene_model=MODEL)
-    loop.command(GraspRequest(GraspMode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.01, command_id="p"))
+    loop.command(
+        GraspRequest(GraspMode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.01, command_id="p"))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     assert loop.fsm.state.tip_spacing_m == 1e-4

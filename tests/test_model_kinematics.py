@@ -1,4 +1,5 @@
-"""Bending laws and PCC kinematics: exactness, monotonicity, symmetry, inverse, derivatives, bad input."""
+"""Bending laws and PCC kinematics: exactness, monotonicity, symmetry, inverse, derivatives, bad
+input."""
 import dataclasses
 import math
 
@@ -27,8 +28,9 @@ def series_tip(thetas):
     z += g.first_chamber_offset_m * math.cos(phi)
     s = g.segment_length_m
     for th in thetas:
-        along = s * (1 - th**2 / 6 + th**4 / 120)          # s sin(th)/th
-        across = s * (th / 2 - th**3 / 24 + th**5 / 720)   # s (1 - cos th)/th, towards -n (outward)
+        along = s * (1 - th**2 / 6 + th**4 / 120)  # s sin(th)/th
+        # s (1 - cos th)/th, towards -n (outward)
+        across = s * (th / 2 - th**3 / 24 + th**5 / 720)
         t = (math.sin(phi), math.cos(phi))
         n = (math.cos(phi), -math.sin(phi))
         x += along * t[0] - across * n[0]
@@ -51,7 +53,7 @@ def test_chain_is_exact_and_continuous_near_straight(theta):
 def test_rest_pose_is_the_paper_layout():
     pose = L0.pose(0.0)
     assert pose.segment_angles_rad == (0.0,) * CHAMBER_COUNT
-    assert pose.tip_spacing_m == pytest.approx(1e-3, abs=1e-15)            # v = 1 mm
+    assert pose.tip_spacing_m == pytest.approx(1e-3, abs=1e-15)  # v = 1 mm
     assert pose.included_angle_rad == pytest.approx(math.radians(15.0), abs=1e-15)
     assert pose.left_tip_angle_rad == GEOMETRY.inclination_rad
     # the total height h1 + L2 cos(15 deg) is Table 1's L1 = 126 mm within 0.1 mm
@@ -61,12 +63,12 @@ def test_rest_pose_is_the_paper_layout():
 def frenet_tip(thetas):
     """Independent reference: integrate dx/ds = sin(phi), dz/ds = cos(phi), dphi/ds = -kappa(s)."""
     g = GEOMETRY
-    pieces = ([(g.first_chamber_offset_m, 0.0)] + [(g.segment_length_m, th / g.segment_length_m) for th in thetas]
-              + [(g.tip_length_m, 0.0)])
+    pieces = ([(g.first_chamber_offset_m, 0.0)] + [(g.segment_length_m, th / g.segment_length_m)
+                                                   for th in thetas] + [(g.tip_length_m, 0.0)])
     state = np.array([-g.root_x_m, g.vertical_height_m, g.inclination_rad])
     for length, kappa in pieces:
-        sol = solve_ivp(lambda s, y, k=kappa: [math.sin(y[2]), math.cos(y[2]), -k], (0.0, length), state,
-                        method="DOP853", rtol=1e-13, atol=1e-15)
+        sol = solve_ivp(lambda s, y, k=kappa: [math.sin(y[2]), math.cos(y[2]), -k], (0.0, length),
+                        state, method="DOP853", rtol=1e-13, atol=1e-15)
         state = sol.y[:, -1]
     return tuple(state)
 
@@ -94,13 +96,14 @@ def test_tip_spacing_order_follows_pressure_order(p1, p2):
 def right_finger_by_integration(thetas):
     """The right finger integrated on its own: root at +x, inclined towards -x, bends mirrored."""
     g = GEOMETRY
-    pieces = ([(g.first_chamber_offset_m, 0.0)] + [(g.segment_length_m, th / g.segment_length_m) for th in thetas]
-              + [(g.tip_length_m, 0.0)])
-    # heading psi measured from +z towards +x; the right finger starts at -inclination and opens towards +x
+    pieces = ([(g.first_chamber_offset_m, 0.0)] + [(g.segment_length_m, th / g.segment_length_m)
+                                                   for th in thetas] + [(g.tip_length_m, 0.0)])
+    # heading psi measured from +z towards +x; the right finger starts at -inclination and opens
+    # towards +x
     state = np.array([g.root_x_m, g.vertical_height_m, -g.inclination_rad])
     for length, kappa in pieces:
-        sol = solve_ivp(lambda s, y, k=kappa: [math.sin(y[2]), math.cos(y[2]), +k], (0.0, length), state,
-                        method="DOP853", rtol=1e-13, atol=1e-15)
+        sol = solve_ivp(lambda s, y, k=kappa: [math.sin(y[2]), math.cos(y[2]), +k], (0.0, length),
+                        state, method="DOP853", rtol=1e-13, atol=1e-15)
         state = sol.y[:, -1]
     return tuple(state)
 
@@ -133,10 +136,13 @@ def test_inverse_rejects_unreachable_spacing_with_the_range():
 
 def test_l1_slope_equals_l0_slope_at_zero_pressure():
     geometry, calibration = GEOMETRY, L0.calibration
-    l0, l1 = LinearBending(geometry, L0.material, calibration), YeohMomentBalance(geometry, L0.material, calibration)
-    assert np.asarray(l1.angle_slopes(0.0)) == pytest.approx(np.asarray(l0.angle_slopes(0.0)), rel=1e-9)
+    l0, l1 = LinearBending(geometry, L0.material,
+                           calibration), YeohMomentBalance(geometry, L0.material, calibration)
+    assert np.asarray(l1.angle_slopes(0.0)) == pytest.approx(np.asarray(l0.angle_slopes(0.0)),
+                                                             rel=1e-9)
     for eps in (1.0, -1.0):
-        assert np.asarray(l1.angles(eps)) / eps == pytest.approx(np.asarray(l0.gains_rad_per_pa), rel=1e-4)
+        assert np.asarray(l1.angles(eps)) / eps == pytest.approx(np.asarray(l0.gains_rad_per_pa),
+                                                                 rel=1e-4)
     # and they part above: the planar Yeoh stress softens first, then C20 stiffens it
     assert sum(l1.angles(40e3)) != pytest.approx(sum(l0.angles(40e3)), rel=0.01)
 
@@ -148,27 +154,32 @@ def test_vectorised_equals_scalar(values):
         batch = kin.poses(np.array(values))
         for i, p in enumerate(values):
             single = kin.pose(p)
-            for field in ("left_tip_x_m", "left_tip_z_m", "left_tip_angle_rad", "included_angle_rad",
-                          "root_spacing_m", "tip_spacing_m"):
-                assert getattr(batch, field)[i] == pytest.approx(getattr(single, field), rel=1e-12, abs=1e-15), field
+            for field in ("left_tip_x_m", "left_tip_z_m", "left_tip_angle_rad",
+                          "included_angle_rad", "root_spacing_m", "tip_spacing_m"):
+                assert getattr(batch, field)[i] == pytest.approx(getattr(single, field), rel=1e-12,
+                                                                 abs=1e-15), field
             assert bool(batch.in_validated_range[i]) == single.in_validated_range
             assert bool(batch.in_contact[i]) == single.in_contact
 
 
 def test_large_batches_assemble_chunks_and_match_scalar_poses():
     from softgrip_ros.model.kinematics import BATCH_CHUNK
-    grid = np.linspace(-20e3, 58e3, 2 * BATCH_CHUNK + 17)    # three chunks, the last one short
+    grid = np.linspace(-20e3, 58e3, 2 * BATCH_CHUNK + 17)  # three chunks, the last one short
     for kin in MODELS:
         batch = kin.poses(grid)
         assert batch.segment_angles_rad.shape == (grid.size, CHAMBER_COUNT)
         for i in (0, BATCH_CHUNK - 1, BATCH_CHUNK, 2 * BATCH_CHUNK + 3, grid.size - 1):
             single = kin.pose(grid[i])
-            assert batch.tip_spacing_m[i] == pytest.approx(single.tip_spacing_m, rel=1e-12, abs=1e-15)
+            assert batch.tip_spacing_m[i] == pytest.approx(single.tip_spacing_m, rel=1e-12,
+                                                           abs=1e-15)
             assert batch.left_tip_z_m[i] == pytest.approx(single.left_tip_z_m, rel=1e-12)
-            assert batch.included_angle_rad[i] == pytest.approx(single.included_angle_rad, rel=1e-12)
-            assert batch.segment_angles_rad[i] == pytest.approx(single.segment_angles_rad, rel=1e-12, abs=1e-18)
-            assert (bool(batch.in_contact[i]), bool(batch.in_validated_range[i])) == (
-                single.in_contact, single.in_validated_range)
+            assert batch.included_angle_rad[i] == pytest.approx(single.included_angle_rad,
+                                                                rel=1e-12)
+            assert batch.segment_angles_rad[i] == pytest.approx(single.segment_angles_rad,
+                                                                rel=1e-12, abs=1e-18)
+            assert (bool(batch.in_contact[i]),
+                    bool(batch.in_validated_range[i])) == (single.in_contact,
+                                                           single.in_validated_range)
 
 
 def test_small_angle_trig_kernel_is_exact_to_rounding():
@@ -181,24 +192,29 @@ def test_small_angle_trig_kernel_is_exact_to_rounding():
 
 
 def test_a_bend_beyond_the_small_angle_kernel_uses_the_general_trigonometry():
-    # a gain 8x the calibrated one bends a segment beyond 2 rad, where sqrt(1 - sin^2) loses cos's sign
-    strong = type(L0)(GEOMETRY, dataclasses.replace(L0.calibration, gain=8 * L0.calibration.gain), L0.material)
+    # a gain 8x the calibrated one bends a segment beyond 2 rad, where sqrt(1 - sin^2) loses cos's
+    # sign
+    strong = type(L0)(GEOMETRY, dataclasses.replace(L0.calibration, gain=8 * L0.calibration.gain),
+                      L0.material)
     pressures = np.array([10e3, 40e3])
     assert max(strong.pose(40e3).segment_angles_rad) > 2.0
     batch = strong.poses(pressures)
     for i, p in enumerate(pressures):
-        assert batch.left_tip_x_m[i] == pytest.approx(strong.pose(p).left_tip_x_m, rel=1e-12, abs=1e-15)
-        assert batch.left_tip_z_m[i] == pytest.approx(strong.pose(p).left_tip_z_m, rel=1e-12, abs=1e-15)
+        assert batch.left_tip_x_m[i] == pytest.approx(
+            strong.pose(p).left_tip_x_m, rel=1e-12, abs=1e-15)
+        assert batch.left_tip_z_m[i] == pytest.approx(
+            strong.pose(p).left_tip_z_m, rel=1e-12, abs=1e-15)
 
 
 def test_saturation_batch_path_equals_the_scalar_one_and_survives_a_narrow_knee():
     from softgrip_ros.model.bending import Saturation
     grid = np.linspace(-100e3, 60e3, 1601)
-    for width in (L0.calibration.saturation_width_pa, 1.0):   # 1 Pa: exp((p - p_sat)/w) overflows
+    for width in (L0.calibration.saturation_width_pa, 1.0):  # 1 Pa: exp((p - p_sat)/w) overflows
         saturation = Saturation(dataclasses.replace(L0.calibration, saturation_width_pa=width))
         batch = saturation.effective_pressure(grid)
         assert np.all(np.isfinite(batch))
-        assert batch == pytest.approx([saturation.effective_pressure(float(p)) for p in grid], rel=1e-12, abs=1e-9)
+        assert batch == pytest.approx([saturation.effective_pressure(float(p)) for p in grid],
+                                      rel=1e-12, abs=1e-9)
 
 
 @pytest.mark.parametrize("kin", MODELS, ids=lambda k: k.model)
@@ -212,7 +228,8 @@ def test_tip_slope_matches_finite_differences(kin):
                    (plus.left_tip_z_m - minus.left_tip_z_m) / (2 * h),
                    (plus.left_tip_angle_rad - minus.left_tip_angle_rad) / (2 * h)]
         assert row == pytest.approx(numeric, rel=1e-5, abs=1e-14)
-        assert kin.tip_slope_at(float(p)) == pytest.approx(row, rel=1e-12, abs=1e-18)   # the scalar path agrees
+        # the scalar path agrees
+        assert kin.tip_slope_at(float(p)) == pytest.approx(row, rel=1e-12, abs=1e-18)
     assert np.all(kin.tip_slope(np.array([kin.contact_pressure_pa - 1e3])) == 0.0)
     assert kin.tip_slope_at(kin.contact_pressure_pa - 1e3) == (0.0, 0.0, 0.0)
 
@@ -237,7 +254,8 @@ def test_validated_range_flag():
 def test_saturation_keeps_predictions_from_running_away():
     linear_growth = 60.0 / 50.0
     for kin in MODELS:
-        assert kin.pose(60e3).tip_spacing_m / kin.pose(50e3).tip_spacing_m < 0.5 * (1 + linear_growth)
+        assert kin.pose(60e3).tip_spacing_m / kin.pose(50e3).tip_spacing_m < 0.5 * (1 +
+                                                                                    linear_growth)
         bends = [sum(kin.pose(p).segment_angles_rad) for p in (45e3, 50e3, 55e3, 60e3)]
         assert bends == sorted(bends)
 
@@ -251,16 +269,18 @@ def test_backbone_polyline_ends_at_the_tip():
         assert points[-1] == pytest.approx([pose.left_tip_x_m, pose.left_tip_z_m], abs=1e-12)
 
 
-@pytest.mark.parametrize("bad, message", [
-    (float("nan"), "finite"), (float("inf"), "finite"), ("abc", "number"), (np.zeros(2), "single number"),
-    (70e3, "out of the model's range"), (-200e3, "out of the model's range")])
+@pytest.mark.parametrize("bad, message", [(float("nan"), "finite"), (float("inf"), "finite"),
+                                          ("abc", "number"), (np.zeros(2), "single number"),
+                                          (70e3, "out of the model's range"),
+                                          (-200e3, "out of the model's range")])
 def test_bad_scalar_pressure_is_rejected(bad, message):
     with pytest.raises(ValueError, match=message):
         L0.pose(bad)
 
 
-@pytest.mark.parametrize("bad, message", [
-    (np.zeros((2, 2)), "1-D"), (np.array([0.0, np.nan]), "element 1"), (np.array([np.inf]), "element 0")])
+@pytest.mark.parametrize("bad, message", [(np.zeros((2, 2)), "1-D"),
+                                          (np.array([0.0, np.nan]), "element 1"),
+                                          (np.array([np.inf]), "element 0")])
 def test_bad_pressure_arrays_are_rejected(bad, message):
     with pytest.raises(ValueError, match=message):
         L0.poses(bad)
@@ -314,15 +334,18 @@ def test_bad_calibration_is_rejected():
 
 @pytest.mark.parametrize("model", ["l0", "l1"])
 def test_tip_table_matches_its_model(model):
-    """The tabulated tip (cubic Hermite on a 100 Pa grid) against the model itself: within 0.1 um and
-    1e-6 rad everywhere, blocked below contact, and its slope within 1e-4 of the analytic one (measured 8e-6)."""
+    """The tabulated tip (cubic Hermite on a 100 Pa grid) against the model itself: within 0.1 um
+    and 1e-6 rad everywhere, blocked below contact, and its slope within 1e-4 of the analytic one
+    (measured 8e-6)."""
     from softgrip_ros.model.kinematics import TipTable
     kinematics = build_kinematics(model, max_pressure_pa=60e3)
     table = TipTable(kinematics)
     assert table.max_error_m < 1e-7 and table.max_angle_error_rad < 1e-6
     rng = np.random.default_rng(3)
-    pressures = np.concatenate([rng.uniform(kinematics.contact_pressure_pa, 60e3, 300),
-                                [kinematics.contact_pressure_pa + 1e-3, 60e3, 0.0]])
+    pressures = np.concatenate([
+        rng.uniform(kinematics.contact_pressure_pa, 60e3, 300),
+        [kinematics.contact_pressure_pa + 1e-3, 60e3, 0.0]
+    ])
     for p in pressures:
         (x, z, angle), slope = table.tip(p)
         pose = kinematics.pose(p)
@@ -331,7 +354,8 @@ def test_tip_table_matches_its_model(model):
         assert np.allclose(slope, kinematics.tip_slope_at(p), rtol=1e-4, atol=1e-12)
     blocked = table.tip(kinematics.contact_pressure_pa - 5e3)
     pose = kinematics.pose(kinematics.contact_pressure_pa - 5e3)
-    assert blocked[0] == pytest.approx((pose.left_tip_x_m, pose.left_tip_z_m, pose.left_tip_angle_rad), abs=1e-12)
+    assert blocked[0] == pytest.approx(
+        (pose.left_tip_x_m, pose.left_tip_z_m, pose.left_tip_angle_rad), abs=1e-12)
     assert blocked[1] == (0.0, 0.0, 0.0)
 
 
@@ -339,7 +363,7 @@ def test_tip_table_refuses_bad_grids_and_pressures():
     from softgrip_ros.model.kinematics import TipTable
     kinematics = build_kinematics("l1", max_pressure_pa=50e3)
     with pytest.raises(ValueError, match="use a finer step"):
-        TipTable(kinematics, step_pa=5e3)                     # ~1e-5 m off mid-cell
+        TipTable(kinematics, step_pa=5e3)  # ~1e-5 m off mid-cell
     with pytest.raises(ValueError, match="step_pa"):
         TipTable(kinematics, step_pa=0.0)
     table = TipTable(kinematics)

@@ -1,4 +1,5 @@
-"""The pneumatic plant: conservation, equilibrium, the choked-fill closed form, and integrator stability."""
+"""The pneumatic plant: conservation, equilibrium, the choked-fill closed form, and integrator
+stability."""
 import math
 
 import numpy as np
@@ -9,8 +10,9 @@ from softgrip_ros.model.pneumatics import (P_ATM_PA, PlantInputs, PlantState, Pn
                                            PneumaticPlant, Valve, orifice_mass_flow)
 
 PLANT = PneumaticPlant()
-SMALL = PneumaticPlant(PneumaticParameters(chamber_volume_m3=1e-6, min_chamber_volume_m3=0.2e-6,
-                                           chamber_compliance_m3_per_pa=0.0))
+SMALL = PneumaticPlant(
+    PneumaticParameters(chamber_volume_m3=1e-6, min_chamber_volume_m3=0.2e-6,
+                        chamber_compliance_m3_per_pa=0.0))
 FILL_30KPA = PlantInputs(regulator_setpoint_gauge_pa=30e3, valves=(Valve.SUPPLY,))
 
 
@@ -28,10 +30,12 @@ def test_iso6358_flow_has_both_branches_and_is_continuous():
     b, c, t = 0.3, 1e-9, 293.15
     choked = orifice_mass_flow(300e3, 50e3, c, b, t)
     assert choked == pytest.approx(c * 1.185 * 300e3)
-    assert orifice_mass_flow(300e3, 80e3, c, b, t) == pytest.approx(choked)      # still choked at r < b
-    assert orifice_mass_flow(300e3, 0.3 * 300e3 * (1 + 1e-12), c, b, t) == pytest.approx(choked, rel=1e-9)
-    assert orifice_mass_flow(300e3, 200e3, c, b, t) < choked                     # subsonic
-    assert orifice_mass_flow(300e3, 300e3, c, b, t) == 0.0                       # no flow at r = 1
+    # still choked at r < b
+    assert orifice_mass_flow(300e3, 80e3, c, b, t) == pytest.approx(choked)
+    assert orifice_mass_flow(300e3, 0.3 * 300e3 * (1 + 1e-12), c, b,
+                             t) == pytest.approx(choked, rel=1e-9)
+    assert orifice_mass_flow(300e3, 200e3, c, b, t) < choked  # subsonic
+    assert orifice_mass_flow(300e3, 300e3, c, b, t) == 0.0  # no flow at r = 1
     assert orifice_mass_flow(200e3, 300e3, c, b, t) == -orifice_mass_flow(300e3, 200e3, c, b, t)
 
 
@@ -46,14 +50,16 @@ def test_closed_valves_conserve_mass_exactly():
 
 
 def test_fill_mass_balance():
-    """Mass gained = the integral of the inflow: exactly per step without swelling, to 1e-4 with it."""
-    for plant, tolerance in ((PneumaticPlant(PneumaticParameters(chamber_compliance_m3_per_pa=0.0)), 1e-12),
-                             (PLANT, 1e-4)):
+    """Mass gained = the integral of the inflow: exactly per step without swelling, to 1e-4 with
+    it."""
+    for plant, tolerance in ((PneumaticPlant(
+            PneumaticParameters(chamber_compliance_m3_per_pa=0.0)), 1e-12), (PLANT, 1e-4)):
         state, dt, inflow = PlantState(30e3, np.array([P_ATM_PA])), 1e-4, 0.0
         start = plant.chamber_mass_kg(state.chamber_pa)[0]
         for _ in range(2000):
             state = plant.step(state, FILL_30KPA, dt)
-            inflow += dt * plant.chamber_mass_flow(state.chamber_pa[0], Valve.SUPPLY, state.regulator_gauge_pa)
+            inflow += dt * plant.chamber_mass_flow(state.chamber_pa[0], Valve.SUPPLY,
+                                                   state.regulator_gauge_pa)
         gained = plant.chamber_mass_kg(state.chamber_pa)[0] - start
         assert gained == pytest.approx(inflow, rel=tolerance)
 
@@ -69,20 +75,21 @@ def test_regulator_lag_and_rate_limit():
     state = PLANT.initial_state()
     inputs = PlantInputs(regulator_setpoint_gauge_pa=100e3, valves=(Valve.CLOSED,))
     state = PLANT.step(state, inputs, 1e-3)
-    assert state.regulator_gauge_pa == pytest.approx(2.0e3)        # rate-limited: 2 MPa/s for 1 ms
+    assert state.regulator_gauge_pa == pytest.approx(2.0e3)  # rate-limited: 2 MPa/s for 1 ms
     for _ in range(300):
         state = PLANT.step(state, inputs, 1e-3)
     assert state.regulator_gauge_pa == pytest.approx(100e3, rel=1e-3)
-    off = PlantInputs(regulator_setpoint_gauge_pa=100e3, regulator_enabled=False, valves=(Valve.CLOSED,))
+    off = PlantInputs(regulator_setpoint_gauge_pa=100e3, regulator_enabled=False,
+                      valves=(Valve.CLOSED,))
     for _ in range(400):
         state = PLANT.step(state, off, 1e-3)
-    assert abs(state.regulator_gauge_pa) < 100.0                  # disabled: back to 0 gauge
+    assert abs(state.regulator_gauge_pa) < 100.0  # disabled: back to 0 gauge
 
 
 def test_choked_fill_time_matches_the_closed_form():
     plant = PneumaticPlant(PneumaticParameters(supply_gauge_pa=500e3))
     source = P_ATM_PA + 500e3
-    target = 0.29 * source                                        # stays choked (b = 0.3)
+    target = 0.29 * source  # stays choked (b = 0.3)
     inputs = PlantInputs(regulator_setpoint_gauge_pa=500e3, valves=(Valve.SUPPLY,))
     state, dt, elapsed = PlantState(500e3, np.array([P_ATM_PA])), 1e-5, 0.0
     while state.chamber_pa[0] < target:
@@ -90,7 +97,8 @@ def test_choked_fill_time_matches_the_closed_form():
         state = plant.step(state, inputs, dt)
         elapsed += dt
     elapsed -= dt * (state.chamber_pa[0] - target) / (state.chamber_pa[0] - previous)
-    closed_form = plant.choked_fill_time_s(source, P_ATM_PA, target, plant.parameters.supply_conductance)
+    closed_form = plant.choked_fill_time_s(source, P_ATM_PA, target,
+                                           plant.parameters.supply_conductance)
     assert elapsed == pytest.approx(closed_form, rel=0.02)
     with pytest.raises(ValueError, match="not choked"):
         plant.choked_fill_time_s(source, P_ATM_PA, 0.5 * source, 1e-9)
@@ -100,20 +108,22 @@ def test_step_agrees_with_an_lsoda_reference():
     inputs = PlantInputs(regulator_setpoint_gauge_pa=25e3, valves=(Valve.SUPPLY,))
     reference = solve_ivp(lambda t, y: PLANT.derivative(y, inputs), (0.0, 0.3), [0.0, P_ATM_PA],
                           method="LSODA", rtol=1e-10, atol=1e-6, t_eval=np.arange(1, 301) * 1e-3)
-    ours = simulate(PLANT, PLANT.step, inputs, 1e-4, 0.3, state=PlantState(0.0, np.array([P_ATM_PA])))[9::10]
-    assert np.max(np.abs(ours - (reference.y[1] - P_ATM_PA))) < 150.0   # Pa, over a 25 kPa step
+    ours = simulate(PLANT, PLANT.step, inputs, 1e-4, 0.3,
+                    state=PlantState(0.0, np.array([P_ATM_PA])))[9::10]
+    assert np.max(np.abs(ours - (reference.y[1] - P_ATM_PA))) < 150.0  # Pa, over a 25 kPa step
     assert ours[-1] == pytest.approx(reference.y[1][-1] - P_ATM_PA, abs=1.0)
 
 
-@pytest.mark.parametrize("valve, regulator_gauge_pa, source_gauge_pa", [
-    (Valve.VENT, 0.0, 0.0), (Valve.SUPPLY, 30e3, 30e3), (Valve.VACUUM, 0.0, PLANT.parameters.vacuum_source_gauge_pa)])
+@pytest.mark.parametrize("valve, regulator_gauge_pa, source_gauge_pa",
+                         [(Valve.VENT, 0.0, 0.0), (Valve.SUPPLY, 30e3, 30e3),
+                          (Valve.VACUUM, 0.0, PLANT.parameters.vacuum_source_gauge_pa)])
 @pytest.mark.parametrize("gap_pa", [-5e4, -1e3, -1.0, -1e-3, 1e-3, 1.0, 1e3, 5e4])
 @pytest.mark.parametrize("dt", [1e-4, 1e-3, 2e-2])
-def test_backward_euler_step_solves_its_equation_in_few_flow_evaluations(valve, regulator_gauge_pa, source_gauge_pa,
-                                                                         gap_pa, dt):
-    """The implicit step's root, to 1e-9 Pa, against brentq on the same equation; from a start on the
-    square-root law, at most 6 flow evaluations (with the Jacobian's), where starting at p_n took up to
-    20 near the source, at the singular slope (the state of every idle chamber)."""
+def test_backward_euler_step_solves_its_equation_in_few_flow_evaluations(
+        valve, regulator_gauge_pa, source_gauge_pa, gap_pa, dt):
+    """The implicit step's root, to 1e-9 Pa, against brentq on the same equation; from a start on
+    the square-root law, at most 6 flow evaluations (with the Jacobian's), where starting at p_n
+    took up to 20 near the source, at the singular slope (the state of every idle chamber)."""
     from scipy.optimize import brentq
     p_n = P_ATM_PA + source_gauge_pa + gap_pa
     plant, calls = PneumaticPlant(), []
@@ -121,7 +131,10 @@ def test_backward_euler_step_solves_its_equation_in_few_flow_evaluations(valve, 
     plant.rate_and_slopes = lambda *args: calls.append(args) or rate_and_slopes(*args)
     p_next, slope, _ = plant.chamber_step(p_n, valve, regulator_gauge_pa, dt)
     source_pa, conductance = PLANT.source(valve, regulator_gauge_pa)
-    residual = lambda p: p - p_n - dt * PLANT.rate_and_slopes(p, source_pa, conductance)[0]   # noqa: E731
+
+    def residual(p):
+        return p - p_n - dt * PLANT.rate_and_slopes(p, source_pa, conductance)[0]
+
     reference = brentq(residual, min(p_n, source_pa), max(p_n, source_pa), xtol=1e-12, rtol=1e-15)
     assert p_next == pytest.approx(reference, abs=1e-9)
     assert len(calls) <= 6, f"{len(calls)} flow evaluations"
@@ -135,13 +148,15 @@ def explicit_euler_ripple(dt):
 
 
 def test_explicit_euler_fails_near_r_equals_one_and_ours_does_not():
-    """Pin the failure: near r -> 1 the subsonic flow ~ sqrt(1 - r) has an infinite slope, so explicit
-    Euler chatters around equilibrium with an amplitude ~ dt^2 and never settles; the critical step for a
-    0.2 kPa ripple (the controller's steady-state spec) on a 1 mL chamber lies near 0.5 ms, below the
-    device's 1 kHz step. Backward Euler settles exactly at every step size."""
+    """Pin the failure: near r -> 1 the subsonic flow ~ sqrt(1 - r) has an infinite slope, so
+    explicit Euler chatters around equilibrium with an amplitude ~ dt^2 and never settles; the
+    critical step for a 0.2 kPa ripple (the controller's steady-state spec) on a 1 mL chamber lies
+    near 0.5 ms, below the device's 1 kHz step. Backward Euler settles exactly at every step
+    size."""
     ripple_small, ripple_large = explicit_euler_ripple(1e-4), explicit_euler_ripple(1e-3)
-    assert ripple_large / ripple_small == pytest.approx(100.0, rel=0.1)          # ~ dt^2
-    low, high = 1e-4, 2e-3                                                        # bisect the 200 Pa point
+    assert ripple_large / ripple_small == pytest.approx(100.0, rel=0.1)  # ~ dt^2
+    # bisect the 200 Pa point
+    low, high = 1e-4, 2e-3
     for _ in range(12):
         middle = math.sqrt(low * high)
         low, high = (middle, high) if explicit_euler_ripple(middle) < 200.0 else (low, middle)
@@ -153,15 +168,18 @@ def test_explicit_euler_fails_near_r_equals_one_and_ours_does_not():
 
 def test_explicit_euler_leaves_the_physical_range_at_large_steps():
     history = simulate(SMALL, SMALL.explicit_euler_step, FILL_30KPA, 2e-2, 1.0)
-    assert np.nanmin(history) < -P_ATM_PA, "naive Euler reaches a negative absolute pressure while filling"
+    assert np.nanmin(
+        history) < -P_ATM_PA, "naive Euler reaches a negative absolute pressure while filling"
     ours = simulate(SMALL, SMALL.step, FILL_30KPA, 2e-2, 1.0)
     assert 0.0 <= ours.min() and ours.max() <= 30e3 + 1e-6
 
 
-@pytest.mark.parametrize("changes, message", [
-    ({"chamber_volume_m3": 0.0}, "chamber_volume_m3"), ({"critical_ratio": 1.2}, "critical_ratio"),
-    ({"channels": 5}, "channels"), ({"vacuum_source_gauge_pa": 10e3}, "vacuum_source_gauge_pa"),
-    ({"supply_conductance": float("nan")}, "supply_conductance")])
+@pytest.mark.parametrize("changes, message",
+                         [({"chamber_volume_m3": 0.0}, "chamber_volume_m3"),
+                          ({"critical_ratio": 1.2}, "critical_ratio"),
+                          ({"channels": 5}, "channels"),
+                          ({"vacuum_source_gauge_pa": 10e3}, "vacuum_source_gauge_pa"),
+                          ({"supply_conductance": float("nan")}, "supply_conductance")])
 def test_bad_parameters_are_rejected(changes, message):
     with pytest.raises(ValueError, match=message):
         PneumaticParameters(**changes)
@@ -180,13 +198,14 @@ def test_a_disabled_regulator_cuts_both_sources():
     """Enable = 0 is the device's safe state: the regulator's output goes to 0 whatever its fault,
     and the vacuum valve path leads to a vented line, so no valve state can pump."""
     plant = PneumaticPlant()
-    disabled = PlantInputs(regulator_setpoint_gauge_pa=40e3, regulator_enabled=False, valves=(Valve.VACUUM,),
-                           regulator_overshoot_pa=100e3)
+    disabled = PlantInputs(regulator_setpoint_gauge_pa=40e3, regulator_enabled=False,
+                           valves=(Valve.VACUUM,), regulator_overshoot_pa=100e3)
     assert plant.regulator_target_gauge_pa(disabled) == 0.0
     state = plant.initial_state(-30e3)
     for _ in range(500):
         state = plant.step(state, disabled, 2e-3)
     assert abs(state.chamber_pa[0] - P_ATM_PA) < 100.0 and abs(state.regulator_gauge_pa) < 100.0
     live = PlantInputs(regulator_enabled=True, valves=(Valve.VACUUM,))
-    assert plant.chamber_rate(P_ATM_PA, Valve.VACUUM, 0.0) < 0.0 == plant.chamber_rate(P_ATM_PA, Valve.VACUUM, 0.0, False)
+    assert (plant.chamber_rate(P_ATM_PA, Valve.VACUUM, 0.0) < 0.0 == plant.chamber_rate(
+        P_ATM_PA, Valve.VACUUM, 0.0, False))
     assert plant.step(plant.initial_state(), live, 0.01).chamber_pa[0] < P_ATM_PA - 1e3

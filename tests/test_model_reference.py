@@ -23,8 +23,8 @@ def tip_distance_m(a, b):
 
 
 def test_free_bending_settles_on_the_pcc_shape():
-    """No contact, no gravity: the Cosserat rod at rest is the PCC chain, up to its axial stretch and
-    shear (measured 7-20 um at 20-45 kPa; tolerance 0.1 mm)."""
+    """No contact, no gravity: the Cosserat rod at rest is the PCC chain, up to its axial stretch
+    and shear (measured 7-20 um at 20-45 kPa; tolerance 0.1 mm)."""
     solution = REFERENCE.solve(30e3, from_pressure_pa=0.0)
     assert solution.at_rest and solution.max_speed_m_s < 1e-5
     pcc = KIN.tip_for_angles(KIN.bending.angles(30e3))
@@ -42,7 +42,8 @@ def test_l2_agrees_with_the_reference_when_clamping_a_cylinder():
     assert reference.at_rest and l2.converged
     assert tip_distance_m(reference.tip, l2.tip) < 0.02 * FINGER_LENGTH_M
     assert reference.contact_force_n == pytest.approx(l2.contact_force_n, rel=0.10)
-    assert 0.0 < reference.max_penetration_m < 1e-4        # the penalty spring's sink, force / stiffness
+    # the penalty spring's sink, force / stiffness
+    assert 0.0 < reference.max_penetration_m < 1e-4
 
 
 def test_a_run_that_does_not_settle_says_so():
@@ -54,9 +55,10 @@ def test_a_run_that_does_not_settle_says_so():
     assert not (solution.max_speed_m_s < 1e-5)
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    (dict(elements_per_segment=1), "elements_per_segment"), (dict(time_step_s=0.0), "time_step_s"),
-    (dict(contact_stiffness_n_per_m=math.nan), "contact_stiffness")])
+@pytest.mark.parametrize("kwargs, message",
+                         [(dict(elements_per_segment=1), "elements_per_segment"),
+                          (dict(time_step_s=0.0), "time_step_s"),
+                          (dict(contact_stiffness_n_per_m=math.nan), "contact_stiffness")])
 def test_bad_parameters_are_refused(kwargs, message):
     with pytest.raises(ValueError, match=message):
         ReferenceFinger(ROD, **kwargs)

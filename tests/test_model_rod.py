@@ -1,4 +1,5 @@
-"""L2, the rod model: it is the PCC chain when nothing touches it, and it resolves contact and load."""
+"""L2, the rod model: it is the PCC chain when nothing touches it, and it resolves contact and
+load."""
 import math
 
 import numpy as np
@@ -9,7 +10,8 @@ from softgrip_ros.model.rod import Circle, RodFinger, Sheet
 
 KIN = build_kinematics("l1")
 ROD = RodFinger(KIN.geometry, KIN.calibration)
-OBJECT_40MM = Circle(0.0, 0.10, 0.02)      # a 40 mm cylinder on the centre line, between the chamber faces
+# a 40 mm cylinder on the centre line, between the chamber faces
+OBJECT_40MM = Circle(0.0, 0.10, 0.02)
 
 
 @pytest.mark.parametrize("pressure_pa", [0.0, 1e-9, -1e-9, 1e3, 20e3, 45e3, -20e3])
@@ -30,12 +32,17 @@ def test_gradients_are_exact():
     gravity = np.array([0.0, 9.81])
     _, gradient = ROD._energy_and_gradient(kappa, kappa0, gravity)
     h = 1e-6
-    numeric = np.array([(ROD._energy_and_gradient(kappa + e, kappa0, gravity)[0]
-                         - ROD._energy_and_gradient(kappa - e, kappa0, gravity)[0]) / (2 * h) for e in np.eye(kappa.size) * h])
+    numeric = np.array([(ROD._energy_and_gradient(kappa + e, kappa0, gravity)[0] -
+                         ROD._energy_and_gradient(kappa - e, kappa0, gravity)[0]) / (2 * h)
+                        for e in np.eye(kappa.size) * h])
     assert np.allclose(gradient, numeric, rtol=1e-5, atol=1e-9 * np.abs(gradient).max())
     jacobian = ROD._gap_jacobian(OBJECT_40MM, kappa)
-    numeric = np.array([(ROD._gaps(OBJECT_40MM, ROD._shape(kappa + e)[3]) - ROD._gaps(OBJECT_40MM, ROD._shape(kappa - e)[3]))
-                        / (2 * h) for e in np.eye(kappa.size) * h]).T
+    numeric = np.array([
+        (ROD._gaps(OBJECT_40MM,
+                   ROD._shape(kappa + e)[3]) - ROD._gaps(OBJECT_40MM,
+                                                         ROD._shape(kappa - e)[3])) / (2 * h)
+        for e in np.eye(kappa.size) * h
+    ]).T
     assert np.allclose(jacobian, numeric, atol=1e-9)
 
 
@@ -44,10 +51,13 @@ def test_clamping_a_40mm_cylinder_gives_contact_and_a_force_that_grows_with_vacu
     for pressure in (0.0, -5e3, -10e3, -20e3):
         solution = ROD.solve(pressure, obstacle=OBJECT_40MM, from_pressure_pa=30e3, steps=6)
         assert solution.converged, solution.message
-        assert solution.max_penetration_m < 1e-9                     # the finger stays outside the object
+        # the finger stays outside the object
+        assert solution.max_penetration_m < 1e-9
         assert solution.contact_forces_n.size >= 1 and np.all(solution.contact_forces_n > 0)
-        distances = np.hypot(solution.contact_points_m[:, 0], solution.contact_points_m[:, 1] - 0.10)
-        assert np.allclose(distances, 0.02, atol=1e-7)               # contact points lie on the object
+        distances = np.hypot(solution.contact_points_m[:, 0],
+                             solution.contact_points_m[:, 1] - 0.10)
+        # contact points lie on the object
+        assert np.allclose(distances, 0.02, atol=1e-7)
         forces.append(solution.contact_force_n)
     assert all(b > a for a, b in zip(forces, forces[1:]))
     # the object stops the finger: it closes less than it would in free bending
@@ -71,11 +81,13 @@ def test_pinching_a_thin_sheet_with_vacuum():
 
 
 def test_gravity_bends_the_finger_the_way_it_pulls():
-    """Pointing up (gravity along -z), an opened finger sags outwards (-x for the left finger) and down."""
+    """Pointing up (gravity along -z), an opened finger sags outwards (-x for the left finger) and
+    down."""
     free, loaded = ROD.solve(20e3), ROD.solve(20e3, gravity_m_s2=(0.0, -9.81))
     assert loaded.converged, loaded.message
     assert loaded.tip[0] < free.tip[0] and loaded.tip[1] < free.tip[1]
-    heavier = RodFinger(KIN.geometry, KIN.calibration, linear_density_kg_per_m=2 * ROD.node_masses_kg[1] / ROD.element_length_m)
+    heavier = RodFinger(KIN.geometry, KIN.calibration,
+                        linear_density_kg_per_m=2 * ROD.node_masses_kg[1] / ROD.element_length_m)
     assert heavier.solve(20e3, gravity_m_s2=(0.0, -9.81)).tip[0] < loaded.tip[0]
 
 
@@ -83,13 +95,16 @@ def test_failure_is_reported_never_silent():
     """A start shape inside the object cannot converge to a valid contact: the solution says so."""
     solution = ROD.solve(-10e3, obstacle=Circle(0.0, 0.10, 0.02), from_pressure_pa=0.0)
     assert not solution.converged and "overlaps" in solution.message
-    top = ROD.solve(60e3, obstacle=Circle(0.0, 0.40, 0.02), gravity_m_s2=(0.0, -9.81))   # the largest pressure
+    # the largest pressure
+    top = ROD.solve(60e3, obstacle=Circle(0.0, 0.40, 0.02), gravity_m_s2=(0.0, -9.81))
     assert top.converged and top.message == "converged"
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    (dict(pressure_pa=math.nan), "pressure_pa"), (dict(pressure_pa=0.0, steps=0), "steps"),
-    (dict(pressure_pa=0.0, obstacle="ball"), "obstacle"), (dict(pressure_pa=0.0, gravity_m_s2=(0, math.inf)), "gravity")])
+@pytest.mark.parametrize("kwargs, message",
+                         [(dict(pressure_pa=math.nan), "pressure_pa"),
+                          (dict(pressure_pa=0.0, steps=0), "steps"),
+                          (dict(pressure_pa=0.0, obstacle="ball"), "obstacle"),
+                          (dict(pressure_pa=0.0, gravity_m_s2=(0, math.inf)), "gravity")])
 def test_bad_input_is_refused_with_a_reason(kwargs, message):
     with pytest.raises(ValueError, match=message):
         ROD.solve(**kwargs)
@@ -108,11 +123,13 @@ def test_the_onset_of_contact_is_continuous_and_converges():
     def clearance(pressure):
         return ROD._gaps(OBJECT_40MM, ROD._shape(ROD.free_curvatures(pressure))[3]).min()
 
-    onset = brentq(clearance, 0.0, 30e3, xtol=1.0)              # free shape touches the object here
+    # free shape touches the object here
+    onset = brentq(clearance, 0.0, 30e3, xtol=1.0)
     before = ROD.solve(onset + 50.0, obstacle=OBJECT_40MM, from_pressure_pa=30e3, steps=6)
     after = ROD.solve(onset - 50.0, obstacle=OBJECT_40MM, from_pressure_pa=30e3, steps=6)
     deeper = ROD.solve(onset - 2e3, obstacle=OBJECT_40MM, from_pressure_pa=30e3, steps=6)
-    assert before.converged and after.converged and deeper.converged, (before.message, after.message)
+    assert before.converged and after.converged and deeper.converged, (before.message,
+                                                                       after.message)
     assert before.contact_force_n == 0.0
     assert 0.0 < after.contact_force_n < 0.05 * deeper.contact_force_n
     assert after.max_penetration_m < 1e-9

@@ -1,4 +1,5 @@
-"""The scripts as a user runs them: fit_yeoh, validate_model --json, the benchmarks' --json, the demo."""
+"""The scripts as a user runs them: fit_yeoh, validate_model --json, the benchmarks' --json, the
+demo."""
 import json
 import pathlib
 import subprocess
@@ -10,12 +11,14 @@ REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
 def run(*args, timeout=300):
-    return subprocess.run([sys.executable, *args], cwd=REPO_ROOT, capture_output=True, text=True, timeout=timeout)
+    return subprocess.run([sys.executable, *args], cwd=REPO_ROOT, capture_output=True, text=True,
+                          timeout=timeout)
 
 
 def test_fit_yeoh_prints_constants_and_draws_the_plot(tmp_path):
     plot = tmp_path / "fit.png"
-    result = run("scripts/fit_yeoh.py", "docs/examples/synthetic_tensile_test.csv", "--plot", str(plot), "--json")
+    result = run("scripts/fit_yeoh.py", "docs/examples/synthetic_tensile_test.csv", "--plot",
+                 str(plot), "--json")
     assert result.returncode == 0, result.stderr
     fit = json.loads(result.stdout)
     # the example was generated from the paper's constants plus 1.5 % noise
@@ -50,7 +53,9 @@ def test_bench_model_quick_json_reports_every_figure():
     result = run("scripts/bench_model.py", "--quick", "--json")
     assert result.returncode == 0, result.stderr
     figures = json.loads(result.stdout)
-    assert set(figures) >= {"l0_single_us", "l0_batch_us_per_pressure", "l1_single_us", "inverse_us"}
+    assert set(figures) >= {
+        "l0_single_us", "l0_batch_us_per_pressure", "l1_single_us", "inverse_us"
+    }
     assert all(value > 0 for value in figures.values())
 
 
@@ -61,8 +66,10 @@ def test_bench_estimator_quick_json_reports_every_filter_with_its_interleaved_co
     quartiles = figures["details"]["step_us_quartiles"]
     for name in ("kf", "ekf", "ukf"):
         low, median, high = quartiles[name]
-        assert 0 < low <= median <= high and figures[f"{name}_step_us"] == pytest.approx(median), name
-        assert 0 < figures[f"rmse_ratio_{name}"] < 0.85, name         # better than the best sensor alone
+        assert (0 < low <= median <= high and
+                figures[f"{name}_step_us"] == pytest.approx(median)), name
+        # better than the best sensor alone
+        assert 0 < figures[f"rmse_ratio_{name}"] < 0.85, name
     assert isinstance(figures["nees_in_bounds"], bool)
 
 
@@ -85,11 +92,14 @@ def test_bench_e2e_quick_json_reports_every_figure():
     result = run("scripts/bench_e2e.py", "--quick", "--json", timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
     figures = json.loads(result.stdout)
-    for key in ("cmd_to_valve_frame_ms_median", "cmd_to_valve_frame_ms_p99", "sensor_to_tip_pose_ms_median",
-                "sensor_to_tip_pose_ms_p99", "sensor_to_tip_pose_received_ms_p99", "controller_cpu_pct_idle",
-                "controller_cpu_pct_grasp", "controller_cpu_pct_device_paused", "controller_rss_mb"):
+    for key in ("cmd_to_valve_frame_ms_median", "cmd_to_valve_frame_ms_p99",
+                "sensor_to_tip_pose_ms_median", "sensor_to_tip_pose_ms_p99",
+                "sensor_to_tip_pose_received_ms_p99", "controller_cpu_pct_idle",
+                "controller_cpu_pct_grasp", "controller_cpu_pct_device_paused",
+                "controller_rss_mb"):
         assert figures[key] > 0, key
-    assert set(figures["details"]["runs"]) >= {"cmd_to_valve_frame_ms_p99", "controller_cpu_pct_idle"}
+    assert set(
+        figures["details"]["runs"]) >= {"cmd_to_valve_frame_ms_p99", "controller_cpu_pct_idle"}
 
 
 @pytest.mark.slow
@@ -98,13 +108,16 @@ def test_bench_speed_accuracy_quick_json_runs_through_and_reports_every_key():
     result = run("scripts/bench_speed_accuracy.py", "--quick", "--json", timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
     result_doc = json.loads(result.stdout)
-    assert set(result_doc) >= {"kinematics", "bounds", "estimators", "integrators", "auto", "held_out",
-                               "bound_checks", "paper_rows", "pareto"}
+    assert set(result_doc) >= {
+        "kinematics", "bounds", "estimators", "integrators", "auto", "held_out", "bound_checks",
+        "paper_rows", "pareto"
+    }
     assert set(result_doc["bounds"]) == {"l0", "l1", "l2"}
     for bounds in result_doc["bounds"].values():
         assert set(bounds["tip_error_bound_m"]) == {"free", "free_beyond", "contact"}
     assert {p["method"] for p in result_doc["estimators"]} >= {"kf", "ekf", "ukf"}
-    assert all(p["cost_us"] > 0 for p in result_doc["estimators"] if p["method"] in ("kf", "ekf", "ukf"))
+    assert all(p["cost_us"] > 0 for p in result_doc["estimators"]
+               if p["method"] in ("kf", "ekf", "ukf"))
 
 
 @pytest.mark.ros

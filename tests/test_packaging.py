@@ -26,17 +26,20 @@ def test_package_share_is_found_through_the_ament_index():
 
 
 def test_every_console_entry_point_is_installed_where_ros2_run_looks():
-    """The list comes from the package metadata, so new executables are checked as they are added."""
+    """The list comes from the package metadata, so new executables are checked as they are
+    added."""
     from ament_index_python.packages import get_package_prefix
 
     lib_dir = pathlib.Path(get_package_prefix("softgrip_ros")) / "lib" / "softgrip_ros"
     declared = _console_scripts()
     for name in declared:
         executable = lib_dir / name
-        assert executable.is_file(), f"{name} is declared in setup.py but not installed at {executable}"
+        assert executable.is_file(
+        ), f"{name} is declared in setup.py but not installed at {executable}"
         assert os.access(executable, os.X_OK), f"{executable} is not executable"
     installed = sorted(p.name for p in lib_dir.iterdir()) if lib_dir.is_dir() else []
-    assert installed == declared, "lib/softgrip_ros holds executables that setup.py does not declare"
+    assert (
+        installed == declared), "lib/softgrip_ros holds executables that setup.py does not declare"
 
 
 @pytest.mark.slow
@@ -44,14 +47,18 @@ def test_setup_on_a_fresh_clone_builds_both_packages(tmp_path):
     """scripts/setup.sh from nothing (as CI does), then a second run that changes nothing."""
     if shutil.which("git") is None or not (REPO_ROOT / ".git").exists():
         pytest.skip("needs the git checkout")
-    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO_ROOT, capture_output=True, text=True)
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO_ROOT, capture_output=True,
+                          text=True)
     if head.returncode != 0:
         pytest.skip("no commit to clone yet")
     clone = tmp_path / "clone"
     subprocess.run(["git", "clone", "--quiet", str(REPO_ROOT), str(clone)], check=True)
-    env = {k: v for k, v in os.environ.items()
-           if not k.startswith(("VIRTUAL_ENV", "AMENT_", "COLCON_", "CMAKE_PREFIX", "PYTHONPATH",
-                                "LD_LIBRARY_PATH", "SOFTGRIP_ROOT", "_ROS_WHEELS"))}
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if not k.startswith(("VIRTUAL_ENV", "AMENT_", "COLCON_", "CMAKE_PREFIX", "PYTHONPATH",
+                             "LD_LIBRARY_PATH", "SOFTGRIP_ROOT", "_ROS_WHEELS"))
+    }
     env["PATH"] = os.pathsep.join(p for p in env["PATH"].split(os.pathsep) if ".venv" not in p)
     first = subprocess.run(["bash", "scripts/setup.sh"], cwd=clone, env=env, capture_output=True,
                            text=True, timeout=1200)
@@ -65,7 +72,8 @@ def test_setup_on_a_fresh_clone_builds_both_packages(tmp_path):
     second = subprocess.run(["bash", "scripts/setup.sh"], cwd=clone, env=env, capture_output=True,
                             text=True, timeout=600)
     assert second.returncode == 0, second.stderr
-    assert "venv up to date" in second.stdout and "install/ up to date" in second.stdout, second.stdout
+    assert ("venv up to date" in second.stdout and
+            "install/ up to date" in second.stdout), second.stdout
 
 
 def test_setup_refuses_an_unsupported_interpreter(tmp_path):

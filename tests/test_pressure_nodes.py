@@ -1,4 +1,5 @@
-"""The pressure_controller and sim_device nodes, driven through real DDS topics, and their executables."""
+"""The pressure_controller and sim_device nodes, driven through real DDS topics, and their
+executables."""
 import math
 import signal
 import subprocess
@@ -10,14 +11,15 @@ import pytest
 
 from softgrip_ros.devtools.processes import installed_executable, stop_process
 
-from tests.helpers.ros import spinning, unique, wait_for
+from tests.helpers.ros import send_future_command, spinning, unique, wait_for
 
 pytestmark = pytest.mark.ros
 
 
 @pytest.fixture
 def nodes(rclpy_context):
-    """Controller and simulated device on a private virtual channel, plus a client node, all spinning."""
+    """Controller and simulated device on a private virtual channel, plus a client node, all
+    spinning."""
     from rclpy.node import Node
     from rclpy.parameter import Parameter
     from softgrip_ros.nodes.pressure_controller import PressureControllerNode
@@ -25,7 +27,8 @@ def nodes(rclpy_context):
 
     channel = unique("nodes")
     overrides = [Parameter("can.channel", value=channel)]
-    device = SimDeviceNode(context=rclpy_context, parameter_overrides=overrides + [Parameter("seed", value=3)])
+    device = SimDeviceNode(context=rclpy_context,
+                           parameter_overrides=overrides + [Parameter("seed", value=3)])
     controller = PressureControllerNode(context=rclpy_context, parameter_overrides=overrides)
     client = Node("test_client", context=rclpy_context)
     try:
@@ -46,24 +49,33 @@ def test_commands_over_dds_move_the_gripper_and_topics_report_it(nodes):
     controller, device, client = nodes
     sensors, statuses = {}, []
     for name in ("chamber_a", "chamber_b"):
-        client.create_subscription(FluidPressure, f"pressure/sensor/{name}", lambda m, n=name: sensors.__setitem__(n, m), 10)
+        client.create_subscription(FluidPressure, f"pressure/sensor/{name}",
+                                   lambda m, n=name: sensors.__setitem__(n, m), 10)
     client.create_subscription(ControllerStatus, "controller/status", statuses.append, 10)
     command = client.create_publisher(PressureCommand, "pressure/command", 10)
     wait_for(lambda: len(sensors) == 2 and statuses, message="sensor and status topics")
-    assert sensors["chamber_a"].fluid_pressure == pytest.approx(101_325.0, abs=2e3)   # absolute Pa
+    assert sensors["chamber_a"].fluid_pressure == pytest.approx(101_325.0, abs=2e3)  # absolute Pa
     assert sensors["chamber_a"].variance == pytest.approx(300.0**2)
 
     wait_for(lambda: command.get_subscription_count() > 0, message="the controller's subscription")
-    command.publish(PressureCommand(target_gauge_pressure_pa=20e3, max_rate_pa_per_s=math.nan, source=PressureCommand.SUPPLY))
-    wait_for(lambda: abs(device.device.chamber_gauge_pa() - 20e3) < 500.0, timeout=5.0, message="20 kPa")
+    command.publish(
+        PressureCommand(target_gauge_pressure_pa=20e3, max_rate_pa_per_s=math.nan,
+                        source=PressureCommand.SUPPLY))
+    wait_for(lambda: abs(device.device.chamber_gauge_pa() - 20e3) < 500.0, timeout=5.0,
+             message="20 kPa")
     time.sleep(0.3)
     assert abs(device.device.chamber_gauge_pa() - 20e3) < 500.0
     status = statuses[-1]
-    assert status.mode == ControllerStatus.MODE_REGULATE and status.setpoint_gauge_pressure_pa == 20e3
-    assert status.frames_rx > 100 and status.frames_bad == 0 and status.last_sensor_frame_age_s < 0.05
+    assert (status.mode == ControllerStatus.MODE_REGULATE and
+            status.setpoint_gauge_pressure_pa == 20e3)
+    assert (status.frames_rx > 100 and status.frames_bad == 0 and
+            status.last_sensor_frame_age_s < 0.05)
 
-    command.publish(PressureCommand(target_gauge_pressure_pa=90e3, max_rate_pa_per_s=math.nan, source=PressureCommand.SUPPLY))
-    wait_for(lambda: statuses[-1].fault_flags & ControllerStatus.FAULT_SETPOINT_CLAMPED, message="clamp reported")
+    command.publish(
+        PressureCommand(target_gauge_pressure_pa=90e3, max_rate_pa_per_s=math.nan,
+                        source=PressureCommand.SUPPLY))
+    wait_for(lambda: statuses[-1].fault_flags & ControllerStatus.FAULT_SETPOINT_CLAMPED,
+             message="clamp reported")
     assert statuses[-1].setpoint_gauge_pressure_pa <= 50e3
     assert "clamped" in statuses[-1].message
 
@@ -83,7 +95,7 @@ def test_a_late_copy_of_a_command_cannot_undo_a_newer_one(nodes):
     from softgrip_ros.nodes.common import stamp_msg
 
     controller, _, _ = nodes
-    setpoint = lambda: controller.controller._target      # noqa: E731 - the accepted target
+    setpoint = lambda: controller.controller._target  # noqa: E731 - the accepted target
 
     def command(target_pa, stamp_s=None):
         message = PressureCommand(target_gauge_pressure_pa=target_pa, max_rate_pa_per_s=math.nan,
@@ -95,11 +107,12 @@ def test_a_late_copy_of_a_command_cannot_undo_a_newer_one(nodes):
     now = controller.get_clock().now().nanoseconds * 1e-9
     command(10e3, now)
     command(20e3, now + 0.01)
-    command(10e3, now)                                    # the first one's DDS copy, late
+    command(10e3, now)  # the first one's DDS copy, late
     assert setpoint() == 20e3
-    command(30e3, now - 0.5)                              # another command, stamped earlier: applies
+    # another command, stamped earlier: applies
+    command(30e3, now - 0.5)
     assert setpoint() == 30e3
-    command(5e3)                                          # unstamped (a hand-written command)
+    command(5e3)  # unstamped (a hand-written command)
     assert setpoint() == 5e3
     command(15e3, now + 0.02)
     assert setpoint() == 15e3
@@ -110,26 +123,24 @@ def test_a_command_stamped_in_the_future_is_refused_and_locks_nothing_out(nodes)
     manager's RELEASE was ignored). Now it is refused with its reason in controller/status, and
     the next command applies; the status keeps flowing."""
     from softgrip_interfaces.msg import ControllerStatus, PressureCommand
-    from softgrip_ros.nodes.common import stamp_msg
 
     controller, device, client = nodes
     statuses = []
     client.create_subscription(ControllerStatus, "controller/status", statuses.append, 50)
     publisher = client.create_publisher(PressureCommand, "pressure/command", 10)
     wait_for(lambda: publisher.get_subscription_count() > 0 and statuses, message="the controller")
-    ahead = PressureCommand(target_gauge_pressure_pa=30e3, max_rate_pa_per_s=math.nan, source=PressureCommand.SUPPLY)
-    ahead.header.stamp = stamp_msg(client.get_clock().now().nanoseconds * 1e-9 + 30.0)
-    publisher.publish(ahead)
-    refused = wait_for(lambda: next((s for s in reversed(statuses) if s.fault_flags & ControllerStatus.FAULT_COMMAND_REJECTED),
-                                    None), message="the refusal in the status")
+    refused = send_future_command(client, publisher, statuses, 30e3, PressureCommand.SUPPLY,
+                                  ahead_s=30.0)
     assert "in the future" in refused.message and controller.controller._target != 30e3
-    now = PressureCommand(target_gauge_pressure_pa=12e3, max_rate_pa_per_s=math.nan, source=PressureCommand.SUPPLY)
+    now = PressureCommand(target_gauge_pressure_pa=12e3, max_rate_pa_per_s=math.nan,
+                          source=PressureCommand.SUPPLY)
     now.header.stamp = client.get_clock().now().to_msg()
     publisher.publish(now)
-    wait_for(lambda: abs(device.device.chamber_gauge_pa() - 12e3) < 1e3, timeout=3.0, message="12 kPa")
+    wait_for(lambda: abs(device.device.chamber_gauge_pa() - 12e3) < 1e3, timeout=3.0,
+             message="12 kPa")
     count = len(statuses)
     time.sleep(0.3)
-    assert len(statuses) - count >= 5                     # status at 50 Hz, still flowing
+    assert len(statuses) - count >= 5  # status at 50 Hz, still flowing
     assert not statuses[-1].fault_flags & ControllerStatus.FAULT_COMMAND_REJECTED
 
 
@@ -144,23 +155,32 @@ def test_dropout_gives_hold_and_a_diagnostic_error_then_recovers(nodes):
     client.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, 10)
     command = client.create_publisher(PressureCommand, "pressure/command", 10)
     wait_for(lambda: command.get_subscription_count() > 0, message="subscription")
-    command.publish(PressureCommand(target_gauge_pressure_pa=15e3, max_rate_pa_per_s=math.nan, source=PressureCommand.SUPPLY))
-    wait_for(lambda: statuses and statuses[-1].mode == ControllerStatus.MODE_REGULATE, message="regulating")
+    command.publish(
+        PressureCommand(target_gauge_pressure_pa=15e3, max_rate_pa_per_s=math.nan,
+                        source=PressureCommand.SUPPLY))
+    wait_for(lambda: statuses and statuses[-1].mode == ControllerStatus.MODE_REGULATE,
+             message="regulating")
     result = device.set_parameters([Parameter("fault.sensor_dropout", value="all")])[0]
     assert result.successful
-    wait_for(lambda: statuses[-1].mode == ControllerStatus.MODE_HOLD and statuses[-1].fault_flags & ControllerStatus.FAULT_SENSOR_TIMEOUT,
-             message="hold on dropout")
-    wait_for(lambda: any(s.level == DiagnosticStatus.ERROR for d in diagnostics for s in d.status
-                         if s.name.endswith("pressure controller")), timeout=3.0, message="diagnostic ERROR")
+    wait_for(
+        lambda: statuses[-1].mode == ControllerStatus.MODE_HOLD and statuses[-1].fault_flags &
+        ControllerStatus.FAULT_SENSOR_TIMEOUT, message="hold on dropout")
+    wait_for(
+        lambda: any(s.level == DiagnosticStatus.ERROR for d in diagnostics for s in d.status
+                    if s.name.endswith("pressure controller")), timeout=3.0,
+        message="diagnostic ERROR")
     device.set_parameters([Parameter("fault.sensor_dropout", value="")])
-    command.publish(PressureCommand(target_gauge_pressure_pa=15e3, max_rate_pa_per_s=math.nan, source=PressureCommand.SUPPLY))
-    wait_for(lambda: statuses[-1].mode == ControllerStatus.MODE_REGULATE and not statuses[-1].fault_flags & ControllerStatus.FAULT_SENSOR_TIMEOUT,
-             message="recovery")
+    command.publish(
+        PressureCommand(target_gauge_pressure_pa=15e3, max_rate_pa_per_s=math.nan,
+                        source=PressureCommand.SUPPLY))
+    wait_for(
+        lambda: statuses[-1].mode == ControllerStatus.MODE_REGULATE and not statuses[-1].
+        fault_flags & ControllerStatus.FAULT_SENSOR_TIMEOUT, message="recovery")
 
 
 def test_a_failing_in_process_consumer_is_reported_and_control_goes_on(nodes):
-    """In the composed controller the estimator, kinematics and grasp manager run inside the reading
-    and status callbacks: one that raises must neither stop the loop nor go unseen."""
+    """In the composed controller the estimator, kinematics and grasp manager run inside the
+    reading and status callbacks: one that raises must neither stop the loop nor go unseen."""
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
     from softgrip_interfaces.msg import ControllerStatus
 
@@ -175,16 +195,20 @@ def test_a_failing_in_process_consumer_is_reported_and_control_goes_on(nodes):
     after = []
     controller.sensor_listeners += [broken, lambda *args: after.append(args)]
     controller.status_listeners.append(broken)
-    wait_for(lambda: any(s.level == DiagnosticStatus.WARN and "RuntimeError: consumer bug" in s.message
-                         for d in diagnostics for s in d.status if s.name.endswith("pressure controller")),
-             timeout=3.0, message="a diagnostic WARN naming the error")
+    wait_for(
+        lambda: any(s.level == DiagnosticStatus.WARN and "RuntimeError: consumer bug" in s.message
+                    for d in diagnostics for s in d.status
+                    if s.name.endswith("pressure controller")), timeout=3.0,
+        message="a diagnostic WARN naming the error")
     seen = len(statuses)
     wait_for(lambda: len(statuses) > seen + 5, message="the loop still publishing")
     assert controller.link.listener_errors > 0 and controller.loop.errors > 0
-    assert after                                    # a listener after the broken one still gets every reading
+    # a listener after the broken one still gets every reading
+    assert after
 
 
-def test_a_batch_of_readings_asks_once_per_sensor_whether_its_topic_is_subscribed(nodes, monkeypatch):
+def test_a_batch_of_readings_asks_once_per_sensor_whether_its_topic_is_subscribed(
+        nodes, monkeypatch):
     """Each reading goes to its topic only while someone subscribes; that is asked of DDS once per
     sensor and batch, not once per reading."""
     import threading
@@ -195,17 +219,20 @@ def test_a_batch_of_readings_asks_once_per_sensor_whether_its_topic_is_subscribe
     real = pressure_controller.listened
 
     def counting(node, publisher):
-        if threading.get_ident() == here:     # not the reception thread's own batches
+        if threading.get_ident() == here:  # not the reception thread's own batches
             asked.append(publisher.topic_name)
         return real(node, publisher)
 
     monkeypatch.setattr(pressure_controller, "listened", counting)
     now = controller.link.clock()
     seen = []
-    controller.sensor_listeners.append(lambda samples: seen.append(samples) if threading.get_ident() == here else None)
-    controller._publish_readings([(name, 1e3 * i, now) for i in range(6) for name in ("chamber_a", "chamber_b")])
+    controller.sensor_listeners.append(lambda samples: seen.append(samples)
+                                       if threading.get_ident() == here else None)
+    controller._publish_readings([(name, 1e3 * i, now) for i in range(6)
+                                  for name in ("chamber_a", "chamber_b")])
     assert sorted(asked) == ["/pressure/sensor/chamber_a", "/pressure/sensor/chamber_b"]
-    assert len(seen) == 1 and len(seen[0]) == 12           # every reading still reaches the estimator
+    # every reading still reaches the estimator
+    assert len(seen) == 1 and len(seen[0]) == 12
 
 
 def test_bus_read_errors_are_reported_and_reception_goes_on(nodes, monkeypatch):
@@ -225,13 +252,16 @@ def test_bus_read_errors_are_reported_and_reception_goes_on(nodes, monkeypatch):
         return read(timeout)
 
     monkeypatch.setattr(controller.bus, "recv", recv)
-    wait_for(lambda: any(s.level >= DiagnosticStatus.WARN and "bus read error: CanOperationError: bus off" in s.message
-                         for d in diagnostics for s in d.status if s.name.endswith("pressure controller")),
-             timeout=5.0, message="a diagnostic naming the read error")
+    wait_for(
+        lambda: any(s.level >= DiagnosticStatus.WARN and
+                    "bus read error: CanOperationError: bus off" in s.message for d in diagnostics
+                    for s in d.status if s.name.endswith("pressure controller")), timeout=5.0,
+        message="a diagnostic naming the read error")
     failing[0] = False
     received = controller.link.frames_rx
     wait_for(lambda: controller.link.frames_rx > received + 10, message="frames received again")
     assert controller.link.receive_errors[0] > 0
+
 
 def test_bad_parameters_are_refused_with_a_reason(nodes):
     from rclpy.parameter import Parameter
@@ -245,12 +275,14 @@ def test_bad_parameters_are_refused_with_a_reason(nodes):
     assert not result.successful and "deactivate" in result.reason
     result = device.set_parameters([Parameter("fault.sensor_stuck", value="nope")])[0]
     assert not result.successful and "unknown sensor" in result.reason
-    assert controller.set_parameters([Parameter("max_gauge_pressure_pa", value=40e3)])[0].successful
+    assert controller.set_parameters([Parameter("max_gauge_pressure_pa",
+                                                value=40e3)])[0].successful
     assert controller.controller.config.max_gauge_pa == 40e3
 
 
 def test_estimate_is_subscribed_only_while_use_estimate(nodes):
-    """pressure/estimate is the busiest topic: the controller listens to it only when it regulates on it."""
+    """pressure/estimate is the busiest topic: the controller listens to it only when it regulates
+    on it."""
     from rclpy.parameter import Parameter
 
     controller, _, _ = nodes
@@ -283,34 +315,40 @@ def test_lifecycle_deactivate_vents_and_activate_resumes(nodes):
 
 
 def test_sigterm_vents_and_exits_cleanly(tmp_path):
-    """Both executables on the inter-process bus; SIGTERM to the controller: vent frames, exit 0."""
+    """Both executables on the inter-process bus; SIGTERM to the controller: vent frames, exit
+    0."""
     from softgrip_ros.canbus.codec import FrameCodec
 
     channel = unique("sigterm")
     ros_args = ["--ros-args", "-p", "can.interface:=softgrip_ipc", "-p", f"can.channel:={channel}"]
     monitor = can.Bus(interface="softgrip_ipc", channel=channel)
     logs = {name: open(tmp_path / f"{name}.log", "w+") for name in ("device", "controller")}
-    device = subprocess.Popen([installed_executable("sim_device"), *ros_args], stdout=logs["device"], stderr=subprocess.STDOUT, text=True)
-    controller = subprocess.Popen([installed_executable("pressure_controller"), *ros_args], stdout=logs["controller"],
-                                  stderr=subprocess.STDOUT, text=True)
+    device = subprocess.Popen([installed_executable("sim_device"), *ros_args],
+                              stdout=logs["device"], stderr=subprocess.STDOUT, text=True)
+    controller = subprocess.Popen([installed_executable("pressure_controller"), *ros_args],
+                                  stdout=logs["controller"], stderr=subprocess.STDOUT, text=True)
     codec = FrameCodec(max_counter_delta=15, sync_frames=0)
     valve_frames = []
-    notifier = can.Notifier(monitor, [lambda frame: (lambda d: d and d.name == "ValveCommand" and valve_frames.append(d))(
-        codec.decode(frame))], timeout=0.05)
+    notifier = can.Notifier(monitor, [
+        lambda frame: (lambda d: d and d.name == "ValveCommand" and valve_frames.append(d))
+        (codec.decode(frame))
+    ], timeout=0.05)
     try:
         wait_for(lambda: valve_frames, timeout=20.0, message="the controller's valve frames")
         controller.send_signal(signal.SIGTERM)
         try:
             controller.wait(timeout=15)
         except subprocess.TimeoutExpired:
-            controller.send_signal(signal.SIGUSR1)            # faulthandler: dump every thread
+            controller.send_signal(signal.SIGUSR1)  # faulthandler: dump every thread
             time.sleep(1.0)
-            raise AssertionError("controller ignored SIGTERM:\n" + (tmp_path / "controller.log").read_text())
+            raise AssertionError("controller ignored SIGTERM:\n" +
+                                 (tmp_path / "controller.log").read_text()) from None
         output = (tmp_path / "controller.log").read_text()
         assert controller.returncode == 0, output
         assert "Traceback" not in output
         time.sleep(0.3)
-        assert valve_frames[-1].signals["Channel0"] == 3, "the controller's last valve frame must vent"
+        assert valve_frames[-1].signals[
+            "Channel0"] == 3, "the controller's last valve frame must vent"
     finally:
         for process in (controller, device):
             stop_process(process)
@@ -342,7 +380,8 @@ def shut_down_without_a_wake():
 def killed_while_starting():
     os.kill(os.getpid(), signal.SIGTERM)
     deadline = time.monotonic() + 10.0
-    while rclpy.ok() and time.monotonic() < deadline:   # rclpy's signal thread shuts the context down
+    # rclpy's signal thread shuts the context down
+    while rclpy.ok() and time.monotonic() < deadline:
         time.sleep(0.01)
     return Quiet()
 
@@ -353,23 +392,27 @@ raise SystemExit(run_node(killed_while_starting))
 """
 
 
-@pytest.mark.parametrize("case, output", [("missed-wake", "closed"), ("during-start-up", "stopped during start-up")])
+@pytest.mark.parametrize("case, output", [("missed-wake", "closed"),
+                                          ("during-start-up", "stopped during start-up")])
 def test_run_node_ends_on_a_shutdown_that_missed_its_wake_or_came_during_start_up(case, output):
     """rclpy's signal thread wakes the executor before it shuts the context down; an executor that
     waits again in between must still end (within run_node's SHUTDOWN_POLL_S), not wait forever.
     A signal while the node is built ends the process with 0 and a line saying so."""
-    run = subprocess.run([sys.executable, "-c", RUN_NODE_SCRIPT, case], capture_output=True, text=True, timeout=30)
+    run = subprocess.run([sys.executable, "-c", RUN_NODE_SCRIPT, case], capture_output=True,
+                         text=True, timeout=30)
     assert run.returncode == 0, run.stdout + run.stderr
     assert output in run.stdout + run.stderr
     assert "Traceback" not in run.stderr
+
 
 @pytest.mark.parametrize("argument, message", [
     ("command_timeout_action:=explode", "must be one of ['hold', 'vent']"),
     ("control_rate_hz:=5000.0", "control_rate_hz out of range"),
 ])
 def test_bad_startup_parameter_exits_1_with_its_reason(argument, message):
-    run = subprocess.run([installed_executable("pressure_controller"), "--ros-args", "-p", argument],
-                         capture_output=True, text=True, timeout=60)
+    run = subprocess.run(
+        [installed_executable("pressure_controller"), "--ros-args", "-p", argument],
+        capture_output=True, text=True, timeout=60)
     assert run.returncode == 1
     assert message in run.stderr
     assert "Traceback" not in run.stderr
@@ -381,19 +424,26 @@ def test_a_failed_configure_leaves_the_bus_closed_and_a_bad_rest_rate_is_refused
     from rclpy.parameter import Parameter
     from softgrip_ros.nodes.pressure_controller import PressureControllerNode
 
-    controller = PressureControllerNode(context=rclpy_context, parameter_overrides=[
-        Parameter("can.interface", value="no_such_interface"), Parameter("can.channel", value=unique("cfg"))])
+    controller = PressureControllerNode(
+        context=rclpy_context, parameter_overrides=[
+            Parameter("can.interface", value="no_such_interface"),
+            Parameter("can.channel", value=unique("cfg"))
+        ])
     try:
         assert controller.link is None and controller.bus is None and controller.loop is None
     finally:
         controller.close()
         controller.destroy_node()
-    with pytest.raises(ValueError, match=r"rest_rate_hz \(800 Hz\) must not exceed control_rate_hz \(500 Hz\)"):
-        PressureControllerNode(context=rclpy_context, parameter_overrides=[Parameter("rest_rate_hz", value=800.0)])
+    with pytest.raises(
+            ValueError,
+            match=r"rest_rate_hz \(800 Hz\) must not exceed control_rate_hz \(500 Hz\)"):
+        PressureControllerNode(context=rclpy_context,
+                               parameter_overrides=[Parameter("rest_rate_hz", value=800.0)])
 
 
 def test_the_vent_service_vents_a_blind_controller_and_says_it_cannot_confirm_it(nodes):
-    """#20.6: with the bus silent, ~/vent answered "venting" while every ValveCommand said CLOSED."""
+    """#20.6: with the bus silent, ~/vent answered "venting" while every ValveCommand said
+    CLOSED."""
     from softgrip_interfaces.msg import ControllerStatus
     from softgrip_ros.model.pneumatics import Valve
     from std_srvs.srv import Trigger
@@ -405,17 +455,23 @@ def test_the_vent_service_vents_a_blind_controller_and_says_it_cannot_confirm_it
     wait_for(lambda: device.device.chamber_gauge_pa() > 13e3, message="15 kPa")
     device.device.set_fault("bus_silent", True)
     try:
-        wait_for(lambda: controller.last_output is not None and controller.last_output.valves == (Valve.CLOSED,)
-                 and controller.last_output.fault_flags & ControllerStatus.FAULT_SENSOR_TIMEOUT, message="held closed")
-        assert "held closed" in controller.last_output.message and "venting" not in controller.last_output.message
+        wait_for(
+            lambda: controller.last_output is not None and controller.last_output.valves ==
+            (Valve.CLOSED,) and controller.last_output.fault_flags & ControllerStatus.
+            FAULT_SENSOR_TIMEOUT, message="held closed")
+        assert ("held closed" in controller.last_output.message and
+                "venting" not in controller.last_output.message)
         vent = client.create_client(Trigger, "pressure_controller/vent")
         assert vent.wait_for_service(timeout_sec=5.0)
         future = vent.call_async(Trigger.Request())
         reply = wait_for(lambda: future.done() and future.result(), message="the vent reply")
-        assert reply.success and "cannot be confirmed" in reply.message and reply.message != "venting"
+        assert (reply.success and "cannot be confirmed" in reply.message and
+                reply.message != "venting")
         wait_for(lambda: device.device.valves() == (Valve.VENT,), message="the device venting")
-        time.sleep(0.2)                                         # and it stays so: the loop keeps sending VENT
-        assert device.device.valves() == (Valve.VENT,) and controller.last_output.valves == (Valve.VENT,)
+        # and it stays so: the loop keeps sending VENT
+        time.sleep(0.2)
+        assert (device.device.valves() == (Valve.VENT,) and
+                controller.last_output.valves == (Valve.VENT,))
         assert "unconfirmed" in controller.last_output.message
     finally:
         device.device.set_fault("bus_silent", False)

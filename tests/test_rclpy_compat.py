@@ -38,7 +38,7 @@ def test_multithreaded_executor_shutdown_leaves_its_pool_running_which_the_compa
     executor = MultiThreadedExecutor(num_threads=2, context=rclpy_context)
     assert isinstance(executor._executor, ThreadPoolExecutor)
     assert isinstance(executor._futures, list)
-    executor._executor.submit(lambda: None).result()   # start a worker thread
+    executor._executor.submit(lambda: None).result()  # start a worker thread
     executor.shutdown(timeout_sec=1.0)
     # the reason for the workaround: the pool still takes work after Executor.shutdown()
     assert executor._executor.submit(lambda: 42).result(timeout=2.0) == 42
@@ -68,8 +68,8 @@ def test_the_executor_keeps_its_started_tasks_in_futures(rclpy_context):
         while not executor._futures and time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.05)
         assert executor._futures, "spin_once ran a timer but left no task in _futures"
-        assert all(hasattr(task, "exception") and hasattr(task, "done")
-                   for task in executor._futures)
+        assert all(
+            hasattr(task, "exception") and hasattr(task, "done") for task in executor._futures)
     finally:
         shutdown_executor(executor, timeout_sec=1.0)
         node.destroy_node()

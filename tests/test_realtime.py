@@ -10,7 +10,8 @@ from tests.helpers.ros import wait_for
 
 def test_timer_thread_runs_each_callback_and_survives_a_failing_one():
     counts, errors = {"fast": 0, "slow": 0}, []
-    timers = TimerThread("test-timers", on_error=lambda name, error: errors.append((name, str(error))))
+    timers = TimerThread("test-timers",
+                         on_error=lambda name, error: errors.append((name, str(error))))
 
     def fast():
         counts["fast"] += 1
@@ -26,14 +27,16 @@ def test_timer_thread_runs_each_callback_and_survives_a_failing_one():
     timers.add(0.005, broken)
     timers.start()
     try:
-        wait_for(lambda: counts["slow"] >= 3 and counts["fast"] >= 10, timeout=5.0, message="both callbacks")
+        wait_for(lambda: counts["slow"] >= 3 and counts["fast"] >= 10, timeout=5.0,
+                 message="both callbacks")
     finally:
         timers.stop()
-    assert counts["fast"] > counts["slow"]            # each on its own period (no timing bound: shared machines)
+    # each on its own period (no timing bound: shared machines)
+    assert counts["fast"] > counts["slow"]
     assert errors and errors[0] == ("broken", "callback bug") and timers.errors == len(errors)
     stopped = dict(counts)
     threading.Event().wait(0.05)
-    assert counts == stopped                          # nothing runs after stop()
+    assert counts == stopped  # nothing runs after stop()
     assert not any(t.name == "test-timers" for t in threading.enumerate())
 
 
@@ -60,12 +63,14 @@ def test_periodic_thread_slows_down_at_rest_and_wakes_at_once():
         state["steps"] += 1
         return state["resting"]
 
-    loop = PeriodicThread(step, 1000.0, "test-loop", rest_rate_hz=1.0, resting=lambda resting: resting)
+    loop = PeriodicThread(step, 1000.0, "test-loop", rest_rate_hz=1.0,
+                          resting=lambda resting: resting)
     loop.start()
     try:
         wait_for(lambda: state["steps"] >= 1, message="the first step")
         threading.Event().wait(0.2)
-        assert state["steps"] == 1 and loop.rest_ticks == 1          # the next one is a second away
+        # the next one is a second away
+        assert state["steps"] == 1 and loop.rest_ticks == 1
         state["resting"] = False
         loop.wake()
         wait_for(lambda: state["steps"] >= 50, timeout=0.9, message="full rate after wake()")

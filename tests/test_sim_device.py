@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 
 from softgrip_ros.canbus.codec import FrameCodec
-from softgrip_ros.canbus.sim_device import (REPLAY_AGE_FRAMES, REPLAY_BURST_FRAMES, STUCK_READINGS_PA, SimDeviceConfig,
-                                            SimulatedDevice)
+from softgrip_ros.canbus.sim_device import (REPLAY_AGE_FRAMES, REPLAY_BURST_FRAMES,
+                                            STUCK_READINGS_PA, SimDeviceConfig, SimulatedDevice)
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 
 
 class FakeClock:
+
     def __init__(self):
         self.now = 100.0
 
@@ -24,10 +25,13 @@ def bench():
     """A device on a private virtual channel with a hand-driven clock, a listener bus and a codec
     for both directions; the device is never started (its ticks are called here)."""
     channel = f"simdev-{uuid.uuid4().hex[:8]}"
-    device_bus, peer_bus = can.Bus(interface="virtual", channel=channel), can.Bus(interface="virtual", channel=channel)
+    device_bus, peer_bus = can.Bus(interface="virtual",
+                                   channel=channel), can.Bus(interface="virtual", channel=channel)
     clock = FakeClock()
-    # a receiver that trusts at once: these tests hand it frames one by one (E2E: test_canbus_codec)
-    device = SimulatedDevice(device_bus, SimDeviceConfig(seed=4), codec=FrameCodec(sync_frames=0), clock=clock)
+    # a receiver that trusts at once: these tests hand it frames one by one (E2E:
+    # test_canbus_codec)
+    device = SimulatedDevice(device_bus, SimDeviceConfig(seed=4), codec=FrameCodec(sync_frames=0),
+                             clock=clock)
     device._started_at = device._last_tick = clock.now
     device._last_valve_command = clock.now
     device._next_sensor = {s.name: 0.0 for s in device.config.sensors}
@@ -41,10 +45,15 @@ def bench():
 
 def command(device, codec, valve, setpoint_pa=0.0, enable=True, lifetime_s=0.2):
     """Hand the device a RegulatorSetpoint and a ValveCommand, as if received."""
-    device._on_frame(codec.encode("RegulatorSetpoint", {"SetpointGaugePressure": setpoint_pa, "Enable": int(enable),
-                                                         "Source": 0}))
-    device._on_frame(codec.encode("ValveCommand", {"Channel0": int(valve), "Channel1": 0, "Channel2": 0, "Channel3": 0,
-                                                    "OpenLifetime": lifetime_s}))
+    device._on_frame(
+        codec.encode("RegulatorSetpoint",
+                     {"SetpointGaugePressure": setpoint_pa, "Enable": int(enable), "Source": 0}))
+    device._on_frame(
+        codec.encode(
+            "ValveCommand", {
+                "Channel0": int(valve), "Channel1": 0, "Channel2": 0, "Channel3": 0,
+                "OpenLifetime": lifetime_s
+            }))
 
 
 def tick_for(device, clock, seconds, period_s=1e-3, burst=1):
@@ -58,7 +67,8 @@ def tick_for(device, clock, seconds, period_s=1e-3, burst=1):
 
 
 def readings(peer_bus, codec, message="PressureSensor1"):
-    """Drain the bus; the readings of ``message`` (a str) or {message: readings} (a tuple of names)."""
+    """Drain the bus; the readings of ``message`` (a str) or {message: readings} (a tuple of
+    names)."""
     names = (message,) if isinstance(message, str) else message
     values = {name: [] for name in names}
     while (frame := peer_bus.recv(0.0)) is not None:
@@ -75,7 +85,8 @@ def test_the_plant_integrates_exactly_the_real_elapsed_time_even_when_ticks_come
     raised false NIS alarms). The reference is the plant stepped over the same real time."""
     device, clock, _, codec = bench
     command(device, codec, Valve.SUPPLY, setpoint_pa=40e3, lifetime_s=0.25)
-    tick_for(device, clock, 0.06, period_s=1e-3, burst=3)          # 60 ms of real time, ticks in threes
+    # 60 ms of real time, ticks in threes
+    tick_for(device, clock, 0.06, period_s=1e-3, burst=3)
     plant = PneumaticPlant()
     state = plant.initial_state()
     inputs = PlantInputs(40e3, True, (Valve.SUPPLY,))
@@ -90,20 +101,24 @@ def test_a_disabled_regulator_cuts_both_sources_even_through_valves_stuck_open(b
     command(device, codec, Valve.VENT, setpoint_pa=30e3)
     tick_for(device, clock, 0.5)
     assert device.valves() == (Valve.SUPPLY,)
-    assert device.chamber_gauge_pa() == pytest.approx(30e3, abs=500.0)      # pumped through the stuck valve
-    command(device, codec, Valve.VENT, setpoint_pa=30e3, enable=False)     # the second path: Enable = 0
+    # pumped through the stuck valve
+    assert device.chamber_gauge_pa() == pytest.approx(30e3, abs=500.0)
+    # the second path: Enable = 0
+    command(device, codec, Valve.VENT, setpoint_pa=30e3, enable=False)
     tick_for(device, clock, 0.5)
     assert abs(device.chamber_gauge_pa()) < 300.0
     device.set_fault("valve_stuck_open", False)
     command(device, codec, Valve.VACUUM, enable=True)
     tick_for(device, clock, 0.05)
-    device.set_fault("valve_stuck", True)                                    # stuck open to the vacuum pump
+    # stuck open to the vacuum pump
+    device.set_fault("valve_stuck", True)
     command(device, codec, Valve.CLOSED, enable=True)
     tick_for(device, clock, 0.1)
     assert device.valves() == (Valve.VACUUM,) and device.chamber_gauge_pa() < -20e3
     command(device, codec, Valve.VENT, enable=False)
     tick_for(device, clock, 1.0)
-    assert abs(device.chamber_gauge_pa()) < 300.0                            # the isolated vacuum line vents
+    # the isolated vacuum line vents
+    assert abs(device.chamber_gauge_pa()) < 300.0
 
 
 def test_true_extremes_cover_every_plant_step_since_the_reset(bench):
@@ -150,10 +165,11 @@ def test_the_noise_scale_multiplies_the_sensor_noise(bench):
     assert quiet == pytest.approx(300.0, rel=0.2) and loud == pytest.approx(3000.0, rel=0.2)
 
 
-def test_a_replay_burst_sends_old_sensor_frames_with_jumping_counters_and_feeds_an_old_valve_command(bench):
+def test_a_replay_burst_sends_old_frames_with_jumping_counters_and_feeds_an_old_valve_command(
+        bench):
     device, clock, peer, _ = bench
     sync_codec = FrameCodec(max_counter_delta=15, sync_frames=0)
-    for valve in (Valve.VENT, *[Valve.CLOSED] * REPLAY_AGE_FRAMES):     # the oldest one kept: VENT
+    for valve in (Valve.VENT, *[Valve.CLOSED] * REPLAY_AGE_FRAMES):  # the oldest one kept: VENT
         command(device, sync_codec, valve)
         tick_for(device, clock, 0.005)
     while peer.recv(0.0) is not None:
@@ -165,6 +181,7 @@ def test_a_replay_burst_sends_old_sensor_frames_with_jumping_counters_and_feeds_
         frames.append(frame)
     counters = [frame.data[6] & 0x0F for frame in frames]
     assert len(frames) == REPLAY_BURST_FRAMES
-    assert all((b - a) % 16 == 1 for a, b in zip(counters, counters[1:]))       # in sequence among themselves
+    # in sequence among themselves
+    assert all((b - a) % 16 == 1 for a, b in zip(counters, counters[1:]))
     # ... and old: the device's own codec saw the old ValveCommand's counter jump and ignored it
     assert device.codec.rejected["counter_jump"] >= 1 and device.valves() == before

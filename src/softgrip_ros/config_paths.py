@@ -1,4 +1,5 @@
-"""Where the package's configuration files are: the installed share/ first, else the source tree."""
+"""Where the package's configuration files are: the installed share/ first, else the source
+tree."""
 import pathlib
 
 PACKAGE_NAME = "softgrip_ros"
@@ -22,5 +23,6 @@ def _source_config_dir() -> pathlib.Path:
 def config_file(name: str) -> pathlib.Path:
     path = config_dir() / name
     if not path.is_file():
-        raise FileNotFoundError(f"{name} not found in {path.parent} (is softgrip_ros built and sourced?)")
+        raise FileNotFoundError(
+            f"{name} not found in {path.parent} (is softgrip_ros built and sourced?)")
     return path

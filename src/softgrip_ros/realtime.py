@@ -33,7 +33,8 @@ class PeriodicThread:
         if not 1.0 <= rate_hz <= 5000.0:
             raise ValueError(f"rate_hz must lie in [1, 5000], got {rate_hz}")
         if rest_rate_hz is not None and not 1.0 <= rest_rate_hz <= rate_hz:
-            raise ValueError(f"rest_rate_hz must lie in [1, rate_hz = {rate_hz:g}], got {rest_rate_hz}")
+            raise ValueError(
+                f"rest_rate_hz must lie in [1, rate_hz = {rate_hz:g}], got {rest_rate_hz}")
         self.step_function = step
         self.period_s = 1.0 / rate_hz
         self.rest_period_s = self.period_s if rest_rate_hz is None else 1.0 / rest_rate_hz
@@ -100,7 +101,7 @@ class PeriodicThread:
             if self.on_output is not None:
                 try:
                     self.on_output(output)
-                except Exception as error:      # publishing must never stop the loop
+                except Exception as error:  # publishing must never stop the loop
                     self.errors += 1
                     self.last_error = f"{type(error).__name__}: {error}"
 
@@ -119,7 +120,7 @@ class TimerThread:
         self.name = name
         self.on_error = on_error
         self.errors = 0
-        self._timers = []                    # [next due (monotonic s), period s, callback]
+        self._timers = []  # [next due (monotonic s), period s, callback]
         self._stop = threading.Event()
         self._thread = None
 
@@ -153,11 +154,11 @@ class TimerThread:
             for timer in self._timers:
                 if timer[0] <= now:
                     timer[0] += timer[1]
-                    if timer[0] <= now:           # fell a period behind: skip, do not burst
+                    if timer[0] <= now:  # fell a period behind: skip, do not burst
                         timer[0] = now + timer[1]
                     try:
                         timer[2]()
-                    except Exception as error:    # a failing callback must not stop the others
+                    except Exception as error:  # a failing callback must not stop the others
                         self.errors += 1
                         if self.on_error is not None:
                             self.on_error(getattr(timer[2], "__name__", repr(timer[2])), error)

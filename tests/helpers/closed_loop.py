@@ -9,8 +9,9 @@ from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant,
 PLANT_DT = 1e-3
 
 
-def step_response(target_gauge_pa, duration_s=1.0, noise_pa=300.0, seed=0, config=None, control_hz=500,
-                  plant=None, time_optimal=False, overshoot_fault_pa=0.0, sensor_until_s=math.inf):
+def step_response(target_gauge_pa, duration_s=1.0, noise_pa=300.0, seed=0, config=None,
+                  control_hz=500, plant=None, time_optimal=False, overshoot_fault_pa=0.0,
+                  sensor_until_s=math.inf):
     """Times (s), true chamber gauge pressures (Pa) and controller outputs of one step."""
     rng = np.random.default_rng(seed)
     plant = plant or PneumaticPlant()
@@ -31,7 +32,8 @@ def step_response(target_gauge_pa, duration_s=1.0, noise_pa=300.0, seed=0, confi
             controller.update_regulator_status(state.regulator_gauge_pa, 0)
         if i % period == 0:
             if time_optimal:
-                inputs = PlantInputs(regulator_setpoint_gauge_pa=plant.parameters.supply_gauge_pa, valves=(Valve.SUPPLY,))
+                inputs = PlantInputs(regulator_setpoint_gauge_pa=plant.parameters.supply_gauge_pa,
+                                     valves=(Valve.SUPPLY,))
             else:
                 out = controller.step(now)
                 outputs.append(out)
@@ -46,7 +48,8 @@ def step_response(target_gauge_pa, duration_s=1.0, noise_pa=300.0, seed=0, confi
 
 def rise_time_s(times, pressures, target):
     """10-90 % rise time of a step from 0 to target."""
-    above = (lambda level: pressures >= level) if target > 0 else (lambda level: pressures <= level)
+    above = (lambda level: pressures >= level) if target > 0 else (
+        lambda level: pressures <= level)
     return times[np.argmax(above(0.9 * target))] - times[np.argmax(above(0.1 * target))]
 
 
@@ -56,15 +59,18 @@ class FaultyLoop:
     at 100 Hz, as the simulated device sends them. ``true`` holds every plant step's pressure,
     which is what the limits are judged on.
 
-    Faults (attributes, changeable between runs): ``bias_pa`` on both sensors, ``bias_rate_pa_per_s``
-    (a drift), ``stuck`` {sensor: None (at its reading) or a value}, ``noise_scale``,
-    ``valve_stuck`` (the valves keep their state), ``valve_stuck_open`` (SUPPLY), ``overshoot_pa``."""
+    Faults (attributes, changeable between runs): ``bias_pa`` on both sensors,
+    ``bias_rate_pa_per_s`` (a drift), ``stuck`` {sensor: None (at its reading) or a value},
+    ``noise_scale``, ``valve_stuck`` (the valves keep their state), ``valve_stuck_open`` (SUPPLY),
+    ``overshoot_pa``."""
 
-    SENSORS = {"chamber_a": (300.0, 2), "chamber_b": (150.0, 5)}     # noise Pa, period in ms
+    SENSORS = {"chamber_a": (300.0, 2), "chamber_b": (150.0, 5)}  # noise Pa, period in ms
 
     def __init__(self, config=None, seed=0, plant=None):
         self.plant = plant or PneumaticPlant()
-        self.controller = PressureController(config, sensor_noise_pa={n: s for n, (s, _) in self.SENSORS.items()})
+        self.controller = PressureController(
+            config, sensor_noise_pa={n: s
+                                     for n, (s, _) in self.SENSORS.items()})
         self.controller.active = True
         self.rng = np.random.default_rng(seed)
         self.state = self.plant.initial_state()
@@ -110,10 +116,10 @@ class FaultyLoop:
             if self.tick % 2 == 0:
                 out = self.controller.step(self.now)
                 self.outputs.append((self.now, out))
-                valves = ((Valve.SUPPLY,) if self.valve_stuck_open else self.inputs.valves if self.valve_stuck
-                          else out.valves)
-                self.inputs = PlantInputs(out.regulator_setpoint_gauge_pa, out.regulator_enabled, valves,
-                                          regulator_overshoot_pa=self.overshoot_pa)
+                valves = ((Valve.SUPPLY,) if self.valve_stuck_open else
+                          self.inputs.valves if self.valve_stuck else out.valves)
+                self.inputs = PlantInputs(out.regulator_setpoint_gauge_pa, out.regulator_enabled,
+                                          valves, regulator_overshoot_pa=self.overshoot_pa)
             self.state = self.plant.step(self.state, self.inputs, 1e-3)
             self.true.append((self.now, self.gauge()))
         return self
@@ -124,4 +130,5 @@ class FaultyLoop:
 
     def first_fault(self, since=0.0):
         """(time, output) of the first safe-state output since ``since``, or None."""
-        return next(((t, o) for t, o in self.outputs if t >= since and o.mode.name == "FAULT"), None)
+        return next(((t, o) for t, o in self.outputs if t >= since and o.mode.name == "FAULT"),
+                    None)

@@ -21,3 +21,20 @@ def wait_for(condition, timeout: float = 10.0, period: float = 0.01, message: st
             return value
         time.sleep(period)
     raise AssertionError(f"timed out after {timeout} s waiting for {message}")
+
+
+def send_future_command(node, publisher, statuses, target_pa: float, source: int, ahead_s: float,
+                        timeout: float = 10.0):
+    """Publish a PressureCommand stamped ``ahead_s`` beyond ``node``'s clock; the first
+    controller/status in ``statuses`` (a list a subscription fills) that flags it refused."""
+    import math
+
+    from softgrip_interfaces.msg import ControllerStatus, PressureCommand
+    from softgrip_ros.nodes.common import stamp_msg
+    ahead = PressureCommand(target_gauge_pressure_pa=target_pa, max_rate_pa_per_s=math.nan,
+                            source=source)
+    ahead.header.stamp = stamp_msg(node.get_clock().now().nanoseconds * 1e-9 + ahead_s)
+    publisher.publish(ahead)
+    rejected = ControllerStatus.FAULT_COMMAND_REJECTED
+    return wait_for(lambda: next((s for s in reversed(statuses) if s.fault_flags & rejected),
+                                 None), timeout=timeout, message="the command's refusal")

@@ -17,10 +17,12 @@ from tests.helpers import sample_messages
 
 
 class RoundTripPeer(Node):
+
     def __init__(self):
         super().__init__("softgrip_roundtrip_peer")
         self._sample_publishers = [(self.create_publisher(msg_type, topic, 10), factory)
-                            for topic, (msg_type, factory) in sample_messages.SAMPLES.items()]
+                                   for topic, (msg_type,
+                                               factory) in sample_messages.SAMPLES.items()]
         self.create_timer(0.05, self._publish_all)
         self._action_server = ActionServer(self, Grasp, "roundtrip/grasp", self._execute)
 
@@ -34,7 +36,8 @@ class RoundTripPeer(Node):
         goal_handle.publish_feedback(feedback)
         result = sample_messages.grasp_result()
         # Echo the goal's fields back so the client can check them all.
-        result.message = repr(sample_messages.differences(sample_messages.grasp_goal(), goal_handle.request))
+        result.message = repr(
+            sample_messages.differences(sample_messages.grasp_goal(), goal_handle.request))
         goal_handle.succeed()
         return result
 

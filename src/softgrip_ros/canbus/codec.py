@@ -38,10 +38,11 @@ COUNTER_SIGNAL = "AliveCounter"
 CRC_SIGNAL = "Crc"
 COUNTER_MODULO = 16
 CRC_BYTE = 7
-ENCODED_CACHE_SIZE = 512     # (message, signals, counter) -> payload; cleared when full
+ENCODED_CACHE_SIZE = 512  # (message, signals, counter) -> payload; cleared when full
 
-REJECT_REASONS = ("unknown_id", "bad_dlc", "bad_crc", "repeated_counter", "counter_jump", "out_of_range", "undecodable")
-DEFAULT_SYNC_FRAMES = 4      # a stale burst of up to this many frames is never acted on
+REJECT_REASONS = ("unknown_id", "bad_dlc", "bad_crc", "repeated_counter", "counter_jump",
+                  "out_of_range", "undecodable")
+DEFAULT_SYNC_FRAMES = 4  # a stale burst of up to this many frames is never acted on
 
 
 @dataclasses.dataclass
@@ -50,9 +51,9 @@ class ReceiverState:
     VALID while it is trusted, INVALID after a counter jump until a new run."""
 
     state: str = "INIT"
-    counter: int | None = None      # the last counter seen in sequence (the reference)
-    run: int = 0                    # in-sequence frames since the reference
-    errors: int = 0                 # counter jumps
+    counter: int | None = None  # the last counter seen in sequence (the reference)
+    run: int = 0  # in-sequence frames since the reference
+    errors: int = 0  # counter jumps
 
 
 def _crc8_table() -> tuple:
@@ -69,7 +70,8 @@ _CRC8_TABLE = _crc8_table()
 
 
 def crc8_sae_j1850(data: bytes) -> int:
-    """CRC-8 SAE J1850 (poly 0x1D, init 0xFF, xor-out 0xFF); check value of b"123456789" is 0x4B."""
+    """CRC-8 SAE J1850 (poly 0x1D, init 0xFF, xor-out 0xFF); check value of b"123456789" is
+    0x4B."""
     crc = 0xFF
     for byte in data:
         crc = _CRC8_TABLE[crc ^ byte]
@@ -77,7 +79,8 @@ def crc8_sae_j1850(data: bytes) -> int:
 
 
 def frame_crc(arbitration_id: int, payload: bytes) -> int:
-    return crc8_sae_j1850(bytes((arbitration_id & 0xFF, (arbitration_id >> 8) & 0xFF)) + payload[:CRC_BYTE])
+    return crc8_sae_j1850(
+        bytes((arbitration_id & 0xFF, (arbitration_id >> 8) & 0xFF)) + payload[:CRC_BYTE])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,7 +108,9 @@ class FrameCodec:
             dbc_path = config_file("softgrip.dbc")
         self.database = cantools.database.load_file(str(pathlib.Path(dbc_path)))
         if not 1 <= max_counter_delta < COUNTER_MODULO:
-            raise ValueError(f"max_counter_delta must lie in [1, {COUNTER_MODULO - 1}], got {max_counter_delta}")
+            raise ValueError(
+                f"max_counter_delta must lie in [1, {COUNTER_MODULO - 1}], got {max_counter_delta}"
+            )
         if not 0 <= sync_frames <= 64:
             raise ValueError(f"sync_frames must lie in [0, 64], got {sync_frames}")
         self.max_counter_delta = max_counter_delta
@@ -114,22 +119,32 @@ class FrameCodec:
         for name, message in self._messages.items():
             missing = {COUNTER_SIGNAL, CRC_SIGNAL} - {s.name for s in message.signals}
             if missing:
-                raise ValueError(f"DBC message {name} lacks {sorted(missing)}: every frame needs a counter and a CRC")
+                raise ValueError(
+                    f"DBC message {name} lacks {sorted(missing)}: every frame needs a counter and "
+                    "a CRC"
+                )
             if message.length != 8:
                 raise ValueError(f"DBC message {name} must be 8 bytes long (the CRC is byte 7)")
         self.frame_ids = {name: m.frame_id for name, m in self._messages.items()}
         for name, frame_id in (frame_ids or {}).items():
             if name not in self._messages:
-                raise ValueError(f"frame_ids: unknown message {name!r}; the DBC defines {sorted(self._messages)}")
+                raise ValueError(
+                    f"frame_ids: unknown message {name!r}; the DBC defines "
+                    f"{sorted(self._messages)}"
+                )
             if not 0 <= int(frame_id) <= 0x7FF:
                 raise ValueError(f"frame_ids: {name} = {frame_id:#x} is not an 11-bit standard ID")
             self.frame_ids[name] = int(frame_id)
         if len(set(self.frame_ids.values())) != len(self.frame_ids):
             raise ValueError(f"frame_ids: two messages share an arbitration ID: {self.frame_ids}")
         self._names_by_id = {frame_id: name for name, frame_id in self.frame_ids.items()}
-        self._ranges = {name: {s.name: (s.minimum, s.maximum) for s in m.signals
-                               if s.name not in (COUNTER_SIGNAL, CRC_SIGNAL)}
-                        for name, m in self._messages.items()}
+        self._ranges = {
+            name: {
+                s.name: (s.minimum, s.maximum)
+                for s in m.signals if s.name not in (COUNTER_SIGNAL, CRC_SIGNAL)
+            }
+            for name, m in self._messages.items()
+        }
         self._lock = threading.Lock()
         self._tx_counters = collections.defaultdict(int)
         # a frame is a pure function of its signals and counter: a controller at rest re-sends the
@@ -137,7 +152,8 @@ class FrameCodec:
         self._encoded: dict = {}
         self._receivers = collections.defaultdict(ReceiverState)
         self.rejected = collections.Counter({reason: 0 for reason in REJECT_REASONS})
-        self.synchronising = 0        # in-sequence frames not yet trusted (INIT or INVALID), not counted as bad
+        # in-sequence frames not yet trusted (INIT or INVALID), not counted as bad
+        self.synchronising = 0
         self.accepted = 0
 
     @property
@@ -150,7 +166,8 @@ class FrameCodec:
     def encode(self, name: str, signals: dict, counter: int | None = None) -> can.Message:
         """A frame with the next alive counter (or ``counter``) and its CRC.
 
-        Raises ValueError for an unknown message, a missing signal or a value outside the DBC range.
+        Raises ValueError for an unknown message, a missing signal or a value outside the DBC
+        range.
         """
         try:
             message = self._messages[name]
@@ -164,14 +181,15 @@ class FrameCodec:
         key = (name, tuple(signals.items()), counter % COUNTER_MODULO)
         try:
             data = self._encoded.get(key)
-        except TypeError:                     # an unhashable value: cantools judges it, uncached
+        except TypeError:  # an unhashable value: cantools judges it, uncached
             key, data = None, None
         if data is None:
             values = dict(signals)
             values[COUNTER_SIGNAL] = counter % COUNTER_MODULO
             values[CRC_SIGNAL] = 0
             try:
-                payload = bytearray(message.encode(values, scaling=True, padding=False, strict=True))
+                payload = bytearray(
+                    message.encode(values, scaling=True, padding=False, strict=True))
             except (cantools.database.EncodeError, KeyError, TypeError) as error:
                 raise ValueError(f"cannot encode {name}: {error}") from None
             payload[CRC_BYTE] = frame_crc(frame_id, bytes(payload))
@@ -205,14 +223,15 @@ class FrameCodec:
         with self._lock:
             receiver = self._receivers[name]
             if receiver.counter is None:
-                receiver.counter = counter            # the first frame: the reference of a first run
+                # the first frame: the reference of a first run
+                receiver.counter = counter
             else:
                 delta = (counter - receiver.counter) % COUNTER_MODULO
                 if delta == 0:
                     self.rejected["repeated_counter"] += 1
                     return None
                 receiver.counter = counter
-                if delta > self.max_counter_delta:    # stale or lost: distrust until a new run
+                if delta > self.max_counter_delta:  # stale or lost: distrust until a new run
                     receiver.state, receiver.run = "INVALID", 0
                     receiver.errors += 1
                     self.rejected["counter_jump"] += 1
@@ -227,7 +246,8 @@ class FrameCodec:
         return DecodedFrame(name, signals, frame.timestamp)
 
     def receiver_states(self) -> dict:
-        """{message name: its E2E state (INIT, VALID, INVALID)} of every message received so far."""
+        """{message name: its E2E state (INIT, VALID, INVALID)} of every message received so
+        far."""
         with self._lock:
             return {name: receiver.state for name, receiver in self._receivers.items()}
 

@@ -28,14 +28,16 @@ import can
 
 from softgrip_ros.canbus.codec import FrameCodec, frame_age_s
 from softgrip_ros.canbus.reader import BatchReader
-from softgrip_ros.control.pressure import ControlOutput, Fault, PressureMode, PressureController, Source
+from softgrip_ros.control.pressure import (ControlOutput, Fault, PressureMode, PressureController,
+                                           Source)
 from softgrip_ros.control.reports import LinkStats
 from softgrip_ros.model.pneumatics import Valve
 from softgrip_ros.realtime import PeriodicThread
 
 HEARTBEAT_PERIOD_S = 0.1
 CONTROLLER_STATE = {PressureMode.INACTIVE: 0, PressureMode.FAULT: 2}
-FRAMES_REJECTED_HOLD_S = 1.0     # FRAMES_REJECTED is reported this long after the last rejected frame
+# FRAMES_REJECTED is reported this long after the last rejected frame
+FRAMES_REJECTED_HOLD_S = 1.0
 
 
 def _same(value: float):
@@ -57,9 +59,10 @@ class ControllerLink:
     ``stamp`` is when the frame was sent, on ``clock`` (see :func:`frame_age_s`)."""
 
     def __init__(self, bus: can.BusABC, controller: PressureController, sensors: list,
-                 codec: FrameCodec | None = None, bus_silent_timeout_s: float = 0.25, on_readings=None,
-                 clock=time.monotonic, command_frame_period_s: float = 0.01, valve_lifetime_s: float = 0.025,
-                 control_period_s: float = 0.002, rest_receive_period_s: float = 0.0):
+                 codec: FrameCodec | None = None, bus_silent_timeout_s: float = 0.25,
+                 on_readings=None, clock=time.monotonic, command_frame_period_s: float = 0.01,
+                 valve_lifetime_s: float = 0.025, control_period_s: float = 0.002,
+                 rest_receive_period_s: float = 0.0):
         self.bus = bus
         self.controller = controller
         self.codec = codec or FrameCodec()
@@ -80,23 +83,29 @@ class ControllerLink:
         self.regulator_actual_gauge_pa = math.nan
         self.last_frame_time = -math.inf
         self._last_heartbeat = -math.inf
-        self._applied = collections.deque(maxlen=64)   # recent commands applied, to know their copies
+        # recent commands applied, to know their copies
+        self._applied = collections.deque(maxlen=64)
         self._rejected_total, self._rejected_at = 0, -math.inf
         if not 0.0 <= command_frame_period_s <= 0.1:
-            raise ValueError(f"command_frame_period_s must lie in [0, 0.1] s, got {command_frame_period_s}")
+            raise ValueError(
+                f"command_frame_period_s must lie in [0, 0.1] s, got {command_frame_period_s}")
         self.command_frame_period_s = command_frame_period_s
         lifetime_max = self.codec.signal_range("ValveCommand", "OpenLifetime")[1]
         resend_s = max(command_frame_period_s, control_period_s)
         if not 2.0 * resend_s <= valve_lifetime_s <= lifetime_max:
-            raise ValueError(f"valve_lifetime_s must lie in [{2.0 * resend_s:g}, {lifetime_max:g}] s, twice the "
-                             f"re-send period at least (else the device closes the valves between two frames), "
-                             f"got {valve_lifetime_s:g}")
+            raise ValueError(
+                f"valve_lifetime_s must lie in [{2.0 * resend_s:g}, {lifetime_max:g}] s, twice "
+                "the "
+                f"re-send period at least (else the device closes the valves between two frames), "
+                f"got {valve_lifetime_s:g}")
         self.valve_lifetime_s = valve_lifetime_s
-        self._last_command_frames = {}      # message -> (signals, time sent)
-        self.wake = None                    # the control loop's wake(): a command or a reading beyond a limit
-        self.resting = False                # the last step left the valves as they are (not regulating)
-        self._reader = BatchReader(bus, self._on_frames, rest_receive_period_s, lambda: self.resting,
-                                   name="softgrip-can-rx")
+        self._last_command_frames = {}  # message -> (signals, time sent)
+        # the control loop's wake(): a command or a reading beyond a limit
+        self.wake = None
+        # the last step left the valves as they are (not regulating)
+        self.resting = False
+        self._reader = BatchReader(bus, self._on_frames, rest_receive_period_s,
+                                   lambda: self.resting, name="softgrip-can-rx")
 
     @property
     def frames_bad(self) -> int:
@@ -110,7 +119,8 @@ class ControllerLink:
     def close(self) -> None:
         self._reader.stop(timeout_s=1.0)
 
-    # ---- reception --------------------------------------------------------------------------------
+    # ---- reception
+    # --------------------------------------------------------------------------------
     def _on_frames(self, frames: list) -> None:
         now = self.clock()
         valid = [(decoded, now - frame_age_s(frame)) for frame in frames
@@ -126,42 +136,45 @@ class ControllerLink:
                 if decoded.name in self.sensors:
                     if signals["SensorStatus"] == 0:
                         name = self.sensors[decoded.name]
-                        urgent = self.controller.update_sensor(name, signals["GaugePressure"], sent_at) or urgent
+                        urgent = self.controller.update_sensor(name, signals["GaugePressure"],
+                                                               sent_at) or urgent
                         readings.append((name, signals["GaugePressure"], sent_at))
                 elif decoded.name == "RegulatorStatus":
                     self.regulator_actual_gauge_pa = signals["ActualGaugePressure"]
-                    self.controller.update_regulator_status(signals["ActualGaugePressure"], int(signals["FaultBits"]),
-                                                            sent_at)
+                    self.controller.update_regulator_status(signals["ActualGaugePressure"],
+                                                            int(signals["FaultBits"]), sent_at)
         if urgent and self.wake is not None:
             self.wake()
         if readings and self.on_readings is not None:
             try:
                 self.on_readings(readings)
-            except Exception as error:   # a failing listener must not stop reception
+            except Exception as error:  # a failing listener must not stop reception
                 self.listener_errors += 1
                 self.last_listener_error = f"{type(error).__name__}: {error}"
 
     # ---- the control period ---------------------------------------------------------------------
-    def command(self, target_gauge_pa: float, source: Source, max_rate_pa_per_s: float, stamp_s: float = 0.0,
-                on_applied=None) -> str | None:
+    def command(self, target_gauge_pa: float, source: Source, max_rate_pa_per_s: float,
+                stamp_s: float = 0.0, on_applied=None) -> str | None:
         """Apply a command; None when it is a copy of one already applied. In the composed
         controller each command comes both directly and by DDS: a stamped command (``stamp_s`` > 0)
         equal, stamp and content, to one of the last 64 applied is that copy, and must not undo a
         newer one. Any other command applies, in the order it arrives: no stamp can lock out the
-        ones after it (a stamp in the future is for the caller to refuse, see :meth:`reject_command`).
-        An unstamped command always applies. ``on_applied(note)`` runs once it has applied, before
-        any step reports on it (so that a status can carry the note)."""
+        ones after it (a stamp in the future is for the caller to refuse, see
+        :meth:`reject_command`). An unstamped command always applies. ``on_applied(note)`` runs
+        once it has applied, before any step reports on it (so that a status can carry the
+        note)."""
         key = (float(stamp_s), _same(target_gauge_pa), int(source), _same(max_rate_pa_per_s))
         with self._lock:
             if stamp_s and key in self._applied:
                 return None
-            note = self.controller.command(target_gauge_pa, source, max_rate_pa_per_s, self.clock())
+            note = self.controller.command(target_gauge_pa, source, max_rate_pa_per_s,
+                                           self.clock())
             if stamp_s:
                 self._applied.append(key)
             active = self.controller.active
             if on_applied is not None:
                 on_applied(note)
-        if self.wake is not None:            # a control loop runs this link
+        if self.wake is not None:  # a control loop runs this link
             if active:
                 # Step here, in the caller's thread: handing the step to the woken loop thread
                 # cost ~1 ms more (a thread wake and the GIL) in the composed controller. The loop
@@ -171,7 +184,8 @@ class ControllerLink:
         return note
 
     def reject_command(self, reason: str) -> None:
-        """A command the caller refused: flagged in the next outputs, with ``reason``, until one applies."""
+        """A command the caller refused: flagged in the next outputs, with ``reason``, until one
+        applies."""
         with self._lock:
             self.controller.reject_command(reason)
         if self.wake is not None:
@@ -194,7 +208,7 @@ class ControllerLink:
                 output = self.controller.step(now)
             resting = output.mode != PressureMode.REGULATE
             if self.resting and not resting:
-                self._reader.wake()          # regulating: the readings matter at once from here on
+                self._reader.wake()  # regulating: the readings matter at once from here on
             self.resting = resting
             extra = Fault.NONE
             if now - self.last_frame_time > self.bus_silent_timeout_s:
@@ -205,21 +219,27 @@ class ControllerLink:
             message = output.message
             if now - self._rejected_at < FRAMES_REJECTED_HOLD_S:
                 extra |= Fault.FRAMES_REJECTED
-                message = "; ".join(m for m in (message, f"frames rejected by the E2E checks ({rejected} so far)") if m)
+                message = "; ".join(
+                    m for m in (message, f"frames rejected by the E2E checks ({rejected} so far)")
+                    if m)
             if extra:
-                output = dataclasses.replace(output, fault_flags=output.fault_flags | extra, message=message)
+                output = dataclasses.replace(output, fault_flags=output.fault_flags | extra,
+                                             message=message)
             self._send_output(output, now)
             if now - self._last_heartbeat >= HEARTBEAT_PERIOD_S:
                 self._last_heartbeat = now
-                self._send("ControllerHeartbeat", {"ControllerState": CONTROLLER_STATE.get(output.mode, 1)})
+                self._send("ControllerHeartbeat",
+                           {"ControllerState": CONTROLLER_STATE.get(output.mode, 1)})
             return output
 
     def send_vent(self, repeats: int = 3) -> None:
-        """Vent frames now (shutdown, deactivate, the ~/vent service), a few times for robustness."""
+        """Vent frames now (shutdown, deactivate, the ~/vent service), a few times for
+        robustness."""
         with self._lock:
             self.controller.vent(self.clock())
         for _ in range(repeats):
-            self._send("RegulatorSetpoint", {"SetpointGaugePressure": 0.0, "Enable": 0, "Source": int(Source.VENT)})
+            self._send("RegulatorSetpoint",
+                       {"SetpointGaugePressure": 0.0, "Enable": 0, "Source": int(Source.VENT)})
             self._send("ValveCommand", self._valve_signals([Valve.VENT] * 4))
 
     def vent_and_say(self) -> str:
@@ -234,12 +254,13 @@ class ControllerLink:
     def _send_output(self, output: ControlOutput, now: float) -> None:
         low, high = self.codec.signal_range("RegulatorSetpoint", "SetpointGaugePressure")
         valves = list(output.valves) + [Valve.CLOSED] * (4 - len(output.valves))
-        for message, signals in (
-                ("RegulatorSetpoint", {"SetpointGaugePressure": min(max(output.regulator_setpoint_gauge_pa, low), high),
-                                       "Enable": int(output.regulator_enabled), "Source": int(output.regulator_source)}),
-                ("ValveCommand", self._valve_signals(valves))):
+        for message, signals in (("RegulatorSetpoint", {
+                "SetpointGaugePressure": min(max(output.regulator_setpoint_gauge_pa, low), high),
+                "Enable": int(output.regulator_enabled), "Source": int(output.regulator_source)
+        }), ("ValveCommand", self._valve_signals(valves))):
             last = self._last_command_frames.get(message)
-            if last is None or last[0] != signals or now - last[1] >= self.command_frame_period_s - 1e-9:
+            if last is None or last[
+                    0] != signals or now - last[1] >= self.command_frame_period_s - 1e-9:
                 self._last_command_frames[message] = (signals, now)
                 self._send(message, signals)
 
@@ -263,16 +284,16 @@ class ControllerLink:
         """What this link (and the control ``loop`` that steps it) has counted, for the report."""
         with self._lock:
             fresh = self.controller.fresh_sensors(self.clock())
-        receive_errors, last_receive_error = self.receive_errors   # one read: count and text agree
-        return LinkStats(
-            frames_rx=self.frames_rx, frames_tx=self.frames_tx, frames_bad=self.frames_bad,
-            rejected=dict(self.codec.rejected), last_sensor_age_s=self.last_sensor_age_s(),
-            silent_sensors=tuple(n for n in sensor_names if n not in fresh),
-            listener_errors=self.listener_errors, last_listener_error=self.last_listener_error,
-            status_errors=loop.errors if loop is not None else 0,
-            last_status_error=loop.last_error if loop is not None else "",
-            receive_errors=receive_errors, last_receive_error=last_receive_error)
-
+        receive_errors, last_receive_error = self.receive_errors  # one read: count and text agree
+        return LinkStats(frames_rx=self.frames_rx, frames_tx=self.frames_tx,
+                         frames_bad=self.frames_bad, rejected=dict(self.codec.rejected),
+                         last_sensor_age_s=self.last_sensor_age_s(), silent_sensors=tuple(
+                             n for n in sensor_names
+                             if n not in fresh), listener_errors=self.listener_errors,
+                         last_listener_error=self.last_listener_error,
+                         status_errors=loop.errors if loop is not None else 0,
+                         last_status_error=loop.last_error if loop is not None else "",
+                         receive_errors=receive_errors, last_receive_error=last_receive_error)
 
 
 def make_control_loop(link: ControllerLink, rate_hz: float, status_rate_hz: float, on_status=None,
@@ -280,10 +301,12 @@ def make_control_loop(link: ControllerLink, rate_hz: float, status_rate_hz: floa
     """The pressure controller's loop: ``link.step`` at ``rate_hz`` while regulating, and at
     ``rest_rate_hz`` (default: the same) while venting, holding, inactive or faulted, when the
     valves stay as they are; a command, or a reading beyond the limits, runs a step at once.
-    ``on_status`` at about ``status_rate_hz`` and at once on a change (see :class:`StatusOnChange`)."""
+    ``on_status`` at about ``status_rate_hz`` and at once on a change (see
+    :class:`StatusOnChange`)."""
     on_output = None if on_status is None else StatusOnChange(on_status, 1.0 / status_rate_hz)
     loop = PeriodicThread(link.step, rate_hz, "softgrip-control-loop", on_output=on_output,
-                          rest_rate_hz=rest_rate_hz, resting=lambda output: output.mode != PressureMode.REGULATE)
+                          rest_rate_hz=rest_rate_hz,
+                          resting=lambda output: output.mode != PressureMode.REGULATE)
     link.wake = loop.wake
     return loop
 
@@ -294,15 +317,19 @@ class StatusOnChange:
     ``regulator_band_pa``) the regulator command change: a flag that lasts less than a period
     (a refused command, cleared by the next one) must still reach controller/status."""
 
-    def __init__(self, callback, period_s: float, regulator_band_pa: float = 1e3, clock=time.monotonic):
-        self.callback, self.period_s, self.regulator_band_pa, self.clock = callback, period_s, regulator_band_pa, clock
+    def __init__(self, callback, period_s: float, regulator_band_pa: float = 1e3,
+                 clock=time.monotonic):
+        self.callback, self.period_s, self.clock = callback, period_s, clock
+        self.regulator_band_pa = regulator_band_pa
         self._sent_at, self._last = -math.inf, None
 
     def __call__(self, output) -> None:
         last, now = self._last, self.clock()
-        changed = (last is None or (output.valves, output.mode, output.regulator_enabled, output.fault_flags)
-                   != (last.valves, last.mode, last.regulator_enabled, last.fault_flags)
-                   or abs(output.regulator_setpoint_gauge_pa - last.regulator_setpoint_gauge_pa) > self.regulator_band_pa)
+        changed = (last is None or
+                   (output.valves, output.mode, output.regulator_enabled, output.fault_flags)
+                   != (last.valves, last.mode, last.regulator_enabled, last.fault_flags) or
+                   abs(output.regulator_setpoint_gauge_pa - last.regulator_setpoint_gauge_pa)
+                   > self.regulator_band_pa)
         if changed or now - self._sent_at >= self.period_s - 1e-4:
             self._sent_at, self._last = now, output
             self.callback(output)

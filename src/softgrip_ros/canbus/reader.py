@@ -23,8 +23,8 @@ class BatchReader:
     after ``timeout_s``: a failing read must neither end reception nor spin.
     """
 
-    def __init__(self, bus, on_frames, rest_period_s: float = 0.0, resting=None, name: str = "softgrip-can-rx",
-                 timeout_s: float = 0.05, max_batch: int = 256):
+    def __init__(self, bus, on_frames, rest_period_s: float = 0.0, resting=None,
+                 name: str = "softgrip-can-rx", timeout_s: float = 0.05, max_batch: int = 256):
         if not 0.0 <= rest_period_s <= 1.0:
             raise ValueError(f"rest_period_s must lie in [0, 1] s, got {rest_period_s}")
         if max_batch < 1:
@@ -62,14 +62,14 @@ class BatchReader:
 
     def _run(self) -> None:
         while not self._stop.is_set():
-            self._wake.clear()             # a wake ends the wait after a batch taken from here on
+            self._wake.clear()  # a wake ends the wait after a batch taken from here on
             try:
                 frames = self._read_batch()
                 if frames:
                     self.batches += 1
                     self.frames += len(frames)
                     self.on_frames(frames)
-            except Exception as error:     # a closed or failing bus, a consumer's bug
+            except Exception as error:  # a closed or failing bus, a consumer's bug
                 if self._stop.is_set():
                     return
                 self.errors += 1

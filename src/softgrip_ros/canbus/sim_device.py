@@ -34,7 +34,8 @@ import can
 import numpy as np
 
 from softgrip_ros.canbus.codec import FrameCodec, frame_age_s
-from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticParameters, PneumaticPlant, Valve
+from softgrip_ros.model.pneumatics import (P_ATM_PA, PlantInputs, PneumaticParameters,
+                                           PneumaticPlant, Valve)
 from softgrip_ros.realtime import PeriodicThread
 
 LOG = logging.getLogger(__name__)
@@ -54,8 +55,10 @@ class SensorSpec:
 
 
 DEFAULT_SENSORS = (
-    SensorSpec("chamber_a", "PressureSensor1", rate_hz=500.0, noise_std_pa=300.0, quantisation_pa=10.0),
-    SensorSpec("chamber_b", "PressureSensor2", rate_hz=200.0, noise_std_pa=150.0, quantisation_pa=5.0),
+    SensorSpec("chamber_a", "PressureSensor1", rate_hz=500.0, noise_std_pa=300.0,
+               quantisation_pa=10.0),
+    SensorSpec("chamber_b", "PressureSensor2", rate_hz=200.0, noise_std_pa=150.0,
+               quantisation_pa=5.0),
 )
 
 
@@ -81,44 +84,51 @@ class SimDeviceConfig:
                 raise ValueError(f"sensor {sensor.name}: channel {sensor.channel} does not exist")
 
 
-SOURCE_VALVES = (Valve.SUPPLY, Valve.VACUUM)   # the states that expire with OpenLifetime
+SOURCE_VALVES = (Valve.SUPPLY, Valve.VACUUM)  # the states that expire with OpenLifetime
 
 # What a stuck sensor reads (fault sensor_stuck_at): "present" freezes its last reading; "low"
 # and "high" are fixed readings inside the pressure limits, so that only a plausibility check,
 # not the limits, can catch them.
 STUCK_READINGS_PA = {"low": -40e3, "high": 40e3}
-REPLAY_BURST_FRAMES = 3        # a replay burst: this many old frames of a sensor, in their old order
-REPLAY_AGE_FRAMES = 8          # ... sent this many frames ago (their counters jump from the live ones)
+# a replay burst: this many old frames of a sensor, in their old order
+REPLAY_BURST_FRAMES = 3
+# ... sent this many frames ago (their counters jump from the live ones)
+REPLAY_AGE_FRAMES = 8
 
 FAULTS = {
-    "sensor_dropout": "",        # a sensor name, or "all": those sensors fall silent
-    "sensor_stuck": "",          # a sensor name, or "all": those sensors read sensor_stuck_at
-    "sensor_stuck_at": "present",   # "present" (the last reading, frozen), "low" or "high" (STUCK_READINGS_PA)
-    "sensor_bias_pa": 0.0,       # added to every sensor reading
-    "sensor_noise_scale": 1.0,   # multiplies every sensor's noise
+    "sensor_dropout": "",  # a sensor name, or "all": those sensors fall silent
+    "sensor_stuck": "",  # a sensor name, or "all": those sensors read sensor_stuck_at
+    # "present" (the last reading, frozen), "low" or "high" (STUCK_READINGS_PA)
+    "sensor_stuck_at": "present",
+    "sensor_bias_pa": 0.0,  # added to every sensor reading
+    "sensor_noise_scale": 1.0,  # multiplies every sensor's noise
     "regulator_overshoot_pa": 0.0,  # the regulator settles this far above its setpoint
-    "valve_stuck": False,        # the valves ignore commands and keep their state
-    "valve_stuck_open": False,   # the valves ignore commands and stay open to SUPPLY
-    "bus_silent": False,         # the device sends nothing at all
-    "corrupt_rate": 0.0,         # fraction of sent frames with a bad CRC or a repeated counter
-    "replay_rate_hz": 0.0,       # bursts per second of replayed old frames (see SimulatedDevice.replay_burst)
+    "valve_stuck": False,  # the valves ignore commands and keep their state
+    "valve_stuck_open": False,  # the valves ignore commands and stay open to SUPPLY
+    "bus_silent": False,  # the device sends nothing at all
+    "corrupt_rate": 0.0,  # fraction of sent frames with a bad CRC or a repeated counter
+    # bursts per second of replayed old frames (see SimulatedDevice.replay_burst)
+    "replay_rate_hz": 0.0,
 }
 FAULT_CHOICES = {"sensor_stuck_at": ("present", *STUCK_READINGS_PA)}
-FAULT_RANGES = {"corrupt_rate": (0.0, 1.0), "sensor_noise_scale": (0.0, 100.0), "replay_rate_hz": (0.0, 100.0)}
+FAULT_RANGES = {
+    "corrupt_rate": (0.0, 1.0), "sensor_noise_scale": (0.0, 100.0), "replay_rate_hz": (0.0, 100.0)
+}
 
 
 class SimulatedDevice:
     """The device on ``bus``. Call :meth:`start`, then :meth:`stop` (it does not close the bus)."""
 
-    def __init__(self, bus: can.BusABC, config: SimDeviceConfig | None = None, codec: FrameCodec | None = None,
-                 clock=time.monotonic):
+    def __init__(self, bus: can.BusABC, config: SimDeviceConfig | None = None,
+                 codec: FrameCodec | None = None, clock=time.monotonic):
         self.bus = bus
         self.clock = clock
         self.config = config or SimDeviceConfig()
         self.codec = codec or FrameCodec()
         self.plant = PneumaticPlant(self.config.plant)
         self._state = self.plant.initial_state()
-        self._inputs = PlantInputs(regulator_enabled=False, valves=(Valve.CLOSED,) * self.config.plant.channels)
+        self._inputs = PlantInputs(regulator_enabled=False,
+                                   valves=(Valve.CLOSED,) * self.config.plant.channels)
         self._faults = dict(FAULTS)
         self._lock = threading.Lock()
         self._rng = np.random.default_rng(self.config.seed)
@@ -126,8 +136,10 @@ class SimulatedDevice:
         self._stuck_values: dict = {}
         self._last_valve_command = -math.inf
         self._valves_open_until = math.inf
-        self._sent_history = {s.message: collections.deque(maxlen=REPLAY_AGE_FRAMES + REPLAY_BURST_FRAMES)
-                              for s in self.config.sensors}
+        self._sent_history = {
+            s.message: collections.deque(maxlen=REPLAY_AGE_FRAMES + REPLAY_BURST_FRAMES)
+            for s in self.config.sensors
+        }
         self._received_valve_frames = collections.deque(maxlen=REPLAY_AGE_FRAMES + 1)
         self._next_replay = math.inf
         self._true_low = self._true_high = 0.0
@@ -172,12 +184,14 @@ class SimulatedDevice:
         elif name in FAULT_CHOICES:
             value = str(value)
             if value not in FAULT_CHOICES[name]:
-                raise ValueError(f"fault {name} must be one of {list(FAULT_CHOICES[name])}, got {value!r}")
+                raise ValueError(
+                    f"fault {name} must be one of {list(FAULT_CHOICES[name])}, got {value!r}")
         else:
             value = str(value)
             known = {s.name for s in self.config.sensors} | {"all", ""}
             if value not in known:
-                raise ValueError(f"fault {name}: unknown sensor {value!r}; known: {sorted(known - {''})}")
+                raise ValueError(
+                    f"fault {name}: unknown sensor {value!r}; known: {sorted(known - {''})}")
         with self._lock:
             self._faults[name] = value
             if name in ("sensor_stuck", "sensor_stuck_at"):
@@ -203,7 +217,8 @@ class SimulatedDevice:
             return bool(self._inputs.regulator_enabled)
 
     def true_extremes(self) -> tuple[float, float]:
-        """(lowest, highest) true gauge pressure of any channel since :meth:`reset_true_extremes`, Pa."""
+        """(lowest, highest) true gauge pressure of any channel since :meth:`reset_true_extremes`,
+        Pa."""
         with self._lock:
             return self._true_low, self._true_high
 
@@ -224,17 +239,22 @@ class SimulatedDevice:
         with self._lock:
             if decoded.name == "RegulatorSetpoint":
                 self._inputs = dataclasses.replace(
-                    self._inputs, regulator_setpoint_gauge_pa=decoded.signals["SetpointGaugePressure"],
+                    self._inputs,
+                    regulator_setpoint_gauge_pa=decoded.signals["SetpointGaugePressure"],
                     regulator_enabled=bool(decoded.signals["Enable"]))
             elif decoded.name == "ValveCommand":
-                self._last_valve_command = self.clock() - frame_age_s(frame)   # from its arrival on the bus
+                # from its arrival on the bus
+                self._last_valve_command = self.clock() - frame_age_s(frame)
                 if not (self._faults["valve_stuck"] or self._faults["valve_stuck_open"]):
-                    self._valves_open_until = self._last_valve_command + decoded.signals["OpenLifetime"]
+                    self._valves_open_until = (self._last_valve_command +
+                                               decoded.signals["OpenLifetime"])
                     channels = self.config.plant.channels
                     self._inputs = dataclasses.replace(
-                        self._inputs, valves=tuple(Valve(int(decoded.signals[f"Channel{i}"])) for i in range(channels)))
+                        self._inputs, valves=tuple(
+                            Valve(int(decoded.signals[f"Channel{i}"])) for i in range(channels)))
 
-    # ---- the real-time loop ----------------------------------------------------------------------
+    # ---- the real-time loop
+    # ----------------------------------------------------------------------
     @property
     def ticks(self) -> int:
         return self._loop.ticks
@@ -256,28 +276,32 @@ class SimulatedDevice:
                 self.replay_burst()
             for sensor in self.config.sensors:
                 if sim_time >= self._next_sensor[sensor.name]:
-                    self._next_sensor[sensor.name] = max(self._next_sensor[sensor.name] + 1.0 / sensor.rate_hz, sim_time)
+                    self._next_sensor[sensor.name] = max(
+                        self._next_sensor[sensor.name] + 1.0 / sensor.rate_hz, sim_time)
                     self._send_sensor(sensor)
             if sim_time >= self._next_status:
                 self._next_status += 1.0 / self.config.regulator_status_hz
                 self._send_status()
             if sim_time >= self._next_heartbeat:
                 self._next_heartbeat += 1.0 / self.config.heartbeat_hz
-                self._send("DeviceHeartbeat", {"DeviceState": 1, "Uptime": min(sim_time, 167772.15)})
-        except can.CanError as error:   # a closed or failing bus: keep simulating, report it
+                self._send("DeviceHeartbeat",
+                           {"DeviceState": 1, "Uptime": min(sim_time, 167772.15)})
+        except can.CanError as error:  # a closed or failing bus: keep simulating, report it
             LOG.warning("sim device: CAN send failed: %s", error)
 
     def _advance(self, dt: float, now: float) -> None:
         with self._lock:
             inputs = self._inputs
             if now - self._last_valve_command > self.config.command_watchdog_s:
-                inputs = PlantInputs(regulator_enabled=False, valves=(Valve.CLOSED,) * self.config.plant.channels)
+                inputs = PlantInputs(regulator_enabled=False,
+                                     valves=(Valve.CLOSED,) * self.config.plant.channels)
             stuck = self._faults["valve_stuck"] or self._faults["valve_stuck_open"]
-            if stuck:     # a stuck valve obeys neither the commands nor the watchdog
-                stuck_valves = (Valve.SUPPLY,) * self.config.plant.channels if self._faults["valve_stuck_open"] \
-                    else self._inputs.valves
+            if stuck:  # a stuck valve obeys neither the commands nor the watchdog
+                stuck_valves = ((Valve.SUPPLY,) * self.config.plant.channels
+                                if self._faults["valve_stuck_open"] else self._inputs.valves)
                 inputs = dataclasses.replace(inputs, valves=stuck_valves)
-            inputs = dataclasses.replace(inputs, regulator_overshoot_pa=self._faults["regulator_overshoot_pa"])
+            inputs = dataclasses.replace(
+                inputs, regulator_overshoot_pa=self._faults["regulator_overshoot_pa"])
             open_for = self._valves_open_until - (now - dt)
             expires = open_for < dt and not stuck
             if expires and any(v in SOURCE_VALVES for v in inputs.valves):
@@ -289,9 +313,11 @@ class SimulatedDevice:
                 self._inputs = dataclasses.replace(self._inputs, valves=valves)
             self._state = self.plant.step(self._state, inputs, dt)
             if stuck:
-                self._inputs = dataclasses.replace(self._inputs, valves=inputs.valves)   # what the valves really do
+                # what the valves really do
+                self._inputs = dataclasses.replace(self._inputs, valves=inputs.valves)
             gauge = self._state.chamber_pa - P_ATM_PA
-            self._true_low, self._true_high = min(self._true_low, float(gauge.min())), max(self._true_high, float(gauge.max()))
+            self._true_low, self._true_high = min(self._true_low, float(gauge.min())), max(
+                self._true_high, float(gauge.max()))
 
     def _send_sensor(self, sensor: SensorSpec) -> None:
         with self._lock:
@@ -307,8 +333,8 @@ class SimulatedDevice:
         elif stuck and sensor.name in self._stuck_values:
             reading = self._stuck_values[sensor.name]
         else:
-            reading = (true_gauge + sensor.bias_pa + bias
-                       + noise_scale * sensor.noise_std_pa * self._rng.standard_normal())
+            reading = (true_gauge + sensor.bias_pa + bias +
+                       noise_scale * sensor.noise_std_pa * self._rng.standard_normal())
             if sensor.quantisation_pa > 0.0:
                 reading = round(reading / sensor.quantisation_pa) * sensor.quantisation_pa
             low, high = self.codec.signal_range(sensor.message, "GaugePressure")
@@ -334,17 +360,20 @@ class SimulatedDevice:
                 self._send_frame(frame)
         if len(valve_frames) > REPLAY_AGE_FRAMES:
             old = valve_frames[0]
-            self._on_frame(can.Message(arbitration_id=old.arbitration_id, data=old.data, is_extended_id=False,
-                                       timestamp=time.time()))
+            self._on_frame(
+                can.Message(arbitration_id=old.arbitration_id, data=old.data, is_extended_id=False,
+                            timestamp=time.time()))
 
     def _send_status(self) -> None:
         with self._lock:
             actual = self._state.regulator_gauge_pa
         low, high = self.codec.signal_range("RegulatorStatus", "ActualGaugePressure")
-        self._send("RegulatorStatus", {"ActualGaugePressure": min(max(actual, low), high), "FaultBits": 0})
+        self._send("RegulatorStatus",
+                   {"ActualGaugePressure": min(max(actual, low), high), "FaultBits": 0})
 
     def _send(self, message: str, signals: dict) -> can.Message | None:
-        """Encode and send; the frame as encoded (before any corruption), None when the bus is silent."""
+        """Encode and send; the frame as encoded (before any corruption), None when the bus is
+        silent."""
         with self._lock:
             silent, corrupt_rate = self._faults["bus_silent"], self._faults["corrupt_rate"]
         if silent:
@@ -353,10 +382,13 @@ class SimulatedDevice:
         if corrupt_rate > 0.0 and self._corrupt_rng.random() < corrupt_rate:
             data = bytearray(frame.data)
             if self._corrupt_rng.random() < 0.5:
-                data[self._corrupt_rng.randrange(7)] ^= 1 << self._corrupt_rng.randrange(8)   # bad CRC
-                sent = can.Message(arbitration_id=frame.arbitration_id, data=bytes(data), is_extended_id=False)
+                # bad CRC
+                data[self._corrupt_rng.randrange(7)] ^= 1 << self._corrupt_rng.randrange(8)
+                sent = can.Message(arbitration_id=frame.arbitration_id, data=bytes(data),
+                                   is_extended_id=False)
             else:
-                self.bus.send(frame)                                                          # repeated counter
+                # repeated counter
+                self.bus.send(frame)
         self.bus.send(sent)
         self.frames_sent += 1
         return frame
@@ -365,5 +397,7 @@ class SimulatedDevice:
         with self._lock:
             silent = self._faults["bus_silent"]
         if not silent:
-            self.bus.send(can.Message(arbitration_id=frame.arbitration_id, data=frame.data, is_extended_id=False))
+            self.bus.send(
+                can.Message(arbitration_id=frame.arbitration_id, data=frame.data,
+                            is_extended_id=False))
             self.frames_sent += 1

@@ -29,10 +29,10 @@ import time
 
 import can
 
-FRAME = struct.Struct("<dIB??8s")   # timestamp, arbitration id, dlc, extended, remote, data
+FRAME = struct.Struct("<dIB??8s")  # timestamp, arbitration id, dlc, extended, remote, data
 PEER_REFRESH_S = 0.05
 LOOPBACK = "127.0.0.1"
-RECEIVE_BUFFER_BYTES = 4 * 1024 * 1024   # asked for; the kernel caps it at net.core.rmem_max
+RECEIVE_BUFFER_BYTES = 4 * 1024 * 1024  # asked for; the kernel caps it at net.core.rmem_max
 
 
 def channel_directory(channel: str) -> pathlib.Path:
@@ -46,7 +46,7 @@ def _alive(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    except PermissionError:       # alive, another user's
+    except PermissionError:  # alive, another user's
         return True
     return True
 
@@ -78,25 +78,28 @@ class SoftgripIpcBus(can.BusABC):
         self._peers_read = now
         peers = []
         try:
-            entries = [entry for entry in os.scandir(self._directory)
-                       if entry.name.endswith(".port") and entry.path != str(self._path)]
+            entries = [
+                entry for entry in os.scandir(self._directory)
+                if entry.name.endswith(".port") and entry.path != str(self._path)
+            ]
         except FileNotFoundError:
             entries = []
         for entry in entries:
             try:
                 pid, port = (int(part) for part in entry.name[:-len(".port")].split("-"))
             except ValueError:
-                continue                          # not one of ours
+                continue  # not one of ours
             if _alive(pid):
                 peers.append((LOOPBACK, port))
             else:
-                self._unlink(entry.path)          # a process that died without cleaning up
+                self._unlink(entry.path)  # a process that died without cleaning up
         self._peers = peers
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         data = bytes(msg.data)
         if len(data) > 8:
-            raise can.CanOperationError("softgrip_ipc carries classic CAN frames of at most 8 bytes")
+            raise can.CanOperationError(
+                "softgrip_ipc carries classic CAN frames of at most 8 bytes")
         payload = FRAME.pack(time.time(), msg.arbitration_id, len(data), msg.is_extended_id,
                              msg.is_remote_frame, data.ljust(8, b"\0"))
         with self._send_lock:
@@ -104,9 +107,10 @@ class SoftgripIpcBus(can.BusABC):
             for peer in self._peers:
                 try:
                     self._socket.sendto(payload, socket.MSG_DONTWAIT, peer)
-                except BlockingIOError:           # its queue is full
+                except BlockingIOError:  # its queue is full
                     self.frames_dropped += 1
-                except OSError as error:          # a closed socket, a vanished peer: python-can's error
+                # a closed socket, a vanished peer: python-can's error
+                except OSError as error:
                     raise can.CanOperationError(f"softgrip_ipc send failed: {error}") from error
             if self._receive_own:
                 self._own.append(payload)
@@ -134,13 +138,14 @@ class SoftgripIpcBus(can.BusABC):
         except OSError as error:
             raise can.CanOperationError(f"softgrip_ipc receive failed: {error}") from error
         if len(payload) != FRAME.size:
-            return None, False                    # not a softgrip_ipc frame
+            return None, False  # not a softgrip_ipc frame
         return self._decode(payload), False
 
     def _decode(self, payload: bytes) -> can.Message:
         timestamp, arbitration_id, dlc, extended, remote, data = FRAME.unpack(payload)
-        return can.Message(timestamp=timestamp, arbitration_id=arbitration_id, is_extended_id=extended,
-                           is_remote_frame=remote, dlc=dlc, data=data[:dlc], channel=self.channel_info)
+        return can.Message(timestamp=timestamp, arbitration_id=arbitration_id,
+                           is_extended_id=extended, is_remote_frame=remote, dlc=dlc,
+                           data=data[:dlc], channel=self.channel_info)
 
     def fileno(self) -> int:
         return self._socket.fileno()

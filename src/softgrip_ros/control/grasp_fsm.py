@@ -39,9 +39,9 @@ from softgrip_ros.model.fidelity import FREE, Scene, cylinder_scene
 from softgrip_ros.model.grasp import ClampForceLaw
 from softgrip_ros.model.rod import Sheet
 
-
 HALTING_FAULTS = ERROR_FAULTS | Fault.REGULATOR | Fault.BUS_ERROR
-TRANSIENT_FAULTS = Fault.SENSOR_TIMEOUT | Fault.BUS_SILENT   # the controller holds, and resumes by itself
+# the controller holds, and resumes by itself
+TRANSIENT_FAULTS = Fault.SENSOR_TIMEOUT | Fault.BUS_SILENT
 
 
 def fault_text(fault_flags: int) -> str:
@@ -134,8 +134,9 @@ class GraspConfig:
     def __post_init__(self):
         if not self.min_gauge_pa < 0.0 < self.max_gauge_pa:
             raise ValueError("need min_gauge_pa < 0 < max_gauge_pa")
-        require_positive(self, "envelop_margin_m", "pinch_max_diameter_m", "release_tip_spacing_m", "pressure_tolerance_pa",
-                         "settle_s", "opening_timeout_s", "clamping_timeout_s", "releasing_timeout_s", "vented_below_pa",
+        require_positive(self, "envelop_margin_m", "pinch_max_diameter_m", "release_tip_spacing_m",
+                         "pressure_tolerance_pa", "settle_s", "opening_timeout_s",
+                         "clamping_timeout_s", "releasing_timeout_s", "vented_below_pa",
                          "hold_error_limit_pa", "hold_error_time_s")
         if not math.isfinite(self.auto_clamp_delay_s):
             raise ValueError("auto_clamp_delay_s must be finite (negative: never)")
@@ -177,19 +178,25 @@ class ControllerFeedback:
     the controller already holds the valves closed meanwhile and resumes by itself, and a loaded
     machine can delay frames by tens of milliseconds (a dropout that lasts still faults)."""
 
-    def __init__(self, estimate_timeout_s: float, status_timeout_s: float, transient_grace_s: float = 0.3):
+    def __init__(self, estimate_timeout_s: float, status_timeout_s: float,
+                 transient_grace_s: float = 0.3):
         self.estimate_timeout_s, self.status_timeout_s = estimate_timeout_s, status_timeout_s
         self.transient_grace_s = transient_grace_s
-        self._estimate = (math.nan, math.nan, -math.inf)        # gauge, std, arrival
-        self._status = None                                       # (fault flags, measured gauge, arrival)
-        self._message = ""                                        # the controller's own words on its fault
-        self._awaited_since = None                                # first non-idle ask before any status
-        self._transient_since = None                              # since when TRANSIENT_FAULTS are reported
+        self._estimate = (math.nan, math.nan, -math.inf)  # gauge, std, arrival
+        # (fault flags, measured gauge, arrival)
+        self._status = None
+        # the controller's own words on its fault
+        self._message = ""
+        # first non-idle ask before any status
+        self._awaited_since = None
+        # since when TRANSIENT_FAULTS are reported
+        self._transient_since = None
 
     def on_estimate(self, gauge_pa: float, std_pa: float, now: float) -> None:
         self._estimate = (gauge_pa, std_pa, now)
 
-    def on_status(self, fault_flags: int, measured_gauge_pa: float, now: float, message: str = "") -> None:
+    def on_status(self, fault_flags: int, measured_gauge_pa: float, now: float,
+                  message: str = "") -> None:
         self._status = (fault_flags, measured_gauge_pa, now)
         self._message = message
         if not fault_flags & TRANSIENT_FAULTS:
@@ -216,7 +223,8 @@ class ControllerFeedback:
         flags, _, stamp = self._status
         if now - stamp > self.status_timeout_s:
             return f"no controller/status for {now - stamp:.1f} s"
-        if self._transient_since is not None and now - self._transient_since < self.transient_grace_s:
+        if (self._transient_since is not None and
+                now - self._transient_since < self.transient_grace_s):
             flags &= ~TRANSIENT_FAULTS
         text = fault_text(flags)
         if text and Fault(flags) & SAFETY_FAULTS and self._message:
@@ -224,7 +232,8 @@ class ControllerFeedback:
         return text
 
     def safe_state(self, now: float) -> bool:
-        """Whether the controller's fresh status reports a safety fault (it vents, regulator off)."""
+        """Whether the controller's fresh status reports a safety fault (it vents, regulator
+        off)."""
         if self._status is None or now - self._status[2] > self.status_timeout_s:
             return False
         return bool(Fault(self._status[0]) & SAFETY_FAULTS)
@@ -236,11 +245,15 @@ class ControllerFeedback:
         if self._status is None:
             return True
         flags, _, stamp = self._status
-        return now - stamp > self.status_timeout_s or not Fault(flags) & HALTING_FAULTS & ~TRANSIENT_FAULTS
+        return now - stamp > self.status_timeout_s or not Fault(
+            flags) & HALTING_FAULTS & ~TRANSIENT_FAULTS
 
 
-TERMINAL = {GraspMode.ENVELOP_CLAMP: (Phase.HOLDING,), GraspMode.PINCH: (Phase.HOLDING,), GraspMode.OPEN: (Phase.ENVELOPED,),
-            GraspMode.RELEASE: (Phase.IDLE,), GraspMode.STOP: (Phase.IDLE,), GraspMode.CLAMP: (Phase.HOLDING,)}
+TERMINAL = {
+    GraspMode.ENVELOP_CLAMP: (Phase.HOLDING,), GraspMode.PINCH: (Phase.HOLDING,),
+    GraspMode.OPEN: (Phase.ENVELOPED,), GraspMode.RELEASE: (Phase.IDLE,),
+    GraspMode.STOP: (Phase.IDLE,), GraspMode.CLAMP: (Phase.HOLDING,)
+}
 
 
 class GraspStateMachine:
@@ -250,8 +263,8 @@ class GraspStateMachine:
     then names the object being clamped, and the state's ``model_fidelity`` is the model its
     selector picks for that scene (the kinematics node's choice, with the same settings)."""
 
-    def __init__(self, kinematics, config: GraspConfig | None = None, force_law: ClampForceLaw | None = None,
-                 scene_model=None):
+    def __init__(self, kinematics, config: GraspConfig | None = None,
+                 force_law: ClampForceLaw | None = None, scene_model=None):
         self.kinematics = kinematics
         self.scene_model = scene_model
         self._scenes = {}
@@ -259,9 +272,10 @@ class GraspStateMachine:
         self.force_law = force_law or ClampForceLaw()
         self.state = GraspState(model_fidelity=kinematics.model)
         self.request = PressureRequest(0.0, Source.VENT)
-        self.changes = 0                       # counts every phase or request change
-        self.accepted = 0                      # counts accepted commands
-        self.task = 0                          # the running task: a new one per command but a CLAMP that goes on
+        self.changes = 0  # counts every phase or request change
+        self.accepted = 0  # counts accepted commands
+        # the running task: a new one per command but a CLAMP that goes on
+        self.task = 0
         self._request: GraspRequest | None = None
         self._phase_start = 0.0
         self._settled_since = None
@@ -280,7 +294,8 @@ class GraspStateMachine:
         except ValueError:
             return self._reject(request, f"unknown mode {request.mode}")
         if controller_fault and mode != GraspMode.STOP:
-            return self._reject(request, f"the pressure controller reports a fault: {controller_fault}")
+            return self._reject(request,
+                                f"the pressure controller reports a fault: {controller_fault}")
         plan = self._planners[mode](request)
         if isinstance(plan, str):
             return self._reject(request, plan)
@@ -306,18 +321,24 @@ class GraspStateMachine:
 
     @property
     def _planners(self) -> dict:
-        return {GraspMode.STOP: self._plan_stop, GraspMode.RELEASE: self._plan_release, GraspMode.CLAMP: self._plan_clamp,
-                GraspMode.OPEN: self._plan_open, GraspMode.PINCH: self._plan_grasp, GraspMode.ENVELOP_CLAMP: self._plan_grasp}
+        return {
+            GraspMode.STOP: self._plan_stop, GraspMode.RELEASE: self._plan_release,
+            GraspMode.CLAMP: self._plan_clamp, GraspMode.OPEN: self._plan_open,
+            GraspMode.PINCH: self._plan_grasp, GraspMode.ENVELOP_CLAMP: self._plan_grasp
+        }
 
     def _plan_stop(self, r: GraspRequest) -> "Plan":
-        return Plan(Phase.RELEASING, PressureRequest(0.0, Source.VENT), "stopping: venting", release_step="stop")
+        return Plan(Phase.RELEASING, PressureRequest(0.0, Source.VENT), "stopping: venting",
+                    release_step="stop")
 
     def _plan_release(self, r: GraspRequest) -> "Plan":
-        return Plan(Phase.RELEASING, PressureRequest(0.0, Source.VENT), "releasing: venting", release_step="vent")
+        return Plan(Phase.RELEASING, PressureRequest(0.0, Source.VENT), "releasing: venting",
+                    release_step="vent")
 
     def _plan_clamp(self, r: GraspRequest) -> "Plan | str":
-        """CLAMP goes on with the grasp the gripper holds open (ENVELOP_CLAMP, or OPEN with the object
-        named here): the same task, so that its goal ends at HOLDING rather than being superseded."""
+        """CLAMP goes on with the grasp the gripper holds open (ENVELOP_CLAMP, or OPEN with the
+        object named here): the same task, so that its goal ends at HOLDING rather than being
+        superseded."""
         running = self._request
         if self.state.phase != Phase.ENVELOPED or running is None:
             return f"CLAMP needs the ENVELOPED phase, the gripper is {self.state.phase.name}"
@@ -327,65 +348,87 @@ class GraspStateMachine:
         if GraspMode(running.mode) == GraspMode.ENVELOP_CLAMP:
             clamp = self._clamp_pa if math.isnan(r.clamp_pressure_pa) else r.clamp_pressure_pa
             if clamp >= self._contact_pa:
-                return f"clamp_pressure_pa {clamp:.0f} Pa does not squeeze: contact is at {self._contact_pa:.0f} Pa"
-            return Plan(Phase.CLAMPING, self._pressure(clamp), "clamping", new_task=False, clamp_pa=clamp)
+                return (f"clamp_pressure_pa {clamp:.0f} Pa does not squeeze: contact is at "
+                        f"{self._contact_pa:.0f} Pa")
+            return Plan(Phase.CLAMPING, self._pressure(clamp), "clamping", new_task=False,
+                        clamp_pa=clamp)
         # held open by OPEN: this CLAMP must say what it holds, or how hard
-        if math.isnan(r.clamp_pressure_pa) and (math.isnan(r.object_diameter_m) or math.isnan(r.object_mass_kg)):
-            return ("CLAMP after OPEN needs object_diameter_m and object_mass_kg, or clamp_pressure_pa: nothing else "
+        if math.isnan(r.clamp_pressure_pa) and (math.isnan(r.object_diameter_m) or
+                                                math.isnan(r.object_mass_kg)):
+            return ("CLAMP after OPEN needs object_diameter_m and object_mass_kg, or "
+                    "clamp_pressure_pa: nothing else "
                     "says how hard to squeeze")
-        held = None if math.isnan(r.object_diameter_m) else self._object_plan(r, margin_m=0.0, check_size=False)
+        held = (None if math.isnan(r.object_diameter_m) else self._object_plan(
+            r, margin_m=0.0, check_size=False))
         if isinstance(held, str):
             return held
-        contact = held.contact_pa if held is not None else self.kinematics.pressure_for_tip_spacing(
-            max(self.state.tip_spacing_m, self.kinematics.tip_spacing_range_m()[0]))
+        contact = (held.contact_pa
+                   if held is not None else self.kinematics.pressure_for_tip_spacing(
+                       max(self.state.tip_spacing_m,
+                           self.kinematics.tip_spacing_range_m()[0])))
         clamp = held.clamp_pa if held is not None else r.clamp_pressure_pa
         if clamp >= contact:
-            return f"clamp_pressure_pa {clamp:.0f} Pa does not squeeze: contact is at {contact:.0f} Pa"
-        grasp = dataclasses.replace(running, object_diameter_m=r.object_diameter_m, object_mass_kg=r.object_mass_kg)
-        return Plan(Phase.CLAMPING, self._pressure(clamp), "clamping", new_task=False, grasp=grasp, clamp_pa=clamp,
-                    contact_pa=contact)
+            return (f"clamp_pressure_pa {clamp:.0f} Pa does not squeeze: contact is at "
+                    f"{contact:.0f} Pa")
+        grasp = dataclasses.replace(running, object_diameter_m=r.object_diameter_m,
+                                    object_mass_kg=r.object_mass_kg)
+        return Plan(Phase.CLAMPING, self._pressure(clamp), "clamping", new_task=False, grasp=grasp,
+                    clamp_pa=clamp, contact_pa=contact)
 
     def _plan_open(self, r: GraspRequest) -> "Plan | str":
         problem = self._overrides(GraspMode.OPEN, r)
         if problem:
             return problem
         high = self.kinematics.tip_spacing_range_m()[1]
-        spacing = high if math.isnan(r.target_tip_spacing_m) else r.target_tip_spacing_m    # NaN: fully open
+        # NaN: fully open
+        spacing = high if math.isnan(r.target_tip_spacing_m) else r.target_tip_spacing_m
         if not math.isfinite(spacing) or spacing < 0.0:
-            return f"OPEN needs a finite, non-negative target_tip_spacing_m (NaN: fully open), got {spacing}"
+            return ("OPEN needs a finite, non-negative target_tip_spacing_m (NaN: fully open), "
+                    f"got {spacing}")
         if spacing > high:
-            return f"target_tip_spacing_m {spacing * 1e3:.1f} mm is wider than the gripper opens ({high * 1e3:.1f} mm)"
-        if not math.isnan(r.open_pressure_pa) and self.kinematics.pose(r.open_pressure_pa).tip_spacing_m < spacing:
-            return (f"open_pressure_pa {r.open_pressure_pa:.0f} Pa opens the tips to "
-                    f"{self.kinematics.pose(r.open_pressure_pa).tip_spacing_m * 1e3:.1f} mm, short of "
-                    f"target_tip_spacing_m {spacing * 1e3:.1f} mm")
+            return (f"target_tip_spacing_m {spacing * 1e3:.1f} mm is wider than the gripper opens "
+                    f"({high * 1e3:.1f} mm)")
+        if not math.isnan(r.open_pressure_pa) and self.kinematics.pose(
+                r.open_pressure_pa).tip_spacing_m < spacing:
+            return (
+                f"open_pressure_pa {r.open_pressure_pa:.0f} Pa opens the tips to "
+                f"{self.kinematics.pose(r.open_pressure_pa).tip_spacing_m * 1e3:.1f} mm, short of "
+                f"target_tip_spacing_m {spacing * 1e3:.1f} mm")
         open_pa = self._open_pressure(spacing, r.open_pressure_pa)
         return Plan(Phase.OPENING, self._pressure(open_pa), "opening",
                     grasp=dataclasses.replace(r, target_tip_spacing_m=spacing), open_pa=open_pa)
 
     def _plan_grasp(self, r: GraspRequest) -> "Plan | str":
-        """PINCH (the tips close on the object) and ENVELOP_CLAMP (opened around it, then clamped)."""
+        """PINCH (the tips close on the object) and ENVELOP_CLAMP (opened around it, then
+        clamped)."""
         mode = GraspMode(r.mode)
         problem = self._overrides(mode, r)
         if problem:
             return problem
         c = self.config
-        if mode == GraspMode.PINCH and math.isfinite(r.object_diameter_m) and r.object_diameter_m > c.pinch_max_diameter_m:
+        if mode == GraspMode.PINCH and math.isfinite(
+                r.object_diameter_m) and r.object_diameter_m > c.pinch_max_diameter_m:
             return (f"PINCH takes objects up to {c.pinch_max_diameter_m * 1e3:.1f} mm, got "
                     f"{r.object_diameter_m * 1e3:.1f} mm: use ENVELOP_CLAMP")
-        plan = self._object_plan(r, margin_m=c.envelop_margin_m if mode == GraspMode.ENVELOP_CLAMP else 0.0)
+        plan = self._object_plan(
+            r, margin_m=c.envelop_margin_m if mode == GraspMode.ENVELOP_CLAMP else 0.0)
         if isinstance(plan, str) or mode == GraspMode.PINCH:
             return plan
         needed = r.object_diameter_m + c.envelop_margin_m
-        if not math.isnan(r.open_pressure_pa) and self.kinematics.pose(r.open_pressure_pa).tip_spacing_m < needed:
-            return (f"open_pressure_pa {r.open_pressure_pa:.0f} Pa opens the tips to "
-                    f"{self.kinematics.pose(r.open_pressure_pa).tip_spacing_m * 1e3:.1f} mm, short of the object plus margin")
+        if not math.isnan(r.open_pressure_pa) and self.kinematics.pose(
+                r.open_pressure_pa).tip_spacing_m < needed:
+            return (
+                f"open_pressure_pa {r.open_pressure_pa:.0f} Pa opens the tips to "
+                f"{self.kinematics.pose(r.open_pressure_pa).tip_spacing_m * 1e3:.1f} mm, short of "
+                "the object plus margin")
         open_pa = self._open_pressure(needed, r.open_pressure_pa)
-        return dataclasses.replace(plan, phase=Phase.OPENING, pressure=self._pressure(open_pa), message="opening",
-                                   open_pa=open_pa)
+        return dataclasses.replace(plan, phase=Phase.OPENING, pressure=self._pressure(open_pa),
+                                   message="opening", open_pa=open_pa)
 
-    def _object_plan(self, r: GraspRequest, margin_m: float, check_size: bool = True) -> "Plan | str":
-        """The object's checks and its clamp: PINCH's plan, which ENVELOP_CLAMP starts with an opening."""
+    def _object_plan(self, r: GraspRequest, margin_m: float,
+                     check_size: bool = True) -> "Plan | str":
+        """The object's checks and its clamp: PINCH's plan, which ENVELOP_CLAMP starts with an
+        opening."""
         c = self.config
         if not math.isfinite(r.object_diameter_m) or r.object_diameter_m < 0.0:
             return f"object_diameter_m must be finite and >= 0, got {r.object_diameter_m}"
@@ -393,28 +436,36 @@ class GraspStateMachine:
             return f"object_mass_kg must be finite and >= 0, got {r.object_mass_kg}"
         mu = r.friction_coefficient
         if not math.isnan(mu) and not (math.isfinite(mu) and 0.0 < mu <= 2.0):
-            return f"friction_coefficient must lie in (0, 2] (NaN: the default {self.force_law.friction_coefficient}), got {mu}"
+            return ("friction_coefficient must lie in (0, 2] (NaN: the default "
+                    f"{self.force_law.friction_coefficient}), got {mu}")
         high = self.kinematics.tip_spacing_range_m()[1]
         if check_size and r.object_diameter_m + margin_m > high:
-            return (f"the object ({r.object_diameter_m * 1e3:.1f} mm plus {margin_m * 1e3:.0f} mm margin) is wider "
+            return (f"the object ({r.object_diameter_m * 1e3:.1f} mm plus {margin_m * 1e3:.0f} mm "
+                    "margin) is wider "
                     f"than the gripper opens ({high * 1e3:.1f} mm)")
         contact = self._contact_pressure(r.object_diameter_m)
-        clamp = (r.clamp_pressure_pa if not math.isnan(r.clamp_pressure_pa) else
-                 self.force_law.clamp_pressure_pa(r.object_mass_kg, contact, None if math.isnan(mu) else mu))
+        clamp = (r.clamp_pressure_pa
+                 if not math.isnan(r.clamp_pressure_pa) else self.force_law.clamp_pressure_pa(
+                     r.object_mass_kg, contact, None if math.isnan(mu) else mu))
         if clamp < c.min_gauge_pa:
-            return (f"holding {r.object_mass_kg:.3g} kg needs {clamp / 1e3:.1f} kPa, below the limit "
-                    f"{c.min_gauge_pa / 1e3:.0f} kPa: too heavy for this gripper")
+            return (
+                f"holding {r.object_mass_kg:.3g} kg needs {clamp / 1e3:.1f} kPa, below the limit "
+                f"{c.min_gauge_pa / 1e3:.0f} kPa: too heavy for this gripper")
         if clamp >= contact:
-            return f"clamp_pressure_pa {clamp:.0f} Pa does not squeeze: contact is at {contact:.0f} Pa"
-        return Plan(Phase.CLAMPING, self._pressure(clamp), "pinching", grasp=r, clamp_pa=clamp, contact_pa=contact)
+            return (f"clamp_pressure_pa {clamp:.0f} Pa does not squeeze: contact is at "
+                    f"{contact:.0f} Pa")
+        return Plan(Phase.CLAMPING, self._pressure(clamp), "pinching", grasp=r, clamp_pa=clamp,
+                    contact_pa=contact)
 
     def _overrides(self, mode: GraspMode, r: GraspRequest) -> str:
         """The pressure overrides within the limits, and none that contradicts the mode."""
         c = self.config
         for name in ("open_pressure_pa", "clamp_pressure_pa"):
             value = getattr(r, name)
-            if not math.isnan(value) and not (math.isfinite(value) and c.min_gauge_pa <= value <= c.max_gauge_pa):
-                return f"{name} {value} Pa is beyond the pressure limits [{c.min_gauge_pa:.0f}, {c.max_gauge_pa:.0f}] Pa"
+            if not math.isnan(value) and not (math.isfinite(value) and
+                                              c.min_gauge_pa <= value <= c.max_gauge_pa):
+                return (f"{name} {value} Pa is beyond the pressure limits [{c.min_gauge_pa:.0f}, "
+                        f"{c.max_gauge_pa:.0f}] Pa")
         return self._contradiction(mode, r)
 
     @staticmethod
@@ -422,30 +473,39 @@ class GraspStateMachine:
         """Why an override contradicts its mode ('' when none does): positive pressure opens and
         negative pressure clamps, and a mode that never opens or never clamps takes no such
         override (it could only mean that the sender wanted another mode)."""
-        opens, clamps = mode in (GraspMode.ENVELOP_CLAMP, GraspMode.OPEN), mode in (GraspMode.ENVELOP_CLAMP, GraspMode.PINCH, GraspMode.CLAMP)
+        opens, clamps = mode in (GraspMode.ENVELOP_CLAMP,
+                                 GraspMode.OPEN), mode in (GraspMode.ENVELOP_CLAMP,
+                                                           GraspMode.PINCH, GraspMode.CLAMP)
         if not math.isnan(r.open_pressure_pa):
             if not opens:
-                return f"{mode.name} does not open: open_pressure_pa must be NaN, got {r.open_pressure_pa:.0f} Pa"
+                return (f"{mode.name} does not open: open_pressure_pa must be NaN, got "
+                        f"{r.open_pressure_pa:.0f} Pa")
             if r.open_pressure_pa <= 0.0:
-                return (f"open_pressure_pa must be > 0 (positive pressure opens the fingers; negative closes them), "
-                        f"got {r.open_pressure_pa:.0f} Pa")
+                return (
+                    "open_pressure_pa must be > 0 (positive pressure opens the fingers; negative "
+                    "closes them), "
+                    f"got {r.open_pressure_pa:.0f} Pa")
         if not math.isnan(r.clamp_pressure_pa):
             if not clamps:
-                return f"{mode.name} does not clamp: clamp_pressure_pa must be NaN, got {r.clamp_pressure_pa:.0f} Pa"
+                return (f"{mode.name} does not clamp: clamp_pressure_pa must be NaN, got "
+                        f"{r.clamp_pressure_pa:.0f} Pa")
             if r.clamp_pressure_pa > 0.0:
-                return (f"clamp_pressure_pa must be <= 0 (negative pressure clamps; positive opens), "
-                        f"got {r.clamp_pressure_pa:.0f} Pa")
+                return (
+                    f"clamp_pressure_pa must be <= 0 (negative pressure clamps; positive opens), "
+                    f"got {r.clamp_pressure_pa:.0f} Pa")
         return ""
 
     def _open_pressure(self, tip_spacing_m: float, override_pa: float) -> float:
         if not math.isnan(override_pa):
             return override_pa
-        return min(self.kinematics.pressure_for_tip_spacing(tip_spacing_m) + self.config.pressure_tolerance_pa,
-                   self.config.max_gauge_pa)
+        return min(
+            self.kinematics.pressure_for_tip_spacing(tip_spacing_m) +
+            self.config.pressure_tolerance_pa, self.config.max_gauge_pa)
 
     def _contact_pressure(self, diameter_m: float) -> float:
         low, _ = self.kinematics.tip_spacing_range_m()
-        return self.kinematics.contact_pressure_pa if diameter_m <= low else self.kinematics.pressure_for_tip_spacing(diameter_m)
+        return (self.kinematics.contact_pressure_pa
+                if diameter_m <= low else self.kinematics.pressure_for_tip_spacing(diameter_m))
 
     # ---- time ---------------------------------------------------------------------------------
     def update(self, now: float, estimate_gauge_pa: float, estimate_std_pa: float = math.nan,
@@ -463,24 +523,29 @@ class GraspStateMachine:
         idle_and_safe = s.phase == Phase.IDLE and controller_safe_state
         if controller_fault and (s.phase not in (Phase.IDLE, Phase.FAULT) or idle_and_safe):
             if controller_blind:
-                self._enter(Phase.FAULT, PressureRequest(self.request.target_gauge_pa, Source.HOLD), now,
-                            f"fault: {controller_fault}: the pressure controller holds the valves closed "
-                            f"(nothing can confirm a vent while it cannot see the chamber)")
+                self._enter(
+                    Phase.FAULT, PressureRequest(self.request.target_gauge_pa, Source.HOLD), now,
+                    f"fault: {controller_fault}: the pressure controller holds the valves closed "
+                    f"(nothing can confirm a vent while it cannot see the chamber)")
             else:
-                self._enter(Phase.FAULT, PressureRequest(0.0, Source.VENT), now, f"fault: {controller_fault}; venting")
+                self._enter(Phase.FAULT, PressureRequest(0.0, Source.VENT), now,
+                            f"fault: {controller_fault}; venting")
             return s
         settled = self._settled(now, estimate_gauge_pa)
         elapsed = now - self._phase_start
         if s.phase == Phase.OPENING:
             clears = s.tip_spacing_m >= self._required_spacing() - 1e-9
             if settled and clears:
-                self._enter(Phase.ENVELOPED, self.request, now, f"enveloped: D2 {s.tip_spacing_m * 1e3:.1f} mm")
+                self._enter(Phase.ENVELOPED, self.request, now,
+                            f"enveloped: D2 {s.tip_spacing_m * 1e3:.1f} mm")
             elif elapsed > c.opening_timeout_s:
                 self._timeout(now, "opening")
         elif s.phase == Phase.ENVELOPED:
-            if (self._request is not None and GraspMode(self._request.mode) == GraspMode.ENVELOP_CLAMP
-                    and c.auto_clamp_delay_s >= 0.0 and elapsed >= c.auto_clamp_delay_s):
-                self._enter(Phase.CLAMPING, self._pressure(self._clamp_pa), now, "clamping (automatic)")
+            if (self._request is not None and
+                    GraspMode(self._request.mode) == GraspMode.ENVELOP_CLAMP and
+                    c.auto_clamp_delay_s >= 0.0 and elapsed >= c.auto_clamp_delay_s):
+                self._enter(Phase.CLAMPING, self._pressure(self._clamp_pa), now,
+                            "clamping (automatic)")
         elif s.phase == Phase.HOLDING:
             self._check_hold(now, estimate_gauge_pa)
         elif s.phase == Phase.CLAMPING:
@@ -489,7 +554,8 @@ class GraspStateMachine:
             elif elapsed > c.clamping_timeout_s:
                 self._timeout(now, "clamping")
         elif s.phase == Phase.RELEASING:
-            vented = math.isfinite(estimate_gauge_pa) and abs(estimate_gauge_pa) < c.vented_below_pa
+            vented = (math.isfinite(estimate_gauge_pa) and
+                      abs(estimate_gauge_pa) < c.vented_below_pa)
             if self._release_step == "stop" and vented:
                 self._request = None
                 self._enter(Phase.IDLE, PressureRequest(0.0, Source.VENT), now,
@@ -501,10 +567,13 @@ class GraspStateMachine:
                 spacing = c.release_tip_spacing_m
                 if self._request is not None and math.isfinite(self._request.object_diameter_m):
                     spacing = max(spacing, self._request.object_diameter_m + c.envelop_margin_m)
-                self._enter(Phase.RELEASING, self._pressure(self._open_pressure(spacing, math.nan)), now, "releasing: opening")
+                self._enter(Phase.RELEASING, self._pressure(self._open_pressure(spacing,
+                                                                                math.nan)), now,
+                            "releasing: opening")
             elif self._release_step == "open" and settled:
                 self._request = None
-                self._enter(Phase.IDLE, PressureRequest(self.request.target_gauge_pa, Source.HOLD), now, "released")
+                self._enter(Phase.IDLE, PressureRequest(self.request.target_gauge_pa, Source.HOLD),
+                            now, "released")
             elif elapsed > c.releasing_timeout_s:
                 self._timeout(now, "releasing")
         holding = s.phase in (Phase.CLAMPING, Phase.HOLDING)
@@ -513,16 +582,20 @@ class GraspStateMachine:
         return s
 
     def _check_hold(self, now: float, estimate: float) -> None:
-        """HOLDING lost: the pressure off its target by more than hold_error_limit_pa for hold_error_time_s."""
+        """HOLDING lost: the pressure off its target by more than hold_error_limit_pa for
+        hold_error_time_s."""
         c = self.config
-        if not math.isfinite(estimate) or abs(estimate - self.request.target_gauge_pa) <= c.hold_error_limit_pa:
+        if not math.isfinite(estimate) or abs(
+                estimate - self.request.target_gauge_pa) <= c.hold_error_limit_pa:
             self._off_target_since = None
             return
         if self._off_target_since is None:
             self._off_target_since = now
         elif now - self._off_target_since >= c.hold_error_time_s:
-            self._enter(Phase.FAULT, PressureRequest(0.0, Source.VENT), now,
-                        f"fault: holding lost, {estimate:.0f} Pa against a target of {self.request.target_gauge_pa:.0f} Pa; venting")
+            self._enter(
+                Phase.FAULT, PressureRequest(0.0, Source.VENT), now,
+                f"fault: holding lost, {estimate:.0f} Pa against a target of "
+                f"{self.request.target_gauge_pa:.0f} Pa; venting")
 
     def _required_spacing(self) -> float:
         r = self._request
@@ -530,11 +603,14 @@ class GraspStateMachine:
             return 0.0
         if GraspMode(r.mode) == GraspMode.OPEN:
             return r.target_tip_spacing_m
-        # an override was checked against the object when accepted; the estimate's tolerance then rules
-        return r.object_diameter_m + self.config.envelop_margin_m if math.isnan(r.open_pressure_pa) else 0.0
+        # an override was checked against the object when accepted; the estimate's tolerance then
+        # rules
+        return (r.object_diameter_m +
+                self.config.envelop_margin_m if math.isnan(r.open_pressure_pa) else 0.0)
 
     def _settled(self, now: float, estimate: float) -> bool:
-        near = math.isfinite(estimate) and abs(estimate - self.request.target_gauge_pa) <= self.config.pressure_tolerance_pa
+        near = math.isfinite(estimate) and abs(
+            estimate - self.request.target_gauge_pa) <= self.config.pressure_tolerance_pa
         if not near or self.request.source in (Source.VENT, Source.HOLD):
             self._settled_since = None
             return False
@@ -549,8 +625,9 @@ class GraspStateMachine:
         pressure the L2 rod puts the tip-chamber faces within 0.5 mm of the diameter, where free
         bending gives 0 (tests/test_model_fidelity.py)."""
         r = self._request
-        if (r is None or self.state.phase not in (Phase.CLAMPING, Phase.HOLDING, Phase.RELEASING)
-                or not math.isfinite(r.object_diameter_m)):
+        if (r is None or
+                self.state.phase not in (Phase.CLAMPING, Phase.HOLDING, Phase.RELEASING) or
+                not math.isfinite(r.object_diameter_m)):
             return 0.0
         return r.object_diameter_m
 
@@ -563,8 +640,10 @@ class GraspStateMachine:
             return FREE
         key = (GraspMode(r.mode), r.object_diameter_m, self._open_pa)
         if key not in self._scenes:
-            self._scenes = {key: Scene(Sheet(r.object_diameter_m), 0.0) if key[0] == GraspMode.PINCH
-                            else cylinder_scene(self.scene_model.rod, r.object_diameter_m, self._open_pa)}
+            self._scenes = {
+                key: Scene(Sheet(r.object_diameter_m), 0.0) if key[0] == GraspMode.PINCH else
+                cylinder_scene(self.scene_model.rod, r.object_diameter_m, self._open_pa)
+            }
         return self._scenes[key]
 
     def _model(self, estimate: float) -> None:
@@ -577,26 +656,30 @@ class GraspStateMachine:
         pose = k.pose(min(max(estimate, k.MODEL_MIN_PRESSURE_PA), k.MODEL_MAX_PRESSURE_PA))
         s.included_angle_rad, s.root_spacing_m = pose.included_angle_rad, pose.root_spacing_m
         s.tip_spacing_m = max(pose.tip_spacing_m, self.held_object_m())
-        s.in_validated_range = bool(pose.in_validated_range) and estimate <= k.MODEL_MAX_PRESSURE_PA
+        s.in_validated_range = bool(
+            pose.in_validated_range) and estimate <= k.MODEL_MAX_PRESSURE_PA
 
     def _pressure(self, target: float) -> PressureRequest:
         return PressureRequest(target, Source.SUPPLY if target >= 0.0 else Source.VACUUM)
 
     def _timeout(self, now: float, what: str) -> None:
-        self._enter(Phase.FAULT, PressureRequest(0.0, Source.VENT), now,
-                    f"fault: {what} timed out at {self.state.estimated_gauge_pa:.0f} Pa "
-                    f"(target {self.request.target_gauge_pa:.0f} Pa); venting")
+        self._enter(
+            Phase.FAULT, PressureRequest(0.0, Source.VENT), now,
+            f"fault: {what} timed out at {self.state.estimated_gauge_pa:.0f} Pa "
+            f"(target {self.request.target_gauge_pa:.0f} Pa); venting")
 
     def _enter(self, phase: Phase, request: PressureRequest, now: float, message: str) -> None:
         self.state.phase, self.state.message = phase, message
-        self.state.target_gauge_pa = request.target_gauge_pa if request.source != Source.VENT else 0.0
+        self.state.target_gauge_pa = (request.target_gauge_pa
+                                      if request.source != Source.VENT else 0.0)
         self.request = request
         self._phase_start, self._settled_since, self._off_target_since = now, None, None
         self.changes += 1
 
     def done(self, mode: int) -> bool:
         """Whether a command of ``mode`` has finished (or failed)."""
-        return self.state.phase == Phase.FAULT or self.state.phase in TERMINAL.get(GraspMode(mode), ())
+        return (self.state.phase == Phase.FAULT or
+                self.state.phase in TERMINAL.get(GraspMode(mode), ()))
 
     def outcome(self, task: int, mode: int) -> str:
         """How a goal stands: the command of ``mode`` that started or went on with ``task``.

@@ -50,7 +50,8 @@ import enum
 import functools
 import math
 
-from softgrip_ros.control.safety import SAFETY_FAULTS, Fault, SafetyConfig, SafetyMonitor, fault_names
+from softgrip_ros.control.safety import (SAFETY_FAULTS, Fault, SafetyConfig, SafetyMonitor,
+                                         fault_names)
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 
 
@@ -74,8 +75,10 @@ class PressureMode(enum.IntEnum):
 
 
 ERROR_FAULTS = SAFETY_FAULTS | Fault.SENSOR_TIMEOUT | Fault.BUS_SILENT
-__all__ = ["ControlOutput", "ERROR_FAULTS", "Fault", "PressureMode", "PressureControlConfig", "PressureController",
-           "SafetyConfig", "Source", "fault_names"]
+__all__ = [
+    "ControlOutput", "ERROR_FAULTS", "Fault", "PressureMode", "PressureControlConfig",
+    "PressureController", "SafetyConfig", "Source", "fault_names"
+]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,15 +106,17 @@ class PressureControlConfig:
     settle_timeout_s: float = 0.2
     valve_band_pa: float = 5e3
     channels: int = 1
-    boost_ceiling_pa: float = math.nan          # NaN: boost_ceiling_pa() of the plant
+    boost_ceiling_pa: float = math.nan  # NaN: boost_ceiling_pa() of the plant
     hold_cycles: int = 3
     hold_cycle_window_s: float = 1.0
-    safety: SafetyConfig = SafetyConfig()      # its limits are replaced by the ones above
+    safety: SafetyConfig = SafetyConfig()  # its limits are replaced by the ones above
 
     def __post_init__(self):
-        object.__setattr__(self, "safety", dataclasses.replace(
-            self.safety, max_gauge_pa=self.max_gauge_pa, min_gauge_pa=self.min_gauge_pa,
-            margin_pa=self.overpressure_margin_pa))
+        object.__setattr__(
+            self, "safety",
+            dataclasses.replace(self.safety, max_gauge_pa=self.max_gauge_pa,
+                                min_gauge_pa=self.min_gauge_pa,
+                                margin_pa=self.overpressure_margin_pa))
         for field in dataclasses.fields(self):
             value = getattr(self, field.name)
             if field.name == "boost_ceiling_pa" and math.isnan(value):
@@ -121,18 +126,26 @@ class PressureControlConfig:
         checks = [
             (0.0 < self.max_gauge_pa <= 100e3, "max_gauge_pa must lie in (0, 100000] Pa"),
             (-101_325.0 < self.min_gauge_pa < 0.0, "min_gauge_pa must lie in (-101325, 0) Pa"),
-            (0.0 < self.overpressure_margin_pa <= 50e3, "overpressure_margin_pa must lie in (0, 50000] Pa"),
+            (0.0 < self.overpressure_margin_pa <= 50e3,
+             "overpressure_margin_pa must lie in (0, 50000] Pa"),
             (0.0 < self.sensor_timeout_s <= 10.0, "sensor_timeout_s must lie in (0, 10] s"),
             (0.0 < self.command_timeout_s <= 3600.0, "command_timeout_s must lie in (0, 3600] s"),
-            (self.command_timeout_action in ("hold", "vent"), "command_timeout_action must be 'hold' or 'vent'"),
-            (0.0 < self.default_rate_pa_per_s <= 1e8, "default_rate_pa_per_s must lie in (0, 1e8] Pa/s"),
-            (self.regulator_min_gauge_pa < 0.0 < self.regulator_max_gauge_pa, "the regulator range must span 0"),
-            (0.0 <= self.kp <= 10.0 and 0.0 <= self.ki_per_s <= 1e3, "kp in [0, 10], ki_per_s in [0, 1000]"),
+            (self.command_timeout_action
+             in ("hold", "vent"), "command_timeout_action must be 'hold' or 'vent'"),
+            (0.0 < self.default_rate_pa_per_s <= 1e8,
+             "default_rate_pa_per_s must lie in (0, 1e8] Pa/s"),
+            (self.regulator_min_gauge_pa < 0.0 < self.regulator_max_gauge_pa,
+             "the regulator range must span 0"),
+            (0.0 <= self.kp <= 10.0 and
+             0.0 <= self.ki_per_s <= 1e3, "kp in [0, 10], ki_per_s in [0, 1000]"),
             (0.0 <= self.trim_limit_pa <= 50e3, "trim_limit_pa must lie in [0, 50000] Pa"),
             (0.0 < self.integral_band_pa <= 50e3, "integral_band_pa must lie in (0, 50000] Pa"),
-            (0.0 < self.boost_band_pa and 0.0 <= self.boost_lead_s <= 1.0, "boost_band_pa > 0, boost_lead_s in [0, 1]"),
-            (self.boost_min_step_pa >= self.boost_band_pa, "boost_min_step_pa must be >= boost_band_pa"),
-            (0.0 < self.boost_headroom_pa <= 500e3, "boost_headroom_pa must lie in (0, 500000] Pa"),
+            (0.0 < self.boost_band_pa and
+             0.0 <= self.boost_lead_s <= 1.0, "boost_band_pa > 0, boost_lead_s in [0, 1]"),
+            (self.boost_min_step_pa
+             >= self.boost_band_pa, "boost_min_step_pa must be >= boost_band_pa"),
+            (0.0 < self.boost_headroom_pa <= 500e3,
+             "boost_headroom_pa must lie in (0, 500000] Pa"),
             (0.0 <= self.rate_filter_s <= 1.0, "rate_filter_s must lie in [0, 1] s"),
             (0.0 < self.valve_band_pa, "valve_band_pa must be > 0"),
             (1 <= self.channels <= 4, "channels must lie in 1..4"),
@@ -152,8 +165,8 @@ class ControlOutput:
     valves: tuple
     mode: PressureMode
     fault_flags: Fault
-    setpoint_gauge_pa: float       # after limits and slew
-    feedback_gauge_pa: float       # what the law used (NaN when none)
+    setpoint_gauge_pa: float  # after limits and slew
+    feedback_gauge_pa: float  # what the law used (NaN when none)
     message: str
 
 
@@ -163,15 +176,16 @@ class PressureController:
     plant: the plant model the safety checks compare the chamber with (default: the defaults').
     sensor_noise_pa: {sensor name: rated 1-sigma noise, Pa}, for the noise check."""
 
-    def __init__(self, config: PressureControlConfig | None = None, plant: PneumaticPlant | None = None,
-                 sensor_noise_pa: dict | None = None):
+    def __init__(self, config: PressureControlConfig | None = None,
+                 plant: PneumaticPlant | None = None, sensor_noise_pa: dict | None = None):
         config = config or PressureControlConfig()
         self.plant = plant or PneumaticPlant()
         if math.isnan(config.boost_ceiling_pa):
-            config = dataclasses.replace(config, boost_ceiling_pa=boost_ceiling_pa(self.plant.parameters, config))
+            config = dataclasses.replace(
+                config, boost_ceiling_pa=boost_ceiling_pa(self.plant.parameters, config))
         self._config = config
         self.monitor = SafetyMonitor(self._config.safety, self.plant, sensor_noise_pa)
-        self._sensors: dict = {}                  # name -> (gauge_pa, time)
+        self._sensors: dict = {}  # name -> (gauge_pa, time)
         self._estimate = (math.nan, -math.inf)
         self._target = 0.0
         self._source = Source.VENT
@@ -180,18 +194,19 @@ class PressureController:
         self._setpoint = 0.0
         self._integral = 0.0
         self._last_step = None
-        self._phase = "track"                 # track | boost | settle
+        self._phase = "track"  # track | boost | settle
         self._settle_started = 0.0
         self._regulator_actual = 0.0
         self._previous_feedback = None
         self._rate_estimate = 0.0
         self._evacuating = False
         self._latched = Fault.NONE
-        self._fault_message = ""                  # the finding that latched the safe state
+        self._fault_message = ""  # the finding that latched the safe state
         self._steady_target = math.nan
-        self._rejection = ""                      # why the last refused command was refused
+        self._rejection = ""  # why the last refused command was refused
         self._regulator_faults = 0
-        self._corrections = collections.deque()  # boosts and evacuations since the target last changed
+        # boosts and evacuations since the target last changed
+        self._corrections = collections.deque()
         self.active = False
         self.last_output: ControlOutput | None = None
 
@@ -203,30 +218,38 @@ class PressureController:
     def config(self, config: PressureControlConfig) -> None:
         """A new configuration (live parameters): the monitor's thresholds follow it."""
         if math.isnan(config.boost_ceiling_pa):
-            config = dataclasses.replace(config, boost_ceiling_pa=boost_ceiling_pa(self.plant.parameters, config))
+            config = dataclasses.replace(
+                config, boost_ceiling_pa=boost_ceiling_pa(self.plant.parameters, config))
         self._config = config
         self.monitor.config = config.safety
 
     # ---- inputs -----------------------------------------------------------------------------
-    def command(self, target_gauge_pa: float, source: Source, max_rate_pa_per_s: float, now: float) -> str:
+    def command(self, target_gauge_pa: float, source: Source, max_rate_pa_per_s: float,
+                now: float) -> str:
         """Accept a PressureCommand. Returns a note for the user ('' when nothing to say)."""
         source = Source(source)
         if source in (Source.SUPPLY, Source.VACUUM) and not math.isfinite(target_gauge_pa):
-            raise ValueError(f"target pressure must be finite for {source.name}, got {target_gauge_pa}")
+            raise ValueError(
+                f"target pressure must be finite for {source.name}, got {target_gauge_pa}")
         note = ""
         self._latched &= ~(Fault.SETPOINT_CLAMPED | Fault.COMMAND_TIMEOUT | Fault.COMMAND_REJECTED)
         if source in (Source.SUPPLY, Source.VACUUM):
             clamped = min(max(target_gauge_pa, self.config.min_gauge_pa), self.config.max_gauge_pa)
             if clamped != target_gauge_pa:
                 self._latched |= Fault.SETPOINT_CLAMPED
-                note = (f"setpoint {target_gauge_pa:.0f} Pa clamped to {clamped:.0f} Pa "
-                        f"(limits {self.config.min_gauge_pa:.0f}..{self.config.max_gauge_pa:.0f} Pa)")
+                note = (
+                    f"setpoint {target_gauge_pa:.0f} Pa clamped to {clamped:.0f} Pa "
+                    f"(limits {self.config.min_gauge_pa:.0f}..{self.config.max_gauge_pa:.0f} Pa)")
             self._target = clamped
         rate = max_rate_pa_per_s
-        self._rate = rate if (math.isfinite(rate) and rate > 0.0) else self.config.default_rate_pa_per_s
-        if source != self._source or (source in (Source.SUPPLY, Source.VACUUM) and self._target != self._steady_target):
-            self._corrections.clear()            # a new target: its first boost or evacuation is the way there
-        self._steady_target = self._target if source in (Source.SUPPLY, Source.VACUUM) else math.nan
+        self._rate = rate if (math.isfinite(rate) and
+                              rate > 0.0) else self.config.default_rate_pa_per_s
+        if source != self._source or (source in (Source.SUPPLY, Source.VACUUM) and
+                                      self._target != self._steady_target):
+            # a new target: its first boost or evacuation is the way there
+            self._corrections.clear()
+        self._steady_target = self._target if source in (Source.SUPPLY,
+                                                         Source.VACUUM) else math.nan
         if source != self._source:
             self._integral = 0.0
         self._source = source
@@ -243,7 +266,8 @@ class PressureController:
         return note
 
     def reject_command(self, reason: str) -> None:
-        """A command the caller refused (a stamp in the future): flagged until the next one applies."""
+        """A command the caller refused (a stamp in the future): flagged until the next one
+        applies."""
         self._latched |= Fault.COMMAND_REJECTED
         self._rejection = reason
 
@@ -260,11 +284,13 @@ class PressureController:
         if math.isfinite(gauge_pa):
             self._estimate = (gauge_pa, now)
 
-    def update_regulator_status(self, actual_gauge_pa: float, fault_bits: int, now: float | None = None) -> None:
+    def update_regulator_status(self, actual_gauge_pa: float, fault_bits: int,
+                                now: float | None = None) -> None:
         """The regulator's report (taken at ``now``; default: the last step's time)."""
         if math.isfinite(actual_gauge_pa):
             self._regulator_actual = actual_gauge_pa
-            self.monitor.add_regulator(actual_gauge_pa, now if now is not None else (self._last_step or 0.0))
+            self.monitor.add_regulator(actual_gauge_pa, now if now is not None else
+                                       (self._last_step or 0.0))
         self._regulator_faults = int(fault_bits)
 
     def update_consistency(self, name: str, mean_nis: float, bound: float, now: float) -> None:
@@ -280,8 +306,11 @@ class PressureController:
 
     # ---- feedback ---------------------------------------------------------------------------
     def fresh_sensors(self, now: float) -> dict:
-        return {name: value for name, (value, stamp) in self._sensors.items()
-                if now - stamp <= self.config.sensor_timeout_s}
+        return {
+            name: value
+            for name, (value, stamp) in self._sensors.items()
+            if now - stamp <= self.config.sensor_timeout_s
+        }
 
     def measured(self, now: float) -> float:
         """Mean of the fresh sensor readings, NaN when none is fresh."""
@@ -304,7 +333,8 @@ class PressureController:
 
     def _within_limits(self, pressure: float) -> bool:
         c = self.config
-        return math.isfinite(pressure) and c.min_gauge_pa - c.overpressure_margin_pa <= pressure <= c.max_gauge_pa + c.overpressure_margin_pa
+        return (math.isfinite(pressure) and c.min_gauge_pa - c.overpressure_margin_pa <= pressure
+                <= c.max_gauge_pa + c.overpressure_margin_pa)
 
     # ---- the law ------------------------------------------------------------------------------
     def step(self, now: float) -> ControlOutput:
@@ -312,12 +342,13 @@ class PressureController:
         dt = 0.0 if self._last_step is None else max(0.0, now - self._last_step)
         self._last_step = now
         if not self.active:
-            return self._output(0.0, False, Source.VENT, Valve.CLOSED, PressureMode.INACTIVE, self._latched,
-                                self.feedback(now), "inactive")
+            return self._output(0.0, False, Source.VENT, Valve.CLOSED, PressureMode.INACTIVE,
+                                self._latched, self.feedback(now), "inactive")
         regulating = self._source in (Source.SUPPLY, Source.VACUUM)
-        for finding in self.monitor.check(now, c.sensor_timeout_s, regulating and self._phase == "track"):
+        for finding in self.monitor.check(now, c.sensor_timeout_s, regulating and
+                                          self._phase == "track"):
             if finding.flag in SAFETY_FAULTS and not self._latched & SAFETY_FAULTS:
-                self._fault_message = finding.message          # the first evidence names the fault
+                self._fault_message = finding.message  # the first evidence names the fault
             self._latched |= finding.flag & SAFETY_FAULTS
         faults = self._latched
         if self._regulator_faults:
@@ -329,15 +360,19 @@ class PressureController:
         if math.isnan(measured):
             self._integral = 0.0
             self._phase = "track"
-            self._previous_feedback = None    # the first reading after recovery starts a new rate estimate
-            if self._source == Source.VENT:   # asked for explicitly: obeyed, but nothing can confirm it
-                return self._output(0.0, True, Source.VENT, Valve.VENT, PressureMode.VENT, faults | Fault.SENSOR_TIMEOUT,
-                                    feedback, "venting, unconfirmed: no valid pressure reading")
-            return self._output(self._setpoint, True, self._regulator_source(), Valve.CLOSED, PressureMode.HOLD,
-                                faults | Fault.SENSOR_TIMEOUT, feedback,
+            # the first reading after recovery starts a new rate estimate
+            self._previous_feedback = None
+            # asked for explicitly: obeyed, but nothing can confirm it
+            if self._source == Source.VENT:
+                return self._output(0.0, True, Source.VENT, Valve.VENT, PressureMode.VENT,
+                                    faults | Fault.SENSOR_TIMEOUT, feedback,
+                                    "venting, unconfirmed: no valid pressure reading")
+            return self._output(self._setpoint, True, self._regulator_source(), Valve.CLOSED,
+                                PressureMode.HOLD, faults | Fault.SENSOR_TIMEOUT, feedback,
                                 "no valid pressure reading: valves held closed")
         regulating = self._source in (Source.SUPPLY, Source.VACUUM)
-        if regulating and self._command_time is not None and now - self._command_time > c.command_timeout_s:
+        if (regulating and self._command_time is not None and
+                now - self._command_time > c.command_timeout_s):
             self._latched |= Fault.COMMAND_TIMEOUT
             faults |= Fault.COMMAND_TIMEOUT
             if c.command_timeout_action == "vent":
@@ -347,10 +382,11 @@ class PressureController:
             regulating = False
         if self._source == Source.VENT:
             self._setpoint = 0.0
-            return self._output(0.0, True, Source.VENT, Valve.VENT, PressureMode.VENT, faults, feedback, "venting")
+            return self._output(0.0, True, Source.VENT, Valve.VENT, PressureMode.VENT, faults,
+                                feedback, "venting")
         if self._source == Source.HOLD or not regulating:
-            return self._output(self._setpoint, True, Source.HOLD, Valve.CLOSED, PressureMode.HOLD, faults, feedback,
-                                "holding: valves closed")
+            return self._output(self._setpoint, True, Source.HOLD, Valve.CLOSED, PressureMode.HOLD,
+                                faults, feedback, "holding: valves closed")
 
         # slew the setpoint towards the target
         step_limit = self._rate * dt if dt > 0 else math.inf
@@ -359,26 +395,29 @@ class PressureController:
         rate = self._update_rate(feedback, dt)
         valve = self._arbitrate(error, rate)
         regulator, valve_override = self._regulation(error, feedback, dt, now)
-        if valve_override is not None and valve != Valve.VACUUM:   # the pump needs no settled regulator
-            valve = valve_override                                  # (Valve.CLOSED is 0: no "or")
-        return self._output(regulator, True, self._regulator_source(), valve, PressureMode.REGULATE,
-                            faults, feedback, self._phase if self._phase != "track" else "")
+        # the pump needs no settled regulator
+        if valve_override is not None and valve != Valve.VACUUM:
+            valve = valve_override  # (Valve.CLOSED is 0: no "or")
+        return self._output(regulator, True, self._regulator_source(), valve,
+                            PressureMode.REGULATE, faults, feedback,
+                            self._phase if self._phase != "track" else "")
 
     def _safe_state(self, now: float, faults: Fault, feedback: float) -> ControlOutput:
         """Valves VENT and the regulator disabled at 0 (the device cuts both sources), until a new
         command clears the fault."""
         self.vent(now)
         self._phase = "track"
-        return self._output(0.0, False, Source.VENT, Valve.VENT, PressureMode.FAULT, faults, feedback,
-                            f"fault: {fault_names(self._latched & SAFETY_FAULTS)}: {self._fault_message}; "
-                            f"venting with the regulator disabled")
+        return self._output(
+            0.0, False, Source.VENT, Valve.VENT, PressureMode.FAULT, faults, feedback,
+            f"fault: {fault_names(self._latched & SAFETY_FAULTS)}: {self._fault_message}; "
+            f"venting with the regulator disabled")
 
     def _regulation(self, error: float, feedback: float, dt: float, now: float) -> tuple:
         """(regulator setpoint, valve override or None) for one REGULATE period."""
         c = self.config
         rate = self._rate_estimate
-        if (self._phase == "track" and self._setpoint > 0.0 and error > c.boost_band_pa
-                and self._target - feedback > c.boost_min_step_pa):
+        if (self._phase == "track" and self._setpoint > 0.0 and error > c.boost_band_pa and
+                self._target - feedback > c.boost_min_step_pa):
             self._phase = "boost"
             self._count_correction(now, "boosts")
         if self._phase == "boost":
@@ -386,7 +425,8 @@ class PressureController:
             if error > 0.0 and time_to_setpoint > c.boost_lead_s:
                 # fill hard, but no harder than the headroom and the ceiling: a late or stuck
                 # valve then stays bounded
-                return min(c.regulator_max_gauge_pa, self._target + c.boost_headroom_pa, c.boost_ceiling_pa), Valve.SUPPLY
+                return min(c.regulator_max_gauge_pa, self._target + c.boost_headroom_pa,
+                           c.boost_ceiling_pa), Valve.SUPPLY
             self._phase, self._settle_started = "settle", now
         command = self._trimmed(error, dt, integrate=self._phase == "track")
         if self._phase == "settle":
@@ -404,11 +444,15 @@ class PressureController:
         corrections.append(now)
         while corrections and corrections[0] < now - c.hold_cycle_window_s:
             corrections.popleft()
-        if len(corrections) > c.hold_cycles and not self._latched & SAFETY_FAULTS:   # the first one reaches the target
+        # the first one reaches the target
+        if len(corrections) > c.hold_cycles and not self._latched & SAFETY_FAULTS:
             self._latched |= Fault.RESPONSE
-            self._fault_message = (f"the regulated line cannot hold the chamber where the sensors say: {len(corrections)} "
-                                   f"{what} within {c.hold_cycle_window_s:g} s at a steady {self._target / 1e3:.1f} kPa "
-                                   f"(biased sensors, a leak or a regulator offset)")
+            self._fault_message = (
+                "the regulated line cannot hold the chamber where the sensors say: "
+                f"{len(corrections)} "
+                f"{what} within {c.hold_cycle_window_s:g} s at a steady {self._target / 1e3:.1f} "
+                "kPa "
+                f"(biased sensors, a leak or a regulator offset)")
 
     def _update_rate(self, feedback: float, dt: float) -> float:
         """dp/dt of the feedback, low-passed (time constant rate_filter_s): raw differences of
@@ -416,15 +460,20 @@ class PressureController:
         previous, self._previous_feedback = self._previous_feedback, feedback
         if dt > 0.0 and previous is not None:
             raw = (feedback - previous) / dt
-            self._rate_estimate += dt / (self.config.rate_filter_s + dt) * (raw - self._rate_estimate)
+            self._rate_estimate += dt / (self.config.rate_filter_s + dt) * (raw -
+                                                                            self._rate_estimate)
         return self._rate_estimate
 
     def _trimmed(self, error: float, dt: float, integrate: bool) -> float:
         c = self.config
-        near = abs(error) < c.integral_band_pa    # integrator separation: no wind-up on the approach
-        if integrate and near and abs(c.kp * error + c.ki_per_s * (self._integral + error * dt)) < c.trim_limit_pa:
-            self._integral += error * dt          # conditional integration: no wind-up at the clamp
-        trim = min(max(c.kp * error + c.ki_per_s * self._integral, -c.trim_limit_pa), c.trim_limit_pa)
+        # integrator separation: no wind-up on the approach
+        near = abs(error) < c.integral_band_pa
+        if integrate and near and abs(c.kp * error + c.ki_per_s *
+                                      (self._integral + error * dt)) < c.trim_limit_pa:
+            # conditional integration: no wind-up at the clamp
+            self._integral += error * dt
+        trim = min(max(c.kp * error + c.ki_per_s * self._integral, -c.trim_limit_pa),
+                   c.trim_limit_pa)
         return min(max(self._setpoint + trim, c.regulator_min_gauge_pa), c.regulator_max_gauge_pa)
 
     def _arbitrate(self, error: float, rate: float) -> Valve:
@@ -452,19 +501,24 @@ class PressureController:
     def _regulator_source(self) -> Source:
         return Source.VACUUM if self._setpoint < 0.0 else Source.SUPPLY
 
-    def _output(self, regulator, enabled, source, valve, mode, faults, feedback, message) -> ControlOutput:
+    def _output(self, regulator, enabled, source, valve, mode, faults, feedback,
+                message) -> ControlOutput:
         if Fault.COMMAND_REJECTED in faults and self._rejection:
             message = f"{message}; {self._rejection}" if message else self._rejection
-        self.monitor.record_output(self._last_step if self._last_step is not None else 0.0, valve, regulator, enabled)
-        self.last_output = ControlOutput(
-            regulator_setpoint_gauge_pa=float(regulator), regulator_enabled=enabled, regulator_source=source,
-            valves=(valve,) * self.config.channels, mode=mode, fault_flags=Fault(faults),
-            setpoint_gauge_pa=self._setpoint, feedback_gauge_pa=feedback, message=message)
+        self.monitor.record_output(self._last_step if self._last_step is not None else 0.0, valve,
+                                   regulator, enabled)
+        self.last_output = ControlOutput(regulator_setpoint_gauge_pa=float(regulator),
+                                         regulator_enabled=enabled, regulator_source=source,
+                                         valves=(valve,) * self.config.channels, mode=mode,
+                                         fault_flags=Fault(faults),
+                                         setpoint_gauge_pa=self._setpoint,
+                                         feedback_gauge_pa=feedback, message=message)
         return self.last_output
 
 
 @functools.lru_cache(maxsize=16)
-def boost_ceiling_pa(plant_parameters, config: PressureControlConfig, guard_pa: float = 1e3) -> float:
+def boost_ceiling_pa(plant_parameters, config: PressureControlConfig,
+                     guard_pa: float = 1e3) -> float:
     """The highest regulator output a boost may ask for, on this plant: with it, even a valve stuck
     open to the supply keeps the chamber ``guard_pa`` (sensor noise) inside the limit plus margin.
 
@@ -477,24 +531,30 @@ def boost_ceiling_pa(plant_parameters, config: PressureControlConfig, guard_pa: 
     limit = config.max_gauge_pa + config.overpressure_margin_pa - guard_pa
 
     def peak(ceiling_pa: float) -> float:
-        controller = PressureController(dataclasses.replace(config, boost_ceiling_pa=ceiling_pa), plant)
+        controller = PressureController(dataclasses.replace(config, boost_ceiling_pa=ceiling_pa),
+                                        plant)
         controller.active = True
         state = plant.initial_state()
         controller.command(config.max_gauge_pa, Source.SUPPLY, math.nan, 0.0)
         inputs, highest = PlantInputs(valves=(Valve.SUPPLY,)), -math.inf
-        for tick in range(1, 1000):                     # 1 s at 1 kHz: the fill, the trip, the fall
+        # 1 s at 1 kHz: the fill, the trip, the fall
+        for tick in range(1, 1000):
             now, gauge = tick * 1e-3, float(state.chamber_pa[0] - P_ATM_PA)
-            if tick % 2 == 0:                           # sensors at 500 Hz, the regulator's report at 100 Hz
+            # sensors at 500 Hz, the regulator's report at 100 Hz
+            if tick % 2 == 0:
                 controller.update_sensor("sensor", gauge, now)
                 if tick % 10 == 0:
                     controller.update_regulator_status(state.regulator_gauge_pa, 0, now)
                 out = controller.step(now)
-                inputs = PlantInputs(out.regulator_setpoint_gauge_pa, out.regulator_enabled, (Valve.SUPPLY,))
+                inputs = PlantInputs(out.regulator_setpoint_gauge_pa, out.regulator_enabled,
+                                     (Valve.SUPPLY,))
             state = plant.step(state, inputs, 1e-3)
             highest = max(highest, float(state.chamber_pa[0] - P_ATM_PA))
-            if controller.last_output is not None and controller.last_output.mode == PressureMode.FAULT \
-                    and state.regulator_gauge_pa < gauge:
-                break                                   # the regulator is below the chamber: it falls from here
+            if (controller.last_output is not None and
+                    controller.last_output.mode == PressureMode.FAULT and
+                    state.regulator_gauge_pa < gauge):
+                # the regulator is below the chamber: it falls from here
+                break
         return highest
 
     low, high = config.max_gauge_pa, config.regulator_max_gauge_pa

@@ -5,7 +5,8 @@ from __future__ import annotations
 import dataclasses
 
 from softgrip_ros.control.grasp_fsm import GraspState, Phase
-from softgrip_ros.control.pressure import ERROR_FAULTS, ControlOutput, Fault, PressureMode, fault_names
+from softgrip_ros.control.pressure import (ERROR_FAULTS, ControlOutput, Fault, PressureMode,
+                                           fault_names)
 from softgrip_ros.health import Health, Report
 
 
@@ -28,14 +29,14 @@ class LinkStats:
     frames_rx: int
     frames_tx: int
     frames_bad: int
-    rejected: dict                  # frames refused by the E2E checks, by reason
+    rejected: dict  # frames refused by the E2E checks, by reason
     last_sensor_age_s: float
-    silent_sensors: tuple           # configured sensors with no fresh reading
-    listener_errors: int = 0        # in-process consumers of the readings that raised
+    silent_sensors: tuple  # configured sensors with no fresh reading
+    listener_errors: int = 0  # in-process consumers of the readings that raised
     last_listener_error: str = ""
-    status_errors: int = 0          # consumers of the status that raised
+    status_errors: int = 0  # consumers of the status that raised
     last_status_error: str = ""
-    receive_errors: int = 0         # bus reads that failed
+    receive_errors: int = 0  # bus reads that failed
     last_receive_error: str = ""
 
 
@@ -46,24 +47,26 @@ def pressure_controller_report(output: ControlOutput | None, stats: LinkStats | 
     if output is None or stats is None:
         return Report(Health.WARN, "not active", {})
     faults = output.fault_flags
-    report = Report(severity(output),
-                    output.message or ("ok" if not faults else f"faults: {fault_names(faults)}"),
-                    {"mode": output.mode.name, "fault_flags": int(faults),
-                     "frames_rx": stats.frames_rx, "frames_tx": stats.frames_tx,
-                     "frames_bad": stats.frames_bad, "rejected": dict(stats.rejected),
-                     "last_sensor_age_s": f"{stats.last_sensor_age_s:.4f}",
-                     "sensor_listener_errors": stats.listener_errors,
-                     "status_publish_errors": stats.status_errors,
-                     "receive_errors": stats.receive_errors})
-    if stats.silent_sensors and not faults & Fault.SENSOR_TIMEOUT:   # the others carry on
+    report = Report(
+        severity(output), output.message or
+        ("ok" if not faults else f"faults: {fault_names(faults)}"), {
+            "mode": output.mode.name, "fault_flags": int(faults), "frames_rx": stats.frames_rx,
+            "frames_tx": stats.frames_tx, "frames_bad": stats.frames_bad, "rejected": dict(
+                stats.rejected), "last_sensor_age_s": f"{stats.last_sensor_age_s:.4f}",
+            "sensor_listener_errors": stats.listener_errors,
+            "status_publish_errors": stats.status_errors, "receive_errors": stats.receive_errors
+        })
+    if stats.silent_sensors and not faults & Fault.SENSOR_TIMEOUT:  # the others carry on
         report = report.with_note(Health.WARN,
                                   f"sensors silent: {', '.join(stats.silent_sensors)}")
     if faults & Fault.FRAMES_REJECTED:
         rejected = ", ".join(f"{k} {v}" for k, v in stats.rejected.items() if v)
         report = report.with_note(report.health,
                                   f"frames rejected by the E2E checks (so far: {rejected})")
-    errors = [error for count, error in ((stats.listener_errors, stats.last_listener_error),
-                                         (stats.status_errors, stats.last_status_error)) if count]
+    errors = [
+        error for count, error in ((stats.listener_errors, stats.last_listener_error),
+                                   (stats.status_errors, stats.last_status_error)) if count
+    ]
     if errors:
         report = report.with_note(Health.WARN, f"consumer error: {errors[-1]}")
     if stats.receive_errors:
@@ -74,5 +77,8 @@ def pressure_controller_report(output: ControlOutput | None, stats: LinkStats | 
 def grasp_report(state: GraspState) -> Report:
     """The grasp state machine's health: an error in FAULT, else OK with the state's message."""
     health = Health.ERROR if state.phase == Phase.FAULT else Health.OK
-    return Report(health, state.message, {"phase": state.phase.name, "command_id": state.command_id,
-                                          "model_fidelity": state.model_fidelity})
+    return Report(
+        health, state.message, {
+            "phase": state.phase.name, "command_id": state.command_id,
+            "model_fidelity": state.model_fidelity
+        })

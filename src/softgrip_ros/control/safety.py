@@ -19,9 +19,9 @@ The checks, each with the fault flag it raises:
   time, further apart than ``disagreement_pa`` for ``disagreement_time_s``.
 - **A frozen sensor** (``SENSOR_STUCK``): a sensor whose reading has not changed for
   ``stuck_time_s``, over at least STUCK_MIN_REPEATS repeated readings (a sender that stalled
-  leaves one long gap instead), while another sensor, or the plant through the commanded valves, moved the
-  pressure by ``stuck_motion_pa`` or more. A sensor frozen while nothing moves is harmless and
-  cannot be told from a quiet one; it is caught once the pressure moves.
+  leaves one long gap instead), while another sensor, or the plant through the commanded valves,
+  moved the pressure by ``stuck_motion_pa`` or more. A sensor frozen while nothing moves is
+  harmless and cannot be told from a quiet one; it is caught once the pressure moves.
 - **A jump no plant can make** (``SENSOR_IMPLAUSIBLE``): every sensor stepping the same way
   within one sample by more than the plant's fastest rate allows (a common bias, a shifted
   reference), or a reading beyond any pressure the sources can make.
@@ -32,9 +32,9 @@ The checks, each with the fault flag it raises:
   valve state commanded, the measured change against the plant's prediction from the same
   start through that valve to the regulator's reported output. Off by more than
   ``response_tolerance`` of the prediction in every check for ``response_time_s`` (or moving
-  with the valves closed, for half that): a valve that does not move, or sensors that are biased (with the
-  supply valve open, a chamber that reads away from the regulator's output and stays there
-  is one of the two, and no measurement here can say which).
+  with the valves closed, for half that): a valve that does not move, or sensors that are biased
+  (with the supply valve open, a chamber that reads away from the regulator's output and stays
+  there is one of the two, and no measurement here can say which).
 - **The regulator against its model** (``REGULATOR``): its reported output away from the
   output its lag and rate limit predict for what it was told, by ``regulator_deviation_pa``
   for ``regulator_deviation_time_s``.
@@ -64,26 +64,30 @@ class Fault(enum.IntFlag):
     """ControllerStatus.fault_flags."""
 
     NONE = 0
-    OVERPRESSURE = 1          # a pressure limit (over or under) would be crossed: safe state
-    SENSOR_TIMEOUT = 2        # no valid sensor reading: valves held closed
+    OVERPRESSURE = 1  # a pressure limit (over or under) would be crossed: safe state
+    SENSOR_TIMEOUT = 2  # no valid sensor reading: valves held closed
     COMMAND_TIMEOUT = 4
     BUS_SILENT = 8
-    REGULATOR = 16            # the regulator reports a fault or does not follow its model: safe state
+    # the regulator reports a fault or does not follow its model: safe state
+    REGULATOR = 16
     SETPOINT_CLAMPED = 32
     BUS_ERROR = 64
-    SENSOR_DISAGREE = 128     # two sensors disagree: safe state
-    SENSOR_STUCK = 256        # a sensor frozen while the pressure moves: safe state
+    SENSOR_DISAGREE = 128  # two sensors disagree: safe state
+    SENSOR_STUCK = 256  # a sensor frozen while the pressure moves: safe state
     SENSOR_IMPLAUSIBLE = 512  # a jump or a reading no plant can make: safe state
-    SENSOR_NOISE = 1024       # a sensor far noisier than rated: safe state
-    RESPONSE = 2048           # the chamber does not respond to the valves as the plant predicts: safe state
-    SENSOR_INCONSISTENT = 4096  # the estimator finds a sensor inconsistent with the model: safe state
-    COMMAND_REJECTED = 8192   # the last command was refused (e.g. stamped in the future)
-    FRAMES_REJECTED = 16384   # frames failed the E2E checks recently (corrupt, stale or replayed)
+    SENSOR_NOISE = 1024  # a sensor far noisier than rated: safe state
+    # the chamber does not respond to the valves as the plant predicts: safe state
+    RESPONSE = 2048
+    # the estimator finds a sensor inconsistent with the model: safe state
+    SENSOR_INCONSISTENT = 4096
+    COMMAND_REJECTED = 8192  # the last command was refused (e.g. stamped in the future)
+    FRAMES_REJECTED = 16384  # frames failed the E2E checks recently (corrupt, stale or replayed)
 
 
 # Faults whose evidence puts the controller in its safe state until cleared
 SAFETY_FAULTS = (Fault.OVERPRESSURE | Fault.REGULATOR | Fault.SENSOR_DISAGREE | Fault.SENSOR_STUCK
-                 | Fault.SENSOR_IMPLAUSIBLE | Fault.SENSOR_NOISE | Fault.RESPONSE | Fault.SENSOR_INCONSISTENT)
+                 | Fault.SENSOR_IMPLAUSIBLE | Fault.SENSOR_NOISE | Fault.RESPONSE
+                 | Fault.SENSOR_INCONSISTENT)
 
 
 def fault_names(flags: int) -> str:
@@ -122,30 +126,35 @@ class SafetyConfig:
             value = getattr(self, field.name)
             if not math.isfinite(value):
                 raise ValueError(f"safety {field.name} must be finite, got {value}")
-        require_positive(self, "margin_pa", "reaction_time_s", "disagreement_pa", "disagreement_time_s", "stuck_time_s",
-                         "stuck_motion_pa", "noise_time_s", "jump_sigmas", "response_window_s", "response_min_change_pa",
-                         "response_time_s", "regulator_deviation_pa", "regulator_deviation_time_s", "nis_time_s",
-                         "clear_time_s")
+        require_positive(self, "margin_pa", "reaction_time_s", "disagreement_pa",
+                         "disagreement_time_s", "stuck_time_s", "stuck_motion_pa", "noise_time_s",
+                         "jump_sigmas", "response_window_s", "response_min_change_pa",
+                         "response_time_s", "regulator_deviation_pa", "regulator_deviation_time_s",
+                         "nis_time_s", "clear_time_s")
         if not self.min_gauge_pa < 0.0 < self.max_gauge_pa:
             raise ValueError("need min_gauge_pa < 0 < max_gauge_pa")
         if not 1.0 < self.noise_ratio <= 1000.0:
             raise ValueError(f"noise_ratio must lie in (1, 1000], got {self.noise_ratio}")
         if not 0.0 < self.response_tolerance < 1.0:
-            raise ValueError(f"response_tolerance must lie in (0, 1), got {self.response_tolerance}")
+            raise ValueError(
+                f"response_tolerance must lie in (0, 1), got {self.response_tolerance}")
         if not 0.0 <= self.response_settle_s <= 1.0 or self.reaction_time_s > 1.0:
-            raise ValueError("response_settle_s must lie in [0, 1] s and reaction_time_s in (0, 1] s")
+            raise ValueError(
+                "response_settle_s must lie in [0, 1] s and reaction_time_s in (0, 1] s")
         if self.nis_ratio < 1.0:
             raise ValueError(f"nis_ratio must be at least 1, got {self.nis_ratio}")
 
 
-EMA_TIME_S = 0.01              # low-pass time constant of each sensor's value and rate
-HISTORY_S = 0.5                # how far back the per-sensor and command histories reach
-JUMP_WINDOW_S = 0.012          # jumps of every sensor within this count as one (sensors sample apart)
-STUCK_MIN_REPEATS = 5          # a frozen sensor repeats its reading: a stalled sender leaves one long gap
-STAMP_JITTER_S = 0.002         # a frame's stamp may lag its sample by this (a late send): the jump
-                               # check judges a step over at least the sensor's usual period plus this
-NOISE_SAMPLES = 64             # second differences in the noise median
-_MAD_TO_SIGMA = 1.0 / (0.6745 * math.sqrt(6.0))   # |second difference| median -> sigma (Gaussian)
+EMA_TIME_S = 0.01  # low-pass time constant of each sensor's value and rate
+HISTORY_S = 0.5  # how far back the per-sensor and command histories reach
+# jumps of every sensor within this count as one (sensors sample apart)
+JUMP_WINDOW_S = 0.012
+# a frozen sensor repeats its reading: a stalled sender leaves one long gap
+STUCK_MIN_REPEATS = 5
+STAMP_JITTER_S = 0.002  # a frame's stamp may lag its sample by this (a late send): the jump
+# check judges a step over at least the sensor's usual period plus this
+NOISE_SAMPLES = 64  # second differences in the noise median
+_MAD_TO_SIGMA = 1.0 / (0.6745 * math.sqrt(6.0))  # |second difference| median -> sigma (Gaussian)
 
 
 class _Sensor:
@@ -154,22 +163,25 @@ class _Sensor:
     def __init__(self, name: str, rated_noise_pa: float):
         self.name, self.rated_noise_pa = name, rated_noise_pa
         self.value = self.stamp = math.nan
-        self.previous = math.nan              # the reading before ``value`` (its second difference)
+        # the reading before ``value`` (its second difference)
+        self.previous = math.nan
         self.lowpass = math.nan
-        self.rate = 0.0                       # low-passed dp/dt of the readings, Pa/s
-        self.changed_at = math.nan            # when the reading last changed
-        self.repeats = 0                      # readings equal to the one before, in a row
-        self.history = collections.deque()    # (stamp, low-passed value), HISTORY_S back
+        self.rate = 0.0  # low-passed dp/dt of the readings, Pa/s
+        self.changed_at = math.nan  # when the reading last changed
+        self.repeats = 0  # readings equal to the one before, in a row
+        self.history = collections.deque()  # (stamp, low-passed value), HISTORY_S back
         self.second_differences = collections.deque(maxlen=NOISE_SAMPLES)
-        self.noise_pa = math.nan              # the robust noise estimate
-        self.last_jump = (-math.inf, 0.0)     # (stamp, size Pa) of the last step beyond the plant
+        self.noise_pa = math.nan  # the robust noise estimate
+        self.last_jump = (-math.inf, 0.0)  # (stamp, size Pa) of the last step beyond the plant
         self.samples = 0
-        self.periods = collections.deque(maxlen=15)    # recent sample intervals: the usual one is their median
+        # recent sample intervals: the usual one is their median
+        self.periods = collections.deque(maxlen=15)
 
     def add(self, value: float, stamp: float, max_rate, jump_sigmas: float) -> None:
-        """``max_rate(pressure, rising)``: the fastest the plant can move from there, that way (Pa/s)."""
+        """``max_rate(pressure, rising)``: the fastest the plant can move from there, that way
+        (Pa/s)."""
         if math.isfinite(self.stamp) and stamp <= self.stamp:
-            return                            # out of order or repeated: nothing new
+            return  # out of order or repeated: nothing new
         if math.isnan(self.value):
             self.lowpass, self.changed_at = value, stamp
         else:
@@ -183,7 +195,8 @@ class _Sensor:
             step = value - self.value
             self.periods.append(dt)
             span = max(dt, sorted(self.periods)[len(self.periods) // 2]) + STAMP_JITTER_S
-            if abs(step) > max_rate(self.value, step > 0.0) * span + jump_sigmas * math.sqrt(2.0) * self.rated_noise_pa:
+            if (abs(step) > max_rate(self.value, step > 0.0) * span +
+                    jump_sigmas * math.sqrt(2.0) * self.rated_noise_pa):
                 self.last_jump = (stamp, step)
             alpha = dt / (EMA_TIME_S + dt)
             old = self.lowpass
@@ -194,7 +207,8 @@ class _Sensor:
         self.history.append((stamp, self.lowpass))
         while self.history and self.history[0][0] < stamp - HISTORY_S:
             self.history.popleft()
-        if len(self.second_differences) == NOISE_SAMPLES and self.samples % 16 == 0:   # a median costs ~10 us
+        # a median costs ~10 us
+        if len(self.second_differences) == NOISE_SAMPLES and self.samples % 16 == 0:
             self.noise_pa = statistics.median(self.second_differences) * _MAD_TO_SIGMA
 
     def lowpass_at(self, when: float) -> float:
@@ -213,7 +227,8 @@ class _Sensor:
         return previous[1]
 
     def aligned(self, when: float) -> float:
-        """The low-passed value carried to ``when`` at its rate (a sample's age times the slope)."""
+        """The low-passed value carried to ``when`` at its rate (a sample's age times the
+        slope)."""
         return self.lowpass + self.rate * (when - self.stamp)
 
 
@@ -258,29 +273,38 @@ class SafetyMonitor:
         # source or to atmosphere), tabulated on a 1 kPa grid; twice that, for a plant faster than
         # modelled. A sensor stepping beyond it is not measuring the chamber.
         lowest, highest = P_ATM_PA + par.vacuum_source_gauge_pa, P_ATM_PA + par.supply_gauge_pa
-        self._rate_grid_pa = np.arange(par.vacuum_source_gauge_pa - 1e3, par.supply_gauge_pa + 2e3, 1e3)
-        self._max_rise = 2.0 * np.array([self.plant.rate_and_slopes(P_ATM_PA + p, highest, par.supply_conductance)[0]
-                                         for p in self._rate_grid_pa])
-        self._max_fall = 2.0 * np.array([max(-self.plant.rate_and_slopes(P_ATM_PA + p, lowest, par.vacuum_conductance)[0],
-                                             -self.plant.rate_and_slopes(P_ATM_PA + p, P_ATM_PA, par.vent_conductance)[0])
-                                         for p in self._rate_grid_pa])
-        self._max_rise, self._max_fall = np.maximum(self._max_rise, 0.0), np.maximum(self._max_fall, 0.0)
+        self._rate_grid_pa = np.arange(par.vacuum_source_gauge_pa - 1e3, par.supply_gauge_pa + 2e3,
+                                       1e3)
+        self._max_rise = (2.0 * np.array([
+            self.plant.rate_and_slopes(P_ATM_PA + p, highest, par.supply_conductance)[0]
+            for p in self._rate_grid_pa
+        ]))
+        self._max_fall = (2.0 * np.array([
+            max(-self.plant.rate_and_slopes(P_ATM_PA + p, lowest, par.vacuum_conductance)[0],
+                -self.plant.rate_and_slopes(P_ATM_PA + p, P_ATM_PA, par.vent_conductance)[0])
+            for p in self._rate_grid_pa
+        ]))
+        self._max_rise, self._max_fall = np.maximum(self._max_rise,
+                                                    0.0), np.maximum(self._max_fall, 0.0)
         self.max_rate_pa_per_s = float(max(self._max_rise.max(), self._max_fall.max()))
         self.credible_range_pa = (par.vacuum_source_gauge_pa - self.config.margin_pa,
                                   par.supply_gauge_pa + self.config.margin_pa)
-        self._regulator = (math.nan, -math.inf)            # (reported output, stamp)
-        self._regulator_history = collections.deque()      # (stamp, reported output)
-        self._model_regulator = math.nan                   # synchronised to the first report
-        self._model_history = collections.deque()          # (time, modelled regulator output)
-        self._outputs = collections.deque()                # (time, valve, regulator command, enabled)
-        self._valve_since = (None, math.inf)               # (valve, since)
+        self._regulator = (math.nan, -math.inf)  # (reported output, stamp)
+        self._regulator_history = collections.deque()  # (stamp, reported output)
+        self._model_regulator = math.nan  # synchronised to the first report
+        self._model_history = collections.deque()  # (time, modelled regulator output)
+        # (time, valve, regulator command, enabled)
+        self._outputs = collections.deque()
+        self._valve_since = (None, math.inf)  # (valve, since)
         self._last_step = None
         self._persist = collections.defaultdict(_Persistence)
-        self._nis = {}                                     # name -> (mean NIS, bound, since when above)
+        # name -> (mean NIS, bound, since when above)
+        self._nis = {}
         self._last_response_check = -math.inf
         self._response_result = None
         self._response_text = ""
-        self.last_seen: dict[Fault, float] = {}            # flag -> last time its evidence was seen
+        # flag -> last time its evidence was seen
+        self.last_seen: dict[Fault, float] = {}
         self.supply_equalised = False
 
     # ---- inputs ---------------------------------------------------------------------------------
@@ -291,8 +315,10 @@ class SafetyMonitor:
         sensor.add(float(gauge_pa), float(stamp_s), self.max_rate, self.config.jump_sigmas)
 
     def max_rate(self, gauge_pa: float, rising: bool) -> float:
-        """The fastest the plant can move the chamber from ``gauge_pa``, up or down (Pa/s, with 2x headroom)."""
-        index = min(max(int(round((gauge_pa - self._rate_grid_pa[0]) / 1e3)), 0), len(self._rate_grid_pa) - 1)
+        """The fastest the plant can move the chamber from ``gauge_pa``, up or down (Pa/s, with 2x
+        headroom)."""
+        index = min(max(int(round((gauge_pa - self._rate_grid_pa[0]) / 1e3)), 0),
+                    len(self._rate_grid_pa) - 1)
         # the grid's neighbours too: a pressure between two points takes the faster
         table = self._max_rise if rising else self._max_fall
         return float(table[max(index - 1, 0):index + 2].max())
@@ -300,9 +326,11 @@ class SafetyMonitor:
     def add_regulator(self, actual_gauge_pa: float, stamp_s: float) -> None:
         self._regulator = (float(actual_gauge_pa), float(stamp_s))
         if math.isnan(self._model_regulator):
-            self._model_regulator = float(actual_gauge_pa)   # the model starts where the regulator is
+            # the model starts where the regulator is
+            self._model_regulator = float(actual_gauge_pa)
         self._regulator_history.append(self._regulator)
-        while len(self._regulator_history) > 1 and self._regulator_history[0][1] < stamp_s - HISTORY_S:
+        while len(self._regulator_history
+                  ) > 1 and self._regulator_history[0][1] < stamp_s - HISTORY_S:
             self._regulator_history.popleft()
 
     def update_consistency(self, name: str, mean_nis: float, bound: float, now: float) -> None:
@@ -312,16 +340,19 @@ class SafetyMonitor:
             return
         above = mean_nis > self.config.nis_ratio * bound
         since = self._nis.get(name, (0.0, 0.0, None))[2] if above else None
-        self._nis[name] = (mean_nis, bound, (since if since is not None else now) if above else None)
+        self._nis[name] = (mean_nis, bound,
+                           (since if since is not None else now) if above else None)
 
-    def record_output(self, now: float, valve: Valve, regulator_command_gauge_pa: float, enabled: bool) -> None:
+    def record_output(self, now: float, valve: Valve, regulator_command_gauge_pa: float,
+                      enabled: bool) -> None:
         """What the controller sent in this step (the plant model's inputs from now on)."""
         valve = Valve(valve)
         if self._last_step is not None and now > self._last_step and self._outputs \
                 and math.isfinite(self._model_regulator):
             _, last_valve, last_command, last_enabled = self._outputs[-1]
             inputs = PlantInputs(last_command, last_enabled, (last_valve,))
-            self._model_regulator = self.plant.regulator_step(self._model_regulator, inputs, now - self._last_step)[0]
+            self._model_regulator = self.plant.regulator_step(self._model_regulator, inputs,
+                                                              now - self._last_step)[0]
         self._last_step = now
         if math.isfinite(self._model_regulator):
             self._model_history.append((now, self._model_regulator))
@@ -353,8 +384,8 @@ class SafetyMonitor:
         return valve, command, enabled
 
     def _regulator_known(self, now: float, timeout_s: float) -> bool:
-        """Whether a fresh report of the regulator's output is at hand (without one, nothing says what
-        the supply valve leads to: the checks that need it wait)."""
+        """Whether a fresh report of the regulator's output is at hand (without one, nothing says
+        what the supply valve leads to: the checks that need it wait)."""
         regulator, stamp = self._regulator
         return math.isfinite(regulator) and now - stamp <= max(timeout_s, 0.05)
 
@@ -380,20 +411,25 @@ class SafetyMonitor:
             return None
         valve, _, enabled = self.commanded()
         regulator = self._regulator_output(now, timeout_s)
-        rising = max([0.0] + [s.rate for s in fresh]
-                     + [self.plant.chamber_rate(P_ATM_PA + high, valve, regulator, enabled)])
-        falling = min([0.0] + [s.rate for s in fresh]
-                      + [self.plant.chamber_rate(P_ATM_PA + low, valve, regulator, enabled)])
+        rising = max([0.0] + [s.rate for s in fresh] +
+                     [self.plant.chamber_rate(P_ATM_PA + high, valve, regulator, enabled)])
+        falling = min([0.0] + [s.rate for s in fresh] +
+                      [self.plant.chamber_rate(P_ATM_PA + low, valve, regulator, enabled)])
         upper, lower = c.max_gauge_pa + c.margin_pa, c.min_gauge_pa - c.margin_pa
-        ahead_high, ahead_low = high + rising * c.reaction_time_s, low + falling * c.reaction_time_s
+        ahead_high = high + rising * c.reaction_time_s
+        ahead_low = low + falling * c.reaction_time_s
         if ahead_high > upper or high > upper:
-            return Finding(Fault.OVERPRESSURE, f"pressure {high / 1e3:.1f} kPa, rising {rising / 1e3:.0f} kPa/s, "
-                                                f"would pass the limit {upper / 1e3:.0f} kPa within "
-                                                f"{1e3 * c.reaction_time_s:.0f} ms: venting")
+            return Finding(
+                Fault.OVERPRESSURE,
+                f"pressure {high / 1e3:.1f} kPa, rising {rising / 1e3:.0f} kPa/s, "
+                f"would pass the limit {upper / 1e3:.0f} kPa within "
+                f"{1e3 * c.reaction_time_s:.0f} ms: venting")
         if ahead_low < lower or low < lower:
-            return Finding(Fault.OVERPRESSURE, f"pressure {low / 1e3:.1f} kPa, falling {-falling / 1e3:.0f} kPa/s, "
-                                                f"would pass the limit {lower / 1e3:.0f} kPa within "
-                                                f"{1e3 * c.reaction_time_s:.0f} ms: venting")
+            return Finding(
+                Fault.OVERPRESSURE,
+                f"pressure {low / 1e3:.1f} kPa, falling {-falling / 1e3:.0f} kPa/s, "
+                f"would pass the limit {lower / 1e3:.0f} kPa within "
+                f"{1e3 * c.reaction_time_s:.0f} ms: venting")
         return None
 
     # ---- every check ----------------------------------------------------------------------------
@@ -401,11 +437,15 @@ class SafetyMonitor:
         """Every check at ``now``; [Finding] of those that fire. ``regulating_in_track``: the
         controller regulates with the supply valve and no boost (the regulator may equalise)."""
         valve, _, _ = self.commanded()
-        self.supply_equalised = (regulating_in_track and valve == Valve.SUPPLY
-                                 and now - self._valve_since[1] >= self.config.response_settle_s + self.config.response_window_s)
-        findings = [f for f in (self.trip(now, timeout_s), *self._sensor_findings(now, timeout_s),
-                                self._regulator_finding(now, timeout_s), self._response_finding(now, timeout_s),
-                                self._consistency_finding(now)) if f is not None]
+        self.supply_equalised = (regulating_in_track and valve == Valve.SUPPLY and
+                                 now - self._valve_since[1]
+                                 >= self.config.response_settle_s + self.config.response_window_s)
+        findings = [
+            f for f in (self.trip(now, timeout_s), *self._sensor_findings(now, timeout_s),
+                        self._regulator_finding(now, timeout_s),
+                        self._response_finding(now, timeout_s), self._consistency_finding(now))
+            if f is not None
+        ]
         for finding in findings:
             self.last_seen[finding.flag] = now
         return findings
@@ -414,7 +454,8 @@ class SafetyMonitor:
         """The subset of ``flags`` whose evidence has not been seen for ``clear_time_s``."""
         stale = Fault.NONE
         for flag in Fault:
-            if flag and flag in flags and now - self.last_seen.get(flag, -math.inf) >= self.config.clear_time_s:
+            if flag and flag in flags and now - self.last_seen.get(
+                    flag, -math.inf) >= self.config.clear_time_s:
                 stale |= flag
         return stale
 
@@ -426,47 +467,72 @@ class SafetyMonitor:
         for sensor in fresh:
             low, high = self.credible_range_pa
             if not low <= sensor.value <= high:
-                findings.append(Finding(Fault.SENSOR_IMPLAUSIBLE, f"{sensor.name} reads {sensor.value / 1e3:.1f} kPa, "
-                                                                  f"beyond what the sources can make"))
+                findings.append(
+                    Finding(
+                        Fault.SENSOR_IMPLAUSIBLE,
+                        f"{sensor.name} reads {sensor.value / 1e3:.1f} kPa, "
+                        f"beyond what the sources can make"))
         # every sensor jumping the same way at once, beyond the plant's fastest rate
         jumps = [s.last_jump for s in fresh]
         stamps = [stamp for stamp, _ in jumps]
         if fresh and now - max(stamps) <= 0.05 and max(stamps) - min(stamps) <= JUMP_WINDOW_S \
                 and (all(size > 0 for _, size in jumps) or all(size < 0 for _, size in jumps)):
-            sizes = ", ".join(f"{s.name} {size / 1e3:+.1f} kPa" for s, (_, size) in zip(fresh, jumps))
-            findings.append(Finding(Fault.SENSOR_IMPLAUSIBLE, f"sensors jumped together ({sizes}) faster than the plant can "
-                                                              f"move them: a sensor fault such as a bias"))
+            sizes = ", ".join(f"{s.name} {size / 1e3:+.1f} kPa"
+                              for s, (_, size) in zip(fresh, jumps))
+            findings.append(
+                Finding(
+                    Fault.SENSOR_IMPLAUSIBLE,
+                    f"sensors jumped together ({sizes}) faster than the plant can "
+                    f"move them: a sensor fault such as a bias"))
         # pairs that disagree
         for i, a in enumerate(fresh):
             for b in fresh[i + 1:]:
                 gap = a.aligned(now) - b.aligned(now)
                 key = ("disagree", a.name, b.name)
                 if self._persist[key](abs(gap) > c.disagreement_pa, now, c.disagreement_time_s):
-                    findings.append(Finding(Fault.SENSOR_DISAGREE, f"{a.name} disagrees with {b.name} by "
-                                                                   f"{abs(gap) / 1e3:.1f} kPa"))
+                    findings.append(
+                        Finding(
+                            Fault.SENSOR_DISAGREE, f"{a.name} disagrees with {b.name} by "
+                            f"{abs(gap) / 1e3:.1f} kPa"))
         # frozen while the pressure moves
         for sensor in fresh:
             frozen_for = now - sensor.changed_at
             if frozen_for < c.stuck_time_s or sensor.repeats < STUCK_MIN_REPEATS:
                 continue
-            since = max(sensor.changed_at, now - 0.9 * HISTORY_S)      # as far back as the others' histories go
+            # as far back as the others' histories go
+            since = max(sensor.changed_at, now - 0.9 * HISTORY_S)
             moved = [(other.name, abs(other.lowpass - other.lowpass_at(since))) for other in fresh
                      if other is not sensor and math.isfinite(other.lowpass_at(since))]
-            predicted = abs(self.plant.chamber_rate(P_ATM_PA + sensor.value, valve, regulator, enabled)) * frozen_for
-            evidence = [f"{name} moved {change / 1e3:.1f} kPa" for name, change in moved if change >= c.stuck_motion_pa]
-            judged = valve != Valve.CLOSED and (valve != Valve.SUPPLY or self._regulator_known(now, timeout_s))
+            predicted = abs(
+                self.plant.chamber_rate(P_ATM_PA + sensor.value, valve, regulator,
+                                        enabled)) * frozen_for
+            evidence = [
+                f"{name} moved {change / 1e3:.1f} kPa" for name, change in moved
+                if change >= c.stuck_motion_pa
+            ]
+            judged = valve != Valve.CLOSED and (valve != Valve.SUPPLY or
+                                                self._regulator_known(now, timeout_s))
             if predicted >= 5.0 * c.stuck_motion_pa and judged:
-                evidence.append(f"the plant, through the {valve.name} valve, moves it {predicted / 1e3:.0f} kPa")
+                evidence.append(
+                    f"the plant, through the {valve.name} valve, moves it {predicted / 1e3:.0f} "
+                    "kPa")
             if evidence:
-                findings.append(Finding(Fault.SENSOR_STUCK, f"{sensor.name} frozen at {sensor.value / 1e3:.1f} kPa for "
-                                                            f"{frozen_for:.2f} s while {' and '.join(evidence)}"))
+                findings.append(
+                    Finding(
+                        Fault.SENSOR_STUCK,
+                        f"{sensor.name} frozen at {sensor.value / 1e3:.1f} kPa for "
+                        f"{frozen_for:.2f} s while {' and '.join(evidence)}"))
         # noisier than rated
         for sensor in fresh:
-            noisy = math.isfinite(sensor.noise_pa) and sensor.noise_pa > c.noise_ratio * sensor.rated_noise_pa
+            noisy = math.isfinite(
+                sensor.noise_pa) and sensor.noise_pa > c.noise_ratio * sensor.rated_noise_pa
             if self._persist[("noise", sensor.name)](noisy, now, c.noise_time_s):
-                findings.append(Finding(Fault.SENSOR_NOISE, f"{sensor.name} noisy: {sensor.noise_pa / 1e3:.2f} kPa rms, "
-                                                            f"{sensor.noise_pa / sensor.rated_noise_pa:.0f}x its rated "
-                                                            f"{sensor.rated_noise_pa / 1e3:.2f} kPa"))
+                findings.append(
+                    Finding(
+                        Fault.SENSOR_NOISE,
+                        f"{sensor.name} noisy: {sensor.noise_pa / 1e3:.2f} kPa rms, "
+                        f"{sensor.noise_pa / sensor.rated_noise_pa:.0f}x its rated "
+                        f"{sensor.rated_noise_pa / 1e3:.2f} kPa"))
         return findings
 
     def _regulator_finding(self, now: float, timeout_s: float) -> Finding | None:
@@ -474,17 +540,25 @@ class SafetyMonitor:
         actual, stamp = self._regulator
         deviation, expected = 0.0, math.nan
         if math.isfinite(actual) and now - stamp <= max(timeout_s, 0.05) and self._model_history:
-            # the model over the report's latency (the command's path to the device and back); below
-            # it only while it rests: a regulator slower than modelled lags a ramp, which is no danger
-            window = [value for when, value in self._model_history if stamp - 0.02 <= when <= stamp + 0.002]
+            # the model over the report's latency (the command's path to the device and back);
+            # below it only while it rests: a regulator slower than modelled lags a ramp, which is
+            # no danger
+            window = [
+                value for when, value in self._model_history
+                if stamp - 0.02 <= when <= stamp + 0.002
+            ]
             if window:
                 low, high = min(window), max(window)
                 resting = high - low <= 0.5 * c.regulator_deviation_pa
-                deviation = actual - high if actual > high else (low - actual if resting and actual < low else 0.0)
+                deviation = actual - high if actual > high else (
+                    low - actual if resting and actual < low else 0.0)
                 expected = high if actual > high else low
-        if self._persist["regulator"](deviation > c.regulator_deviation_pa, now, c.regulator_deviation_time_s):
-            return Finding(Fault.REGULATOR, f"the regulator reports {actual / 1e3:.1f} kPa where its model gives "
-                                            f"{expected / 1e3:.1f} kPa for what it was told")
+        if self._persist["regulator"](deviation > c.regulator_deviation_pa, now,
+                                      c.regulator_deviation_time_s):
+            return Finding(
+                Fault.REGULATOR,
+                f"the regulator reports {actual / 1e3:.1f} kPa where its model gives "
+                f"{expected / 1e3:.1f} kPa for what it was told")
         return None
 
     def _response_finding(self, now: float, timeout_s: float) -> Finding | None:
@@ -502,19 +576,22 @@ class SafetyMonitor:
         valve, since = self._valve_since
         start = max(since + c.response_settle_s, now - c.response_window_s)
         fresh = self.fresh(now, timeout_s)
-        judged = (valve is not None and fresh and now - start >= 0.2 * c.response_window_s
-                  and (valve != Valve.SUPPLY or self._regulator_known(now, timeout_s)))
+        judged = (valve is not None and fresh and now - start >= 0.2 * c.response_window_s and
+                  (valve != Valve.SUPPLY or self._regulator_known(now, timeout_s)))
         wrong = False
         if judged:
             begins = [s.lowpass_at(start) for s in fresh]
-            ends = [s.lowpass_at(now) if now - s.stamp <= EMA_TIME_S else s.aligned(now) for s in fresh]
+            ends = [
+                s.lowpass_at(now) if now - s.stamp <= EMA_TIME_S else s.aligned(now) for s in fresh
+            ]
             judged = all(math.isfinite(v) for v in begins + ends)
         if judged:
             p0, p1 = sum(begins) / len(begins), sum(ends) / len(ends)
             _, _, enabled = self.commanded()
             p, steps, span = P_ATM_PA + p0, 5, now - start
             for k in range(steps):
-                regulator = self._regulator_output(now, timeout_s, at=start + (k + 0.5) * span / steps)
+                regulator = self._regulator_output(now, timeout_s,
+                                                   at=start + (k + 0.5) * span / steps)
                 p = self.plant.chamber_step(p, valve, regulator, span / steps, enabled)[0]
             measured, predicted = p1 - p0, p - P_ATM_PA - p0
             if valve == Valve.CLOSED:
@@ -523,10 +600,13 @@ class SafetyMonitor:
                 wrong = abs(measured - predicted) > c.response_tolerance * abs(predicted)
             if wrong:
                 self._response_text = (
-                    f"the chamber does not respond to the {valve.name} valve as the plant predicts: "
-                    f"{measured / 1e3:+.1f} kPa in {1e3 * span:.0f} ms where {predicted / 1e3:+.1f} kPa was due"
-                    + ("" if valve != Valve.SUPPLY else f" (the regulator at {regulator / 1e3:.1f} kPa)")
-                    + ": a valve that does not move, or biased sensors")
+                    f"the chamber does not respond to the {valve.name} valve as the plant "
+                    "predicts: "
+                    f"{measured / 1e3:+.1f} kPa in {1e3 * span:.0f} ms where "
+                    f"{predicted / 1e3:+.1f} kPa was due" +
+                    ("" if valve != Valve.SUPPLY else
+                     f" (the regulator at {regulator / 1e3:.1f} kPa)") +
+                    ": a valve that does not move, or biased sensors")
         # closed valves: motion that lasts half as long is evidence enough (no leak moves a chamber
         # kPa in ms); a close that reached the device late moves it only in the first window
         persist = 0.5 * c.response_time_s if valve == Valve.CLOSED else c.response_time_s
@@ -537,7 +617,9 @@ class SafetyMonitor:
     def _consistency_finding(self, now: float) -> Finding | None:
         for name, (mean_nis, bound, since) in self._nis.items():
             if since is not None and now - since >= self.config.nis_time_s:
-                return Finding(Fault.SENSOR_INCONSISTENT, f"{name} inconsistent with the plant model: the estimator's recent "
-                                                          f"NIS {mean_nis:.0f}, {mean_nis / bound:.0f}x its bound "
-                                                          f"{bound:.2f}")
+                return Finding(
+                    Fault.SENSOR_INCONSISTENT,
+                    f"{name} inconsistent with the plant model: the estimator's recent "
+                    f"NIS {mean_nis:.0f}, {mean_nis / bound:.0f}x its bound "
+                    f"{bound:.2f}")
         return None

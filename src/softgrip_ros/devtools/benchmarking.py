@@ -1,4 +1,5 @@
-"""Shared helpers of scripts/bench_*.py: medians of repeated timings and docs/benchmarks.md sections.
+"""Shared helpers of scripts/bench_*.py: medians of repeated timings and docs/benchmarks.md
+sections.
 
 Performance is measured here, never asserted in unit tests: the machines are shared
 and noisy, so each figure is the median over repeats, and comparisons are ratios
@@ -47,22 +48,42 @@ def repeat_count(text: str) -> int:
     """argparse type of every bench script's --repeat: a median needs at least 3 runs."""
     value = int(text)
     if value < 3:
-        raise argparse.ArgumentTypeError(f"must be at least 3 for a meaningful median, got {value}")
+        raise argparse.ArgumentTypeError(
+            f"must be at least 3 for a meaningful median, got {value}")
     return value
 
 
+def benchmark_parser(doc: str, quick_help: str, repeat_default: int | None = None,
+                     repeat_help: str = "timed runs per figure (median)",
+                     json_help: str = "print the figures as JSON, write nothing"
+                     ) -> argparse.ArgumentParser:
+    """The options every scripts/bench_*.py has: --json, --quick (``quick_help``: what it cuts;
+    quick writes nothing) and, with ``repeat_default``, --repeat."""
+    parser = argparse.ArgumentParser(description=doc,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--json", action="store_true", help=json_help)
+    parser.add_argument("--quick", action="store_true", help=quick_help)
+    if repeat_default is not None:
+        parser.add_argument("--repeat", type=repeat_count, default=repeat_default,
+                            help=repeat_help)
+    return parser
+
+
 def machine_line() -> str:
-    return (f"{platform.python_implementation()} {platform.python_version()}, {platform.machine()}, "
-            f"{os.cpu_count()} cores, {datetime.date.today().isoformat()}")
+    return (
+        f"{platform.python_implementation()} {platform.python_version()}, {platform.machine()}, "
+        f"{os.cpu_count()} cores, {datetime.date.today().isoformat()}")
 
 
 def update_section(name: str, markdown: str, path: pathlib.Path = BENCHMARKS_MD) -> None:
-    """Replace (or append) the section between ``<!-- name:start -->`` and ``<!-- name:end -->``."""
+    """Replace (or append) the section between ``<!-- name:start -->`` and ``<!-- name:end
+    -->``."""
     begin, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
     block = f"{begin}\n{markdown.rstrip()}\n{end}"
     path.parent.mkdir(parents=True, exist_ok=True)
     text = path.read_text() if path.exists() else (
-        "# Benchmarks\n\nMedians over repeated runs on a shared 2-core machine; ratios are taken within one run. "
+        "# Benchmarks\n\nMedians over repeated runs on a shared 2-core machine; ratios are taken "
+        "within one run. "
         "Each section names the command that reproduces it.\n")
     if begin in text and end in text:
         head, rest = text.split(begin, 1)
@@ -83,11 +104,14 @@ def figure_rows(figures: dict, targets: dict) -> list:
     rows = ["| key | median | target | |", "|---|---|---|---|"]
     for key, value in figures.items():
         if isinstance(value, bool):
-            rows.append(f"| `{key}` | {str(value).lower()} | true | {'meets' if value else '**misses**'} |")
+            rows.append(
+                f"| `{key}` | {str(value).lower()} | true | {'meets' if value else '**misses**'} |"
+            )
         elif key in targets:
             target, smaller_is_better = targets[key]
-            rows.append(f"| `{key}` | {value:.4g} | {'<=' if smaller_is_better else '>='} {target:g} | "
-                        f"{verdict(value, target, smaller_is_better)} |")
+            rows.append(
+                f"| `{key}` | {value:.4g} | {'<=' if smaller_is_better else '>='} {target:g} | "
+                f"{verdict(value, target, smaller_is_better)} |")
         else:
             rows.append(f"| `{key}` | {value:.4g} | reported | |")
     return rows

@@ -13,7 +13,8 @@ import numpy as np
 from scipy.stats import chi2
 
 from softgrip_ros.canbus.sim_device import DEFAULT_SENSORS
-from softgrip_ros.estimation.estimator import EstimatorConfig, PressureEstimator, SensorConfig, process_noise_matrix
+from softgrip_ros.estimation.estimator import (EstimatorConfig, PressureEstimator, SensorConfig,
+                                               process_noise_matrix)
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 
 
@@ -40,16 +41,20 @@ class Trajectory:
     sensor_std: dict
 
     def raw_rmse(self, name: str, windows=None) -> float:
-        """RMSE of one sensor's raw samples against the truth (inside ``windows``, [(t0, t1)], if given)."""
+        """RMSE of one sensor's raw samples against the truth (inside ``windows``, [(t0, t1)], if
+        given)."""
         samples = np.array([(t, v) for t, n, v in self.samples if n == name])
         keep = np.ones(len(samples), bool) if windows is None else \
             np.any([(samples[:, 0] >= a) & (samples[:, 0] < b) for a, b in windows], axis=0)
         truth = np.interp(samples[keep, 0], self.truth_t, self.truth[:, 0])
-        return float(np.sqrt(np.mean((samples[keep, 1] - truth) ** 2)))
+        return float(np.sqrt(np.mean((samples[keep, 1] - truth)**2)))
 
     def truth_at(self, t: float) -> np.ndarray:
         """The truth at t, linear between the plant's steps (as the sensors sample it)."""
-        return np.array([np.interp(t, self.truth_t, self.truth[:, 0]), np.interp(t, self.truth_t, self.truth[:, 1])])
+        return np.array([
+            np.interp(t, self.truth_t, self.truth[:, 0]),
+            np.interp(t, self.truth_t, self.truth[:, 1])
+        ])
 
 
 def simulate(duration_s: float = 2.2, scenario=None, sensors=DEFAULT_SENSORS, dt_s: float = 1e-3,
@@ -93,7 +98,8 @@ def simulate(duration_s: float = 2.2, scenario=None, sensors=DEFAULT_SENSORS, dt
         t = rng.uniform(0.0, period)
         pending = list(spikes.get(sensor.name, []))
         while t <= duration_s:
-            silent = any(name in (sensor.name, "all") and t0 <= t < t1 for name, (t0, t1) in dropouts.items())
+            silent = any(name in (sensor.name, "all") and t0 <= t < t1
+                         for name, (t0, t1) in dropouts.items())
             if not silent:
                 value = np.interp(t, truth_t, truth[:, 0]) + sensor.bias_pa
                 value += rng.normal(0.0, sensor.noise_std_pa)
@@ -104,7 +110,7 @@ def simulate(duration_s: float = 2.2, scenario=None, sensors=DEFAULT_SENSORS, dt
                 samples.append((t, sensor.name, value))
             t += period
     samples.sort(key=lambda s: s[0])
-    std = {s.name: math.sqrt(s.noise_std_pa ** 2 + s.quantisation_pa ** 2 / 12.0) for s in sensors}
+    std = {s.name: math.sqrt(s.noise_std_pa**2 + s.quantisation_pa**2 / 12.0) for s in sensors}
     return Trajectory(truth_t, truth, samples, scenario, std)
 
 
@@ -130,7 +136,7 @@ class Run:
 
     def rmse(self, mask=None) -> float:
         error = self.estimate - self.truth
-        return float(np.sqrt(np.mean(error[mask] ** 2 if mask is not None else error ** 2)))
+        return float(np.sqrt(np.mean(error[mask]**2 if mask is not None else error**2)))
 
 
 class InputFeed:
@@ -142,7 +148,8 @@ class InputFeed:
     def until(self, estimator: PressureEstimator, t: float) -> None:
         while self.next < len(self.changes) and self.changes[self.next][0] <= t:
             start, inputs = self.changes[self.next]
-            estimator.set_inputs(inputs.regulator_setpoint_gauge_pa, inputs.regulator_enabled, inputs.valves[0], start)
+            estimator.set_inputs(inputs.regulator_setpoint_gauge_pa, inputs.regulator_enabled,
+                                 inputs.valves[0], start)
             self.next += 1
 
 
@@ -160,7 +167,8 @@ def run(trajectory: Trajectory, config: EstimatorConfig, plant: PneumaticPlant |
         estimator.add_measurement(name, value, t)
         if after_each is not None:
             after_each(estimator)
-        truth = trajectory.truth_at(estimator.time_s)     # the filter's time: samples may wait (fusion window)
+        # the filter's time: samples may wait (fusion window)
+        truth = trajectory.truth_at(estimator.time_s)
         x, P = estimator.filter.x[:, 0], estimator.filter.P
         error = truth - x
         t_out.append(t)
@@ -169,10 +177,12 @@ def run(trajectory: Trajectory, config: EstimatorConfig, plant: PneumaticPlant |
         var.append(P[0, 0])
         tru.append(truth[0])
         nees.append(float(error @ np.linalg.solve(P, error)))
-    return Run(np.array(t_out), np.array(names), np.array(est), np.array(var), np.array(tru), np.array(nees), estimator)
+    return Run(np.array(t_out), np.array(names), np.array(est), np.array(var), np.array(tru),
+               np.array(nees), estimator)
 
 
-def anees(filter_type: str, runs: int = 50, grid=np.linspace(0.25, 2.15, 120), **changes) -> tuple[np.ndarray, tuple]:
+def anees(filter_type: str, runs: int = 50, grid=np.linspace(0.25, 2.15, 120),
+          **changes) -> tuple[np.ndarray, tuple]:
     """Average NEES over ``runs`` Monte Carlo runs at the times ``grid`` (truth with the filter's
     own process noise), and the two-sided 95 % interval chi2(2 runs)/runs for 2 states.
     ``changes``: EstimatorConfig fields to set (``fusion_window_s``).
@@ -185,4 +195,5 @@ def anees(filter_type: str, runs: int = 50, grid=np.linspace(0.25, 2.15, 120), *
         trajectory = simulate(seed=1000 + seed, process_noise_pa2_per_s=q)
         result = run(trajectory, config_for(trajectory, filter_type, **changes))
         values.append(result.nees[np.minimum(np.searchsorted(result.t, grid), len(result.t) - 1)])
-    return np.mean(values, axis=0), (chi2.ppf(0.025, 2 * runs) / runs, chi2.ppf(0.975, 2 * runs) / runs)
+    return np.mean(values,
+                   axis=0), (chi2.ppf(0.025, 2 * runs) / runs, chi2.ppf(0.975, 2 * runs) / runs)

@@ -28,10 +28,11 @@ import uuid
 
 NAN = math.nan
 PHASES = ("IDLE", "OPENING", "ENVELOPED", "CLAMPING", "HOLDING", "RELEASING")
-HOLD_S = 0.5                  # how long the scripted grasp holds before its RELEASE
-OBSERVE_S = 4.0               # the longest a case watches after the injection
+HOLD_S = 0.5  # how long the scripted grasp holds before its RELEASE
+OBSERVE_S = 4.0  # the longest a case watches after the injection
 PHASE_TIMEOUT_S = 5.0
-REPORTS_EXPIRE_S = 6.0        # before fault-free grasps: longer than any report of an earlier fault lasts
+# before fault-free grasps: longer than any report of an earlier fault lasts
+REPORTS_EXPIRE_S = 6.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,46 +56,52 @@ class FaultCase:
 
 
 def _stuck(sensor: str, at: str) -> FaultCase:
-    return FaultCase(f"{sensor}_stuck_{at}", {"sensor_stuck_at": at, "sensor_stuck": sensor},
-                     {"sensor_stuck": "", "sensor_stuck_at": "present"},
-                     ("SENSOR_STUCK", "SENSOR_DISAGREE", "SENSOR_IMPLAUSIBLE", "SENSOR_INCONSISTENT"), (),
-                     "safe", f"{sensor} stuck {'at its reading' if at == 'present' else at}")
+    return FaultCase(
+        f"{sensor}_stuck_{at}", {"sensor_stuck_at": at, "sensor_stuck": sensor},
+        {"sensor_stuck": "", "sensor_stuck_at": "present"},
+        ("SENSOR_STUCK", "SENSOR_DISAGREE", "SENSOR_IMPLAUSIBLE", "SENSOR_INCONSISTENT"), (),
+        "safe", f"{sensor} stuck {'at its reading' if at == 'present' else at}")
 
 
 FAULTS = (
-    *(_stuck(sensor, at) for sensor in ("chamber_a", "chamber_b") for at in ("low", "high", "present")),
+    *(_stuck(sensor, at) for sensor in ("chamber_a", "chamber_b")
+      for at in ("low", "high", "present")),
     FaultCase("bias_plus_20kPa", {"sensor_bias_pa": 20e3}, {"sensor_bias_pa": 0.0},
-              ("SENSOR_IMPLAUSIBLE", "RESPONSE", "SENSOR_DISAGREE", "SENSOR_INCONSISTENT", "OVERPRESSURE"),
-              what="+20 kPa bias on both sensors"),
+              ("SENSOR_IMPLAUSIBLE", "RESPONSE", "SENSOR_DISAGREE", "SENSOR_INCONSISTENT",
+               "OVERPRESSURE"), what="+20 kPa bias on both sensors"),
     FaultCase("bias_minus_20kPa", {"sensor_bias_pa": -20e3}, {"sensor_bias_pa": 0.0},
-              ("SENSOR_IMPLAUSIBLE", "RESPONSE", "SENSOR_DISAGREE", "SENSOR_INCONSISTENT", "OVERPRESSURE"),
-              what="-20 kPa bias on both sensors"),
+              ("SENSOR_IMPLAUSIBLE", "RESPONSE", "SENSOR_DISAGREE", "SENSOR_INCONSISTENT",
+               "OVERPRESSURE"), what="-20 kPa bias on both sensors"),
     FaultCase("dropout_chamber_a", {"sensor_dropout": "chamber_a"}, {"sensor_dropout": ""}, (),
-              ("sensors silent: chamber_a",), "continues", "chamber_a silent (chamber_b carries on)"),
+              ("sensors silent: chamber_a",), "continues",
+              "chamber_a silent (chamber_b carries on)"),
     FaultCase("noise_x10", {"sensor_noise_scale": 10.0}, {"sensor_noise_scale": 1.0},
-              ("SENSOR_NOISE", "SENSOR_INCONSISTENT", "SENSOR_DISAGREE", "SENSOR_IMPLAUSIBLE", "OVERPRESSURE"),
-              what="sensor noise x10"),
-    FaultCase("valve_stuck", {"valve_stuck": True}, {"valve_stuck": False}, ("RESPONSE", "OVERPRESSURE"),
-              what="valves keep their state"),
+              ("SENSOR_NOISE", "SENSOR_INCONSISTENT", "SENSOR_DISAGREE", "SENSOR_IMPLAUSIBLE",
+               "OVERPRESSURE"), what="sensor noise x10"),
+    FaultCase("valve_stuck", {"valve_stuck": True}, {"valve_stuck": False},
+              ("RESPONSE", "OVERPRESSURE"), what="valves keep their state"),
     FaultCase("valve_stuck_open", {"valve_stuck_open": True}, {"valve_stuck_open": False},
               ("RESPONSE", "OVERPRESSURE", "REGULATOR"), what="valves stuck open to SUPPLY"),
-    FaultCase("regulator_overshoot", {"regulator_overshoot_pa": 100e3}, {"regulator_overshoot_pa": 0.0},
-              ("REGULATOR", "OVERPRESSURE", "RESPONSE"), what="regulator settles 100 kPa above its setpoint"),
-    FaultCase("bus_silent", {"bus_silent": True}, {"bus_silent": False}, ("BUS_SILENT", "SENSOR_TIMEOUT"),
-              ("holds the valves closed",), "hold", "the device sends nothing"),
-    FaultCase("corrupt_frames", {"corrupt_rate": 0.3}, {"corrupt_rate": 0.0}, ("FRAMES_REJECTED",), (),
-              "continues", "30 % of frames with a bad CRC or a repeated counter"),
+    FaultCase("regulator_overshoot", {"regulator_overshoot_pa": 100e3},
+              {"regulator_overshoot_pa": 0.0}, ("REGULATOR", "OVERPRESSURE", "RESPONSE"),
+              what="regulator settles 100 kPa above its setpoint"),
+    FaultCase("bus_silent", {"bus_silent": True}, {"bus_silent": False},
+              ("BUS_SILENT", "SENSOR_TIMEOUT"), ("holds the valves closed",), "hold",
+              "the device sends nothing"),
+    FaultCase("corrupt_frames", {"corrupt_rate": 0.3}, {"corrupt_rate": 0.0}, ("FRAMES_REJECTED",),
+              (), "continues", "30 % of frames with a bad CRC or a repeated counter"),
     # a replayed ValveCommand makes the device distrust the controller's frames until 4 arrive in
-    # sequence; its valves may close (OpenLifetime) meanwhile, which the controller's response check
-    # may then find: going on and the safe state are both right
-    FaultCase("replayed_frames", {"replay_rate_hz": 5.0}, {"replay_rate_hz": 0.0}, ("FRAMES_REJECTED",), (),
-              "continues_or_safe", "5 bursts/s of old sensor frames, an old ValveCommand into the device"),
+    # sequence; its valves may close (OpenLifetime) meanwhile, which the controller's response
+    # check may then find: going on and the safe state are both right
+    FaultCase("replayed_frames", {"replay_rate_hz": 5.0}, {"replay_rate_hz": 0.0},
+              ("FRAMES_REJECTED",), (), "continues_or_safe",
+              "5 bursts/s of old sensor frames, an old ValveCommand into the device"),
     FaultCase("future_command", {}, {}, ("COMMAND_REJECTED",), ("in the future",), "continues",
               "a PressureCommand VENT stamped 30 s ahead"),
 )
 FAULTS_BY_NAME = {case.name: case for case in FAULTS}
-SAFETY_FLAGS = ("OVERPRESSURE", "REGULATOR", "SENSOR_DISAGREE", "SENSOR_STUCK", "SENSOR_IMPLAUSIBLE", "SENSOR_NOISE",
-                "RESPONSE", "SENSOR_INCONSISTENT")
+SAFETY_FLAGS = ("OVERPRESSURE", "REGULATOR", "SENSOR_DISAGREE", "SENSOR_STUCK",
+                "SENSOR_IMPLAUSIBLE", "SENSOR_NOISE", "RESPONSE", "SENSOR_INCONSISTENT")
 
 
 @dataclasses.dataclass
@@ -119,8 +126,8 @@ class CaseResult:
 
 def _command(mode, command_id="", **fields):
     from softgrip_interfaces.msg import GraspCommand
-    values = dict(object_diameter_m=NAN, object_mass_kg=NAN, target_tip_spacing_m=NAN, friction_coefficient=NAN,
-                  open_pressure_pa=NAN, clamp_pressure_pa=NAN)
+    values = dict(object_diameter_m=NAN, object_mass_kg=NAN, target_tip_spacing_m=NAN,
+                  friction_coefficient=NAN, open_pressure_pa=NAN, clamp_pressure_pa=NAN)
     values.update(fields)
     return GraspCommand(mode=mode, command_id=command_id, **values)
 
@@ -138,26 +145,34 @@ class Rig:
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.node import Node
         from rclpy.parameter import Parameter
-        from softgrip_interfaces.msg import ControllerStatus, GraspCommand, GripperState, PressureCommand
+        from softgrip_interfaces.msg import (ControllerStatus, GraspCommand, GripperState,
+                                             PressureCommand)
         from softgrip_ros.nodes.common import spinning
         from softgrip_ros.nodes.controller import make_nodes
 
         channel = f"faults-{uuid.uuid4().hex[:8]}"
-        self.nodes = {n.get_name(): n for n in make_nodes(self.context, {
-            "pressure_controller": [Parameter("can.channel", value=channel)]})}
+        self.nodes = {
+            n.get_name(): n
+            for n in make_nodes(self.context,
+                                {"pressure_controller": [Parameter("can.channel", value=channel)]})
+        }
         self.device = self.nodes["sim_device"].device
         self.user = Node(f"fault_matrix_{uuid.uuid4().hex[:6]}", context=self.context)
         now = time.monotonic
-        self.user.create_subscription(GripperState, "grasp_state", lambda m: self._keep(self.states, m, now()), 200)
-        self.user.create_subscription(ControllerStatus, "controller/status", lambda m: self._keep(self.statuses, m, now()), 200)
-        self.user.create_subscription(DiagnosticArray, "/diagnostics",
-                                      lambda m: [self._keep(self.diagnostics, s, now()) for s in m.status], 200)
+        self.user.create_subscription(GripperState, "grasp_state",
+                                      lambda m: self._keep(self.states, m, now()), 200)
+        self.user.create_subscription(ControllerStatus, "controller/status",
+                                      lambda m: self._keep(self.statuses, m, now()), 200)
+        self.user.create_subscription(
+            DiagnosticArray, "/diagnostics",
+            lambda m: [self._keep(self.diagnostics, s, now()) for s in m.status], 200)
         self.grasp = self.user.create_publisher(GraspCommand, "grasp_command", 10)
         self.pressure = self.user.create_publisher(PressureCommand, "pressure/command", 10)
         self._spin = spinning(*self.nodes.values(), self.user, context=self.context, threads=2)
         self._spin.__enter__()
         deadline = now() + 30.0
-        while not (self.states and self.statuses and self.grasp.get_subscription_count()) and now() < deadline:
+        while not (self.states and self.statuses and
+                   self.grasp.get_subscription_count()) and now() < deadline:
             time.sleep(0.05)
         if not self.states:
             self.__exit__(None, None, None)
@@ -183,7 +198,8 @@ class Rig:
         with self.lock:
             return names[self.states[-1][1].phase] if self.states else ""
 
-    def wait_phase(self, phase: str, timeout_s: float = PHASE_TIMEOUT_S, stop_on_fault: bool = True) -> bool:
+    def wait_phase(self, phase: str, timeout_s: float = PHASE_TIMEOUT_S,
+                   stop_on_fault: bool = True) -> bool:
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             current = self.phase()
@@ -196,14 +212,16 @@ class Rig:
 
     def send(self, mode_name: str, **fields) -> None:
         from softgrip_interfaces.msg import GraspCommand
-        self.grasp.publish(_command(getattr(GraspCommand, mode_name), f"matrix-{mode_name.lower()}", **fields))
+        self.grasp.publish(
+            _command(getattr(GraspCommand, mode_name), f"matrix-{mode_name.lower()}", **fields))
 
     def evidence_since(self, since: float, case: FaultCase):
         """(time, text) of the first evidence naming ``case`` since ``since``, or None."""
         from softgrip_interfaces.msg import ControllerStatus
         bits = [getattr(ControllerStatus, f"FAULT_{flag}") for flag in case.flags]
         with self.lock:
-            statuses, diagnostics, states = list(self.statuses), list(self.diagnostics), list(self.states)
+            statuses, diagnostics = list(self.statuses), list(self.diagnostics)
+            states = list(self.states)
         found = []
         for when, status in statuses:
             if when >= since and any(status.fault_flags & bit for bit in bits):
@@ -226,24 +244,33 @@ class Rig:
         safety = sum(getattr(ControllerStatus, f"FAULT_{flag}") for flag in SAFETY_FLAGS)
         with self.lock:
             diagnostics, statuses = list(self.diagnostics), list(self.statuses)
-        found = [f"{s.name}: {s.message}" for when, s in diagnostics
-                 if when >= since and s.name.startswith("softgrip") and _level(s) >= 1]
-        found += [f"controller/status: {s.message}" for when, s in statuses if when >= since and s.fault_flags & safety]
+        found = [
+            f"{s.name}: {s.message}" for when, s in diagnostics
+            if when >= since and s.name.startswith("softgrip") and _level(s) >= 1
+        ]
+        found += [
+            f"controller/status: {s.message}" for when, s in statuses
+            if when >= since and s.fault_flags & safety
+        ]
         return found
 
     def reset(self) -> bool:
-        """Every fault cleared, the grasp stopped and vented, the controller out of its safe state."""
-        for name, value in (("sensor_stuck", ""), ("sensor_stuck_at", "present"), ("sensor_bias_pa", 0.0),
-                            ("sensor_noise_scale", 1.0), ("sensor_dropout", ""), ("valve_stuck", False),
-                            ("valve_stuck_open", False), ("regulator_overshoot_pa", 0.0), ("bus_silent", False),
-                            ("corrupt_rate", 0.0), ("replay_rate_hz", 0.0)):
+        """Every fault cleared, the grasp stopped and vented, the controller out of its safe
+        state."""
+        for name, value in (("sensor_stuck", ""), ("sensor_stuck_at", "present"),
+                            ("sensor_bias_pa", 0.0), ("sensor_noise_scale", 1.0),
+                            ("sensor_dropout", ""), ("valve_stuck", False),
+                            ("valve_stuck_open", False), ("regulator_overshoot_pa", 0.0),
+                            ("bus_silent", False), ("corrupt_rate", 0.0), ("replay_rate_hz", 0.0)):
             self.device.set_fault(name, value)
         controller = self.nodes["pressure_controller"].controller
         for _ in range(3):
-            time.sleep(controller.config.safety.clear_time_s + 0.1)    # the evidence must be gone for this long
+            # the evidence must be gone for this long
+            time.sleep(controller.config.safety.clear_time_s + 0.1)
             self.send("STOP")
-            if self.wait_phase("IDLE", 3.0, stop_on_fault=False) and controller.last_output is not None \
-                    and controller.last_output.mode.name != "FAULT":
+            if (self.wait_phase("IDLE", 3.0, stop_on_fault=False) and
+                    controller.last_output is not None and
+                    controller.last_output.mode.name != "FAULT"):
                 return True
         return False
 
@@ -276,7 +303,8 @@ def _inject(rig: Rig, case: FaultCase) -> None:
     if case.name == "future_command":
         from softgrip_interfaces.msg import PressureCommand
         from softgrip_ros.nodes.common import stamp_msg
-        message = PressureCommand(target_gauge_pressure_pa=0.0, max_rate_pa_per_s=NAN, source=PressureCommand.VENT)
+        message = PressureCommand(target_gauge_pressure_pa=0.0, max_rate_pa_per_s=NAN,
+                                  source=PressureCommand.VENT)
         message.header.stamp = stamp_msg(rig.user.get_clock().now().nanoseconds * 1e-9 + 30.0)
         rig.pressure.publish(message)
         return
@@ -308,8 +336,11 @@ def _script_until(rig: Rig, phase: str) -> bool:
 
 def _script_on(rig: Rig, phase: str, deadline: float) -> None:
     """Go on with the grasp from ``phase`` as an arm would, until IDLE, FAULT or the deadline."""
-    steps = {"IDLE": ["start", "clamp", "release"], "OPENING": ["clamp", "release"], "ENVELOPED": ["clamp", "release"],
-             "CLAMPING": ["release"], "HOLDING": ["release"], "RELEASING": []}[phase]
+    steps = {
+        "IDLE": ["start", "clamp",
+                 "release"], "OPENING": ["clamp", "release"], "ENVELOPED": ["clamp", "release"],
+        "CLAMPING": ["release"], "HOLDING": ["release"], "RELEASING": []
+    }[phase]
     for step in steps:
         if time.monotonic() >= deadline or rig.phase() == "FAULT":
             return
@@ -333,11 +364,13 @@ def _end_state(rig: Rig, case: FaultCase) -> tuple[bool, str]:
     valves = rig.device.valves()
     phase = rig.phase()
     described = (f"controller {controller.mode.name if controller else '?'}, device valves "
-                 f"{'/'.join(v.name for v in valves)}, regulator {'on' if rig.device.regulator_enabled() else 'off'}, "
-                 f"grasp {phase}" + (f" ({controller.message[:120]})" if controller and controller.mode.name == "FAULT" else ""))
+                 f"{'/'.join(v.name for v in valves)}, regulator "
+                 f"{'on' if rig.device.regulator_enabled() else 'off'}, "
+                 f"grasp {phase}" + (f" ({controller.message[:120]})"
+                                     if controller and controller.mode.name == "FAULT" else ""))
     if case.end == "safe":
-        ok = (controller is not None and controller.mode.name == "FAULT" and not rig.device.regulator_enabled()
-              and phase == "FAULT")
+        ok = (controller is not None and controller.mode.name == "FAULT" and
+              not rig.device.regulator_enabled() and phase == "FAULT")
         # the device obeys VENT unless its valves are stuck; then the sources are cut instead
         ok = ok and (all(v.name == "VENT" for v in valves) or case.name.startswith("valve_stuck"))
     elif case.end == "hold":
@@ -345,16 +378,16 @@ def _end_state(rig: Rig, case: FaultCase) -> tuple[bool, str]:
     else:
         ok = phase in ("IDLE", "HOLDING", "ENVELOPED", "OPENING", "CLAMPING", "RELEASING")
         if case.end == "continues_or_safe" and not ok:
-            ok = controller is not None and controller.mode.name == "FAULT" and not rig.device.regulator_enabled()
+            ok = (controller is not None and controller.mode.name == "FAULT" and
+                  not rig.device.regulator_enabled())
     return ok, described
 
 
 def run_case(rig: Rig, case: FaultCase, phase: str) -> CaseResult:
     result = CaseResult(case.name, phase)
-    from softgrip_ros.control.pressure import PressureControlConfig
     config = rig.nodes["pressure_controller"].controller.config
-    low_limit, high_limit = config.min_gauge_pa - config.overpressure_margin_pa, config.max_gauge_pa + config.overpressure_margin_pa
-    del PressureControlConfig
+    low_limit = config.min_gauge_pa - config.overpressure_margin_pa
+    high_limit = config.max_gauge_pa + config.overpressure_margin_pa
     if not rig.reset():
         result.problem = "could not reset the suite before the case"
         return result
@@ -368,10 +401,11 @@ def run_case(rig: Rig, case: FaultCase, phase: str) -> CaseResult:
     _script_on(rig, phase, deadline)
     while time.monotonic() < deadline and rig.evidence_since(injected, case) is None:
         time.sleep(0.01)
-    time.sleep(0.3)                                            # the end state settles
+    time.sleep(0.3)  # the end state settles
     evidence = rig.evidence_since(injected, case)
     if evidence is not None:
-        result.detected, result.detection_s, result.evidence = True, evidence[0] - injected, evidence[1][:220]
+        result.detected, result.detection_s, result.evidence = True, evidence[
+            0] - injected, evidence[1][:220]
     result.end_state_ok, result.end_state = _end_state(rig, case)
     result.true_low_pa, result.true_high_pa = rig.device.true_extremes()
     result.within_limits = low_limit <= result.true_low_pa and result.true_high_pa <= high_limit
@@ -389,7 +423,8 @@ def false_alarms(rig: Rig, grasps: int) -> tuple[int, list]:
     """Fault-free grasps: (number of WARN-or-worse diagnostics and safety flags, their texts)."""
     if not rig.reset():
         raise RuntimeError("could not reset the suite")
-    time.sleep(REPORTS_EXPIRE_S)          # the reports of earlier faults (a refusal is reported for 5 s) run out
+    # the reports of earlier faults (a refusal is reported for 5 s) run out
+    time.sleep(REPORTS_EXPIRE_S)
     since = time.monotonic()
     problems = []
     for _ in range(grasps):
@@ -397,7 +432,8 @@ def false_alarms(rig: Rig, grasps: int) -> tuple[int, list]:
         if problem:
             problems.append(f"grasp failed: {problem}")
         time.sleep(0.3)
-    time.sleep(1.2)                                            # the 1 Hz diagnostics of the last grasp
+    # the 1 Hz diagnostics of the last grasp
+    time.sleep(1.2)
     warnings = rig.warnings_since(since)
     return len(warnings) + len(problems), warnings + problems
 
@@ -414,6 +450,12 @@ def summarise(results: list) -> dict:
         "undetected": sum(not r.detected for r in results),
         "wrong_end_state": sum(not r.end_state_ok for r in results),
         "not_recovered": sum(not r.recovered for r in results),
-        "detection_s": {fault: {"median": statistics.median(v), "max": max(v)} for fault, v in latencies.items()},
-        "true_range_pa": [min(r.true_low_pa for r in results), max(r.true_high_pa for r in results)],
+        "detection_s": {
+            fault: {"median": statistics.median(v), "max": max(v)}
+            for fault, v in latencies.items()
+        },
+        "true_range_pa": [
+            min(r.true_low_pa for r in results),
+            max(r.true_high_pa for r in results)
+        ],
     }

@@ -21,11 +21,11 @@ class Row:
     quantity: str
     unit: str
     paper: float
-    role: str                  # "fitted", "held out", "geometry"
+    role: str  # "fitted", "held out", "geometry"
     l0_uncalibrated: float
     l0_calibrated: float
     l1: float
-    pressure_pa: float         # where the quantity is taken (for the "validated range" column)
+    pressure_pa: float  # where the quantity is taken (for the "validated range" column)
 
     def error_pct(self, value: float) -> float:
         return 100.0 * (value - self.paper) / self.paper if self.paper else math.nan
@@ -34,7 +34,8 @@ class Row:
 def models(cavity_type: str = "type_II"):
     geometry = load_geometry(cavity_type)
     calibrated = load_calibration(cavity_type)
-    uncalibrated = BendingCalibration(gain=1.0, validated_max_pressure_pa=calibrated.validated_max_pressure_pa)
+    uncalibrated = BendingCalibration(
+        gain=1.0, validated_max_pressure_pa=calibrated.validated_max_pressure_pa)
     kwargs = dict(max_pressure_pa=GripperKinematics.MODEL_MAX_PRESSURE_PA)
     return (GripperKinematics(geometry, uncalibrated, model="l0", **kwargs),
             GripperKinematics(geometry, calibrated, model="l0", **kwargs),
@@ -53,25 +54,35 @@ def rows(paper: PaperNumbers | None = None) -> list[Row]:
         return [function(kin) for kin in variants]
 
     table = [
-        Row("alpha at 0 kPa", "deg", 15.0, "geometry", *each(lambda k: math.degrees(k.pose(0.0).included_angle_rad)), 0.0),
+        Row("alpha at 0 kPa", "deg", 15.0, "geometry",
+            *each(lambda k: math.degrees(k.pose(0.0).included_angle_rad)), 0.0),
         Row("alpha at 25 kPa", "deg", math.degrees(paper.alpha_25kpa_rad["type_II"]), "fitted",
             *each(lambda k: math.degrees(k.pose(25e3).included_angle_rad)), 25e3),
-        Row("D2 at 0 kPa", "mm", paper.d2_0_m * 1e3, "geometry", *each(lambda k: k.pose(0.0).tip_spacing_m * 1e3), 0.0),
-        Row("D2 at 50 kPa", "mm", paper.d2_50kpa_m * 1e3, "fitted", *each(lambda k: k.pose(50e3).tip_spacing_m * 1e3), 50e3),
-        Row("D1 at 0 kPa", "mm", paper.d1_0_m * 1e3, "held out", *each(lambda k: k.pose(0.0).root_spacing_m * 1e3), 0.0),
-        Row("D1 at 50 kPa", "mm", paper.d1_50kpa_m * 1e3, "held out", *each(lambda k: k.pose(50e3).root_spacing_m * 1e3), 50e3),
-        Row("curvature growth 50->55 kPa", "%", paper.growth_50_55 * 100, "fitted", *each(lambda k: _growth_pct(k, 50e3, 55e3)), 55e3),
-        Row("curvature growth 55->60 kPa", "%", paper.growth_55_60 * 100, "fitted", *each(lambda k: _growth_pct(k, 55e3, 60e3)), 60e3),
+        Row("D2 at 0 kPa", "mm", paper.d2_0_m * 1e3, "geometry",
+            *each(lambda k: k.pose(0.0).tip_spacing_m * 1e3), 0.0),
+        Row("D2 at 50 kPa", "mm", paper.d2_50kpa_m * 1e3, "fitted",
+            *each(lambda k: k.pose(50e3).tip_spacing_m * 1e3), 50e3),
+        Row("D1 at 0 kPa", "mm", paper.d1_0_m * 1e3, "held out",
+            *each(lambda k: k.pose(0.0).root_spacing_m * 1e3), 0.0),
+        Row("D1 at 50 kPa", "mm", paper.d1_50kpa_m * 1e3, "held out",
+            *each(lambda k: k.pose(50e3).root_spacing_m * 1e3), 50e3),
+        Row("curvature growth 50->55 kPa", "%", paper.growth_50_55 * 100, "fitted",
+            *each(lambda k: _growth_pct(k, 50e3, 55e3)), 55e3),
+        Row("curvature growth 55->60 kPa", "%", paper.growth_55_60 * 100, "fitted",
+            *each(lambda k: _growth_pct(k, 55e3, 60e3)), 60e3),
     ]
     return table
 
 
 def summary(paper: PaperNumbers | None = None) -> dict:
-    """The --json figures (calibrated L0, the production model), plus L1 and the uncalibrated L0."""
+    """The --json figures (calibrated L0, the production model), plus L1 and the uncalibrated
+    L0."""
     paper = paper or PaperNumbers.load()
     table = {row.quantity: row for row in rows(paper)}
     validated_max = models()[1].calibration.validated_max_pressure_pa
-    in_range = [row for row in table.values() if row.pressure_pa <= min(45e3, validated_max) and row.paper]
+    in_range = [
+        row for row in table.values() if row.pressure_pa <= min(45e3, validated_max) and row.paper
+    ]
     result = {
         "alpha_25kPa_deg": table["alpha at 25 kPa"].l0_calibrated,
         "D1_50kPa_mm": table["D1 at 50 kPa"].l0_calibrated,
@@ -79,7 +90,8 @@ def summary(paper: PaperNumbers | None = None) -> dict:
         "curvature_growth_50_55_pct": table["curvature growth 50->55 kPa"].l0_calibrated,
         "curvature_growth_55_60_pct": table["curvature growth 55->60 kPa"].l0_calibrated,
         "max_model_err_pct_to_45kPa": max(abs(r.error_pct(r.l0_calibrated)) for r in in_range),
-        "max_model_err_quantity_to_45kPa": max(in_range, key=lambda r: abs(r.error_pct(r.l0_calibrated))).quantity,
+        "max_model_err_quantity_to_45kPa": max(
+            in_range, key=lambda r: abs(r.error_pct(r.l0_calibrated))).quantity,
         "fitted_constants": 4,
         "fitted_to_numbers": 4,
         "held_out": [r.quantity for r in table.values() if r.role == "held out"],

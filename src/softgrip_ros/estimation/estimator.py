@@ -50,14 +50,18 @@ import numpy as np
 from scipy.stats import chi2
 
 from softgrip_ros.checks import require_positive
-from softgrip_ros.estimation.filters import CHAMBER, FILTER_TYPES, REGULATOR, make_filter, plant_step
+from softgrip_ros.estimation.filters import (CHAMBER, FILTER_TYPES, REGULATOR, make_filter,
+                                             plant_step)
 from softgrip_ros.health import Health, Report
 from softgrip_ros.model.pneumatics import PlantInputs, PneumaticPlant, Valve
 
-_H_CHAMBER = np.array([[1.0, 0.0]])      # every sensor measures the chamber
-NIS_EVIDENCE_SAMPLES = 25                 # the recent NIS the safety checks judge (see nis_evidence)
-MAX_PREDICTION_STEPS = 200                # a longer gap is predicted in larger steps (backward Euler is stable)
-REST_GATE_D2 = 9.0                        # 3 sigma: a sample this far from the estimate ends a rest
+_H_CHAMBER = np.array([[1.0, 0.0]])  # every sensor measures the chamber
+# the recent NIS the safety checks judge (see nis_evidence)
+NIS_EVIDENCE_SAMPLES = 25
+# a longer gap is predicted in larger steps (backward Euler is stable)
+MAX_PREDICTION_STEPS = 200
+# 3 sigma: a sample this far from the estimate ends a rest
+REST_GATE_D2 = 9.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,9 +77,15 @@ class SensorConfig:
         if not self.name:
             raise ValueError("a sensor needs a name")
         if not (math.isfinite(self.noise_std_pa) and self.noise_std_pa > 0.0):
-            raise ValueError(f"sensor {self.name}: noise_std_pa must be positive and finite, got {self.noise_std_pa}")
+            raise ValueError(
+                f"sensor {self.name}: noise_std_pa must be positive and finite, got "
+                f"{self.noise_std_pa}"
+            )
         if not (math.isfinite(self.rejection_threshold) and self.rejection_threshold > 0.0):
-            raise ValueError(f"sensor {self.name}: rejection_threshold must be positive, got {self.rejection_threshold}")
+            raise ValueError(
+                f"sensor {self.name}: rejection_threshold must be positive, got "
+                f"{self.rejection_threshold}"
+            )
 
 
 def process_noise_matrix(values) -> np.ndarray:
@@ -88,7 +98,8 @@ def process_noise_matrix(values) -> np.ndarray:
     elif len(values) == 4:
         matrix = np.array(values).reshape(2, 2)
     else:
-        raise ValueError(f"process noise needs 2 values (diagonal) or 4 (full 2x2), got {len(values)}")
+        raise ValueError(
+            f"process noise needs 2 values (diagonal) or 4 (full 2x2), got {len(values)}")
     if not np.all(np.isfinite(matrix)):
         raise ValueError("process noise must be finite")
     if not np.allclose(matrix, matrix.T):
@@ -123,22 +134,26 @@ class EstimatorConfig:
 
     def __post_init__(self):
         if self.filter_type not in FILTER_TYPES:
-            raise ValueError(f"filter_type must be one of {list(FILTER_TYPES)}, got {self.filter_type!r}")
+            raise ValueError(
+                f"filter_type must be one of {list(FILTER_TYPES)}, got {self.filter_type!r}")
         if not self.sensors:
             raise ValueError("the estimator needs at least one sensor")
         names = [s.name for s in self.sensors]
         if len(set(names)) != len(names):
             raise ValueError(f"sensor names must be unique, got {names}")
         process_noise_matrix(self.process_noise_pa2_per_s)
-        require_positive(self, "sensor_timeout_s", "max_step_s", "max_lag_s", "initial_regulator_std_pa",
-                         "max_fusion_shift_pa")
+        require_positive(self, "sensor_timeout_s", "max_step_s", "max_lag_s",
+                         "initial_regulator_std_pa", "max_fusion_shift_pa")
         if not 0.0 <= self.input_timing_std_s <= 0.1:
-            raise ValueError(f"input_timing_std_s must lie in [0, 0.1] s, got {self.input_timing_std_s}")
-        if not 0.0 <= self.fusion_window_s <= self.max_lag_s:     # a waiting sample is no older than a taken one
+            raise ValueError(
+                f"input_timing_std_s must lie in [0, 0.1] s, got {self.input_timing_std_s}")
+        # a waiting sample is no older than a taken one
+        if not 0.0 <= self.fusion_window_s <= self.max_lag_s:
             raise ValueError(f"fusion_window_s must lie in [0, max_lag_s = {self.max_lag_s:g}] s, "
                              f"got {self.fusion_window_s}")
         if not 0.0 <= self.nis_input_settle_s <= 1.0:
-            raise ValueError(f"nis_input_settle_s must lie in [0, 1] s, got {self.nis_input_settle_s}")
+            raise ValueError(
+                f"nis_input_settle_s must lie in [0, 1] s, got {self.nis_input_settle_s}")
         if self.nis_window < 10:
             raise ValueError(f"nis_window must be at least 10 samples, got {self.nis_window}")
         if not 0.5 < self.nis_confidence < 1.0:
@@ -156,7 +171,8 @@ class SensorStats:
     consecutive_rejections: int = 0
     last_stamp_s: float = -math.inf
     nis: collections.deque = dataclasses.field(default_factory=collections.deque)
-    nis_settling: int = 0              # samples kept out of the NIS window, just after an input change
+    # samples kept out of the NIS window, just after an input change
+    nis_settling: int = 0
 
     def mean_nis(self) -> float:
         return float(np.mean(self.nis)) if self.nis else math.nan
@@ -179,12 +195,12 @@ def _shared_walk_variance(walks: list, total_weight: float) -> float:
     """The variance of a weighted mean of samples from the random walk each shares with the
     younger ones: q times the integral of A(t)^2, A(t) the weight of the samples taken before t.
     ``walks``: [(walk variance, weight)] of the samples with a walk (sorted here, in place)."""
-    walks.sort(reverse=True)                       # the oldest (longest walk) first
+    walks.sort(reverse=True)  # the oldest (longest walk) first
     variance, earlier_weight = 0.0, 0.0
     for k, (walk, weight) in enumerate(walks):
         earlier_weight += weight / total_weight
         walk_after = walks[k + 1][0] if k + 1 < len(walks) else 0.0
-        variance += earlier_weight ** 2 * (walk - walk_after)
+        variance += earlier_weight**2 * (walk - walk_after)
     return variance
 
 
@@ -195,41 +211,48 @@ class PressureEstimator:
         self.config = config or EstimatorConfig()
         self.plant = plant or PneumaticPlant()
         self.sensors = {s.name: s for s in self.config.sensors}
-        self._variance = {s.name: s.noise_std_pa ** 2 for s in self.config.sensors}
-        self.stats = {s.name: SensorStats(nis=collections.deque(maxlen=self.config.nis_window))
-                      for s in self.config.sensors}
+        self._variance = {s.name: s.noise_std_pa**2 for s in self.config.sensors}
+        self.stats = {
+            s.name: SensorStats(nis=collections.deque(maxlen=self.config.nis_window))
+            for s in self.config.sensors
+        }
         self.q_continuous = process_noise_matrix(self.config.process_noise_pa2_per_s)
         window = self.config.nis_window
         tail = 0.5 * (1.0 - self.config.nis_confidence)
         self.nis_bounds = (chi2.ppf(tail, window) / window, chi2.ppf(1.0 - tail, window) / window)
         self.inputs = PlantInputs()
-        self._inputs_changed_s = -math.inf     # the stamp of the last input change (see nis_input_settle_s)
+        # the stamp of the last input change (see nis_input_settle_s)
+        self._inputs_changed_s = -math.inf
         self.filter = None
         self.time_s = math.nan
         self.reinitialisations = 0
-        self._pending = []                   # [(name, gauge, stamp)] taken, not yet fused
-        self.resting = False                 # samples wait for a fusion window (see add_measurement)
-        self._one_step = False               # ... and the window is predicted in one step (see fuse_pending)
+        self._pending = []  # [(name, gauge, stamp)] taken, not yet fused
+        # samples wait for a fusion window (see add_measurement)
+        self.resting = False
+        # ... and the window is predicted in one step (see fuse_pending)
+        self._one_step = False
 
     # ---- inputs and time ----------------------------------------------------------------------
     @property
     def initialised(self) -> bool:
         return self.filter is not None
 
-    def set_inputs(self, regulator_command_gauge_pa: float, regulator_enabled: bool, valve: int, stamp_s: float) -> None:
-        """The process model's inputs from ``stamp_s`` on (the controller's regulator command and valve)."""
+    def set_inputs(self, regulator_command_gauge_pa: float, regulator_enabled: bool, valve: int,
+                   stamp_s: float) -> None:
+        """The process model's inputs from ``stamp_s`` on (the controller's regulator command and
+        valve)."""
         if not (math.isfinite(regulator_command_gauge_pa) and math.isfinite(stamp_s)):
             raise ValueError("inputs need a finite regulator command and stamp")
         inputs = PlantInputs(regulator_command_gauge_pa, bool(regulator_enabled), (Valve(valve),))
         if inputs == self.inputs:
-            return     # the model runs on as it was: nothing to fuse early, nothing to predict to
-        self.fuse_pending()                   # under the inputs they were taken with
+            return  # the model runs on as it was: nothing to fuse early, nothing to predict to
+        self.fuse_pending()  # under the inputs they were taken with
         if self.initialised and stamp_s > self.time_s:
             self._predict_to(stamp_s)
         if self.initialised and self.config.input_timing_std_s > 0.0:
             d = self._widen_for_input_timing(inputs)
-            # a change whose timing matters against the sensors' noise opens a NIS settle window; the
-            # trim's small regulator steps (a status every 20 ms while regulating) do not
+            # a change whose timing matters against the sensors' noise opens a NIS settle window;
+            # the trim's small regulator steps (a status every 20 ms while regulating) do not
             quietest = min(s.noise_std_pa for s in self.config.sensors)
             if abs(d[CHAMBER]) > quietest or abs(d[REGULATOR]) > 10.0 * quietest:
                 self._inputs_changed_s = stamp_s
@@ -240,7 +263,8 @@ class PressureEstimator:
         period, the bus, a stalled thread on either side), so the state is uncertain by the change
         in its rate times that: P grows by d d' with d = (rate after - rate before) * sigma_t.
         Without it, a boosted fill starting a few ms off its stamp put the estimate kilopascals
-        behind with a tight P, and the gate rejected every sample until the lockout reset the filter."""
+        behind with a tight P, and the gate rejected every sample until the lockout reset the
+        filter."""
         x, step_s = self.filter.x[:, 0], 1e-3
         rate_before = (plant_step(self.plant, x, step_s, self.inputs) - x) / step_s
         rate_after = (plant_step(self.plant, x, step_s, inputs) - x) / step_s
@@ -258,7 +282,8 @@ class PressureEstimator:
         if not self.initialised or not stamp_s > self.time_s:
             return
         remaining = stamp_s - self.time_s
-        steps = min(max(1, math.ceil(remaining / (max_step_s or self.config.max_step_s) - 1e-9)), MAX_PREDICTION_STEPS)
+        steps = min(max(1, math.ceil(remaining / (max_step_s or self.config.max_step_s) - 1e-9)),
+                    MAX_PREDICTION_STEPS)
         for _ in range(steps):
             self.filter.predict(remaining / steps, self.inputs)
         self.time_s = stamp_s
@@ -266,7 +291,8 @@ class PressureEstimator:
     # ---- measurements -------------------------------------------------------------------------
     def add_measurement(self, name: str, gauge_pa: float, stamp_s: float) -> bool:
         """Take one sample; True when it was taken: fused now or, with a fusion window, pending
-        until the next fusion (whose gate may still reject it). Unknown sensors raise ValueError."""
+        until the next fusion (whose gate may still reject it). Unknown sensors raise
+        ValueError."""
         if self.config.fusion_window_s <= 0.0 or not self.initialised:
             return self.add_measurements({name: gauge_pa}, stamp_s)[name]
         if not self._screen(name, gauge_pa, stamp_s):
@@ -286,7 +312,10 @@ class PressureEstimator:
     def add_measurements(self, samples: dict, stamp_s: float) -> dict:
         """Fuse samples of several sensors taken at one instant, now; {name: used}."""
         self.fuse_pending()
-        valid = {name: float(value) for name, value in samples.items() if self._screen(name, value, stamp_s)}
+        valid = {
+            name: float(value)
+            for name, value in samples.items() if self._screen(name, value, stamp_s)
+        }
         used = {name: False for name in samples}
         if not valid:
             return used
@@ -296,10 +325,13 @@ class PressureEstimator:
         if self._late(valid, stamp_s):
             return used
         self._predict_to(stamp_s)
-        return {**used, **self._fuse([(name, value, 0.0) for name, value in valid.items()], stamp_s)}
+        return {
+            **used, **self._fuse([(name, value, 0.0) for name, value in valid.items()], stamp_s)
+        }
 
     def fuse_pending(self) -> None:
-        """Fuse the samples taken since the last fusion in one filter step, at the newest one's stamp.
+        """Fuse the samples taken since the last fusion in one filter step, at the newest one's
+        stamp.
 
         Each sample is moved to that instant by the model's change of the chamber between its
         stamp and the fusion's, and its variance grows by the chamber's process noise over the gap.
@@ -317,19 +349,23 @@ class PressureEstimator:
         ``max_step_s``. One backward-Euler step is off from fine steps by up to ~30 % of that
         change (under 20 Pa, the sensors' noise is 150-300 Pa). Over 30 simulated trajectories
         with a 20 ms window it moved the RMSE by under 0.4 % and the ANEES after each fusion by
-        under 0.15 (towards 2), and the node's window keeps the NEES consistent (tests/test_estimation.py)."""
+        under 0.15 (towards 2), and the node's window keeps the NEES consistent
+        (tests/test_estimation.py)."""
         pending, self._pending = self._pending, []
         if not pending:
             return
         stamp_s = max(stamp for _, _, stamp in pending)
         start_s, start_gauge = self.time_s, float(self.filter.x[CHAMBER, 0])
-        self._predict_to(stamp_s, max(self.config.max_step_s, self.config.fusion_window_s) if self._one_step else None)
+        self._predict_to(
+            stamp_s,
+            max(self.config.max_step_s, self.config.fusion_window_s) if self._one_step else None)
         change_pa, span_s = float(self.filter.x[CHAMBER, 0]) - start_gauge, stamp_s - start_s
         q_chamber = self.q_continuous[CHAMBER, CHAMBER]
         moved = []
         for name, value, stamp in pending:
             still_to_come = min(max((stamp_s - stamp) / span_s, 0.0), 1.0) if span_s > 0.0 else 0.0
-            moved.append((name, value + still_to_come * change_pa, q_chamber * (stamp_s - max(stamp, start_s))))
+            moved.append((name, value + still_to_come * change_pa,
+                          q_chamber * (stamp_s - max(stamp, start_s))))
         self._fuse(moved, stamp_s)
 
     def _window_rests(self) -> tuple[bool, bool]:
@@ -349,10 +385,12 @@ class PressureEstimator:
         """A sample beyond REST_GATE_D2 of the estimate: the chamber moves without the model
         knowing (a leak, a squeeze). It ends the rest and is fused at once."""
         x, P = self.filter.x, self.filter.P
-        return (value - x[CHAMBER, 0]) ** 2 > REST_GATE_D2 * (P[CHAMBER, CHAMBER] + self._variance[name])
+        return (value -
+                x[CHAMBER, 0])**2 > REST_GATE_D2 * (P[CHAMBER, CHAMBER] + self._variance[name])
 
     def _screen(self, name: str, value: float, stamp_s: float) -> bool:
-        """Whether a sample is a number (counted as invalid if not); ValueError for an unknown sensor."""
+        """Whether a sample is a number (counted as invalid if not); ValueError for an unknown
+        sensor."""
         if name not in self.sensors:
             raise ValueError(f"unknown sensor {name!r}; configured: {sorted(self.sensors)}")
         if math.isfinite(value) and math.isfinite(stamp_s):
@@ -386,11 +424,12 @@ class PressureEstimator:
         linear and the noises independent. The innovation covariance stays 1x1 (a larger one
         sent scipy's inverse into OpenBLAS's threads, which spin)."""
         used, total, weighted_sum, noise_part, walks = {}, 0.0, 0.0, 0.0, []
-        x_chamber, p_chamber = float(self.filter.x[CHAMBER, 0]), float(self.filter.P[CHAMBER, CHAMBER])
+        x_chamber, p_chamber = float(self.filter.x[CHAMBER, 0]), float(self.filter.P[CHAMBER,
+                                                                                     CHAMBER])
         for name, value, walk_variance in samples:
             stats = self.stats[name]
             noise_variance = self._variance[name]
-            d2 = (value - x_chamber) ** 2 / (p_chamber + noise_variance + walk_variance)
+            d2 = (value - x_chamber)**2 / (p_chamber + noise_variance + walk_variance)
             if stamp_s - self._inputs_changed_s >= self.config.nis_input_settle_s:
                 stats.nis.append(d2)
             else:
@@ -410,7 +449,8 @@ class PressureEstimator:
                     walks.append((walk_variance, weight))
                 used[name] = True
         if total > 0.0:
-            mean, variance = weighted_sum / total, noise_part / total ** 2 + _shared_walk_variance(walks, total)
+            mean = weighted_sum / total
+            variance = noise_part / total**2 + _shared_walk_variance(walks, total)
             self.filter.update(np.array([[mean]]), _H_CHAMBER, np.array([[variance]]))
         elif self._locked_out(stamp_s):
             self._initialise({name: value for name, value, _ in samples}, stamp_s)
@@ -423,13 +463,14 @@ class PressureEstimator:
         return bool(alive) and all(self.stats[n].consecutive_rejections >= limit for n in alive)
 
     def _initialise(self, samples: dict, stamp_s: float) -> None:
-        weights = {n: 1.0 / self.sensors[n].noise_std_pa ** 2 for n in samples}
+        weights = {n: 1.0 / self.sensors[n].noise_std_pa**2 for n in samples}
         total = sum(weights.values())
         mean = sum(weights[n] * samples[n] for n in samples) / total
         x0 = np.array([mean, mean])
-        P0 = np.diag([1.0 / total, self.config.initial_regulator_std_pa ** 2])
+        P0 = np.diag([1.0 / total, self.config.initial_regulator_std_pa**2])
         if self.filter is None:
-            self.filter = make_filter(self.config.filter_type, self.plant, x0, P0, self.q_continuous)
+            self.filter = make_filter(self.config.filter_type, self.plant, x0, P0,
+                                      self.q_continuous)
         else:
             self.filter.reset(x0, P0)
         for name in samples:
@@ -442,7 +483,10 @@ class PressureEstimator:
 
     # ---- outputs ------------------------------------------------------------------------------
     def alive_sensors(self, now: float) -> list:
-        return [n for n, s in self.stats.items() if now - s.last_stamp_s <= self.config.sensor_timeout_s]
+        return [
+            n for n, s in self.stats.items()
+            if now - s.last_stamp_s <= self.config.sensor_timeout_s
+        ]
 
     def estimate(self, at_s: float | None = None) -> Estimate | None:
         """The estimate at the filter's time (after fusing the samples pending), or predicted to
@@ -470,17 +514,20 @@ class PressureEstimator:
             return ""
         mean, (low, high) = stats.mean_nis(), self.nis_bounds
         if mean > high:
-            return f"{name}: mean NIS {mean:.2f} above {high:.2f} (the filter is overconfident, or the sensor is biased)"
+            return (f"{name}: mean NIS {mean:.2f} above {high:.2f} (the filter is overconfident, "
+                    "or the sensor is biased)")
         if mean < low:
-            return f"{name}: mean NIS {mean:.2f} below {low:.2f} (the filter is over-cautious: R or Q too large)"
+            return (f"{name}: mean NIS {mean:.2f} below {low:.2f} (the filter is over-cautious: R "
+                    "or Q too large)")
         return ""
 
     def nis_evidence(self) -> dict:
         """{sensor: the median of its last NIS_EVIDENCE_SAMPLES NIS values}, for the pressure
         controller's safety checks (compared there with a multiple of ``nis_bounds[1]``). Not the
         window's mean: that outlives a sensor's recovery by the window's length (a second for the
-        200 Hz sensor), and one transient moves it; the recent median does neither (a stuck sensor's
-        is in the tens of thousands, a healthy one's near 0.45, the median of chi-square 1)."""
+        200 Hz sensor), and one transient moves it; the recent median does neither (a stuck
+        sensor's is in the tens of thousands, a healthy one's near 0.45, the median of chi-square
+        1)."""
         evidence = {}
         for name, stats in self.stats.items():
             if len(stats.nis) >= NIS_EVIDENCE_SAMPLES:
@@ -491,23 +538,35 @@ class PressureEstimator:
     def report(self, now: float) -> Report:
         alive = self.alive_sensors(now)
         verdicts = {n: self.nis_verdict(n) for n in self.stats}
-        problems = [v for n, v in verdicts.items() if v and self.stats[n].mean_nis() > self.nis_bounds[1]]
-        notes = [v for n, v in verdicts.items() if v and v not in problems]     # over-cautious: no warning
-        values = {"filter_type": self.config.filter_type, "sensors_alive": ",".join(alive) or "none",
-                  "reinitialisations": self.reinitialisations, "nis_upper_bound": round(self.nis_bounds[1], 4)}
+        problems = [
+            v for n, v in verdicts.items() if v and self.stats[n].mean_nis() > self.nis_bounds[1]
+        ]
+        # over-cautious: no warning
+        notes = [v for n, v in verdicts.items() if v and v not in problems]
+        values = {
+            "filter_type": self.config.filter_type, "sensors_alive": ",".join(alive) or "none",
+            "reinitialisations": self.reinitialisations,
+            "nis_upper_bound": round(self.nis_bounds[1], 4)
+        }
         for name, stats in self.stats.items():
-            values.update({f"{name}.accepted": stats.accepted, f"{name}.rejected": stats.rejected,
-                           f"{name}.late": stats.late, f"{name}.invalid": stats.invalid,
-                           f"{name}.nis_settling": stats.nis_settling,
-                           f"{name}.mean_nis": round(stats.mean_nis(), 3)})
-        values.update({f"{name}.recent_nis": round(nis, 3) for name, nis in self.nis_evidence().items()})
+            values.update({
+                f"{name}.accepted": stats.accepted, f"{name}.rejected": stats.rejected,
+                f"{name}.late": stats.late, f"{name}.invalid": stats.invalid,
+                f"{name}.nis_settling": stats.nis_settling,
+                f"{name}.mean_nis": round(stats.mean_nis(), 3)
+            })
+        values.update(
+            {f"{name}.recent_nis": round(nis, 3)
+             for name, nis in self.nis_evidence().items()})
         estimate = self.estimate(now)
         if estimate is not None:
-            values.update({"gauge_pa": round(estimate.gauge_pa, 1), "std_pa": round(estimate.std_pa, 1)})
+            values.update(
+                {"gauge_pa": round(estimate.gauge_pa, 1), "std_pa": round(estimate.std_pa, 1)})
         if not self.initialised:
             return Report(Health.WARN, "no sensor sample yet", values)
         if not alive:
-            return Report(Health.WARN, "all sensors silent: predicting only, the variance grows", values)
+            return Report(Health.WARN, "all sensors silent: predicting only, the variance grows",
+                          values)
         lost = [n for n in self.stats if n not in alive]
         if lost or problems:
             parts = ([f"sensors silent: {', '.join(lost)}"] if lost else []) + problems + notes

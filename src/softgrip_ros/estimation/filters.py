@@ -12,7 +12,8 @@ instant, each row of ``H`` picking the chamber (``[1, 0]``), ``R`` shape (m, m) 
   the state (F, B known each step), so filterpy's ``KalmanFilter`` runs it. Exponential
   discretisation keeps F in [0, 1] however stiff the flow, which explicit Euler would not.
 - :class:`PlantEKF` (``ekf``): the ISO 6358 plant stepped by backward Euler
-  (:meth:`PneumaticPlant.chamber_step`), with its exact Jacobian from the implicit function theorem.
+  (:meth:`PneumaticPlant.chamber_step`), with its exact Jacobian from the implicit function
+  theorem.
 - :class:`PlantUKF` (``ukf``): the same plant step on Merwe scaled sigma points.
 
 Covariance updates use the Joseph form (filterpy's ``KalmanFilter`` and ``ExtendedKalmanFilter``
@@ -27,27 +28,29 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter, KalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
+from filterpy.kalman import (ExtendedKalmanFilter, KalmanFilter, MerweScaledSigmaPoints,
+                             UnscentedKalmanFilter)
 
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 
 FILTER_TYPES = ("kf", "ekf", "ukf")
 CHAMBER, REGULATOR = 0, 1
-_MIN_ABSOLUTE_PA = 1_000.0     # a sigma point or a wild estimate must not reach 0 Pa absolute
-_MAX_SECANT_RATE_PER_S = 1e5   # lambda near equilibrium, where the flow's slope is unbounded
+_MIN_ABSOLUTE_PA = 1_000.0  # a sigma point or a wild estimate must not reach 0 Pa absolute
+_MAX_SECANT_RATE_PER_S = 1e5  # lambda near equilibrium, where the flow's slope is unbounded
 
 
 def _valve(inputs: PlantInputs) -> Valve:
     return Valve(inputs.valves[0])
 
 
-def plant_step(plant: PneumaticPlant, x: np.ndarray, dt: float, inputs: PlantInputs, jacobian: bool = False):
+def plant_step(plant: PneumaticPlant, x: np.ndarray, dt: float, inputs: PlantInputs,
+               jacobian: bool = False):
     """x (2,) or (2, 1) -> the plant's state after dt (and its 2x2 Jacobian when asked)."""
     chamber_gauge, regulator_gauge = float(x[CHAMBER]), float(x[REGULATOR])
     regulator_next, d_regulator = plant.regulator_step(regulator_gauge, inputs, dt)
     chamber_pa = max(chamber_gauge + P_ATM_PA, _MIN_ABSOLUTE_PA)
-    chamber_next, d_chamber, d_chamber_d_regulator = plant.chamber_step(chamber_pa, _valve(inputs), regulator_next, dt,
-                                                                        inputs.regulator_enabled)
+    chamber_next, d_chamber, d_chamber_d_regulator = plant.chamber_step(
+        chamber_pa, _valve(inputs), regulator_next, dt, inputs.regulator_enabled)
     state = np.array([chamber_next - P_ATM_PA, regulator_next])
     if not jacobian:
         return state
@@ -83,9 +86,11 @@ def _symmetric(P: np.ndarray) -> np.ndarray:
 
 
 class PressureFilter:
-    """The interface every filter type offers to :class:`~softgrip_ros.estimation.estimator.PressureEstimator`."""
+    """The interface every filter type offers to
+    :class:`~softgrip_ros.estimation.estimator.PressureEstimator`."""
 
-    def __init__(self, plant: PneumaticPlant, x0: np.ndarray, P0: np.ndarray, q_continuous: np.ndarray):
+    def __init__(self, plant: PneumaticPlant, x0: np.ndarray, P0: np.ndarray,
+                 q_continuous: np.ndarray):
         self.plant = plant
         self.q_continuous = np.asarray(q_continuous, dtype=float)
         self._setup(np.asarray(x0, dtype=float).reshape(2, 1), np.asarray(P0, dtype=float))
@@ -104,7 +109,8 @@ class PressureFilter:
         self.f.P = np.asarray(P0, dtype=float).copy()
 
     def add_covariance(self, extra: np.ndarray) -> None:
-        """P += extra (2, 2), symmetric positive semi-definite (an uncertainty the model learns of)."""
+        """P += extra (2, 2), symmetric positive semi-definite (an uncertainty the model learns
+        of)."""
         self.f.P = _symmetric(self.f.P + extra)
 
     def predict(self, dt: float, inputs: PlantInputs) -> None:
@@ -138,7 +144,7 @@ class LinearFilter(PressureFilter):
         # the regulator: r' = d r + u, its lag (d < 1) or, while rate-limited, a fixed slew (d = 1)
         regulator_next, decay_regulator = self.plant.regulator_step(regulator_gauge, inputs, dt)
         regulator_input = regulator_next - decay_regulator * regulator_gauge
-        if valve == Valve.SUPPLY:   # s = a r + c
+        if valve == Valve.SUPPLY:  # s = a r + c
             a, c = 0.5 * (1.0 + decay_regulator), 0.5 * regulator_input
         else:
             a, c = 0.0, self.plant.source(valve, 0.0, inputs.regulator_enabled)[0] - P_ATM_PA
@@ -153,12 +159,14 @@ class LinearFilter(PressureFilter):
         B = np.array([[(1.0 - decay) * c], [regulator_input]])
         return F, B
 
-    def _decay(self, chamber_gauge: float, source_gauge: float, conductance: float, dt: float) -> float:
+    def _decay(self, chamber_gauge: float, source_gauge: float, conductance: float,
+               dt: float) -> float:
         gap = source_gauge - chamber_gauge
         if abs(gap) <= 1e-6:
             return math.exp(-_MAX_SECANT_RATE_PER_S * dt)
         rate = self.plant.rate_and_slopes(max(chamber_gauge + P_ATM_PA, _MIN_ABSOLUTE_PA),
-                                          max(source_gauge + P_ATM_PA, _MIN_ABSOLUTE_PA), conductance)[0]
+                                          max(source_gauge + P_ATM_PA, _MIN_ABSOLUTE_PA),
+                                          conductance)[0]
         return math.exp(-min(max(rate / gap, 0.0), _MAX_SECANT_RATE_PER_S) * dt)
 
     def predict(self, dt: float, inputs: PlantInputs) -> None:
@@ -167,7 +175,8 @@ class LinearFilter(PressureFilter):
         self.f.P = _symmetric(self.f.P)
 
     def update(self, z, H, R) -> None:
-        self.f.dim_z = len(z)     # filterpy shapes z by dim_z; the sensors present vary per instant
+        # filterpy shapes z by dim_z; the sensors present vary per instant
+        self.f.dim_z = len(z)
         self.f.update(z, R=R, H=H)
         self.f.P = _symmetric(self.f.P)
 
@@ -211,8 +220,10 @@ class PlantUKF(PressureFilter):
     positive for n = 2, so the predicted covariance cannot lose definiteness)."""
 
     def _setup(self, x0, P0):
-        points = MerweScaledSigmaPoints(2, alpha=1.0, beta=2.0, kappa=1.0, sqrt_method=_upper_cholesky_2x2)
-        self.f = UnscentedKalmanFilter(dim_x=2, dim_z=1, dt=1e-3, hx=self._measure, fx=self._transition, points=points)
+        points = MerweScaledSigmaPoints(2, alpha=1.0, beta=2.0, kappa=1.0,
+                                        sqrt_method=_upper_cholesky_2x2)
+        self.f = UnscentedKalmanFilter(dim_x=2, dim_z=1, dt=1e-3, hx=self._measure,
+                                       fx=self._transition, points=points)
         self.f.inv = _inverse_small
         self.reset(x0, P0)
 
@@ -227,7 +238,7 @@ class PlantUKF(PressureFilter):
 
     def add_covariance(self, extra: np.ndarray) -> None:
         super().add_covariance(extra)
-        self._sigmas_stale = True            # the last predict's sigma points no longer span P
+        self._sigmas_stale = True  # the last predict's sigma points no longer span P
 
     def _transition(self, x, dt, inputs=None):
         return plant_step(self.plant, x, dt, inputs) if dt > 0.0 else np.array(x, dtype=float)
@@ -242,7 +253,7 @@ class PlantUKF(PressureFilter):
         self._sigmas_stale = False
 
     def update(self, z, H, R) -> None:
-        if self._sigmas_stale:    # filterpy's update reuses the last predict's sigma points
+        if self._sigmas_stale:  # filterpy's update reuses the last predict's sigma points
             self.predict(0.0, None)
         self._sigmas_stale = True
         P_prior = self.f.P.copy()

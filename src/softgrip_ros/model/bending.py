@@ -71,14 +71,18 @@ class BendingCalibration:
     def __post_init__(self):
         if not (math.isfinite(self.gain) and self.gain > 0.0):
             raise ValueError(f"calibration gain must be positive and finite, got {self.gain}")
-        if not (math.isfinite(self.ballooning_compliance_per_pa) and self.ballooning_compliance_per_pa >= 0.0):
+        if not (math.isfinite(self.ballooning_compliance_per_pa) and
+                self.ballooning_compliance_per_pa >= 0.0):
             raise ValueError("ballooning_compliance_per_pa must be finite and >= 0, "
                              f"got {self.ballooning_compliance_per_pa}")
         if not self.saturation_pressure_pa > 0.0:
-            raise ValueError(f"saturation_pressure_pa must be > 0, got {self.saturation_pressure_pa}")
+            raise ValueError(
+                f"saturation_pressure_pa must be > 0, got {self.saturation_pressure_pa}")
         if not (math.isfinite(self.saturation_width_pa) and self.saturation_width_pa > 0.0):
-            raise ValueError(f"saturation_width_pa must be positive and finite, got {self.saturation_width_pa}")
-        if not (math.isfinite(self.validated_max_pressure_pa) and self.validated_max_pressure_pa > 0.0):
+            raise ValueError(
+                f"saturation_width_pa must be positive and finite, got {self.saturation_width_pa}")
+        if not (math.isfinite(self.validated_max_pressure_pa) and
+                self.validated_max_pressure_pa > 0.0):
             raise ValueError("validated_max_pressure_pa must be positive and finite")
 
 
@@ -100,7 +104,7 @@ class Saturation:
             return -w * _logaddexp(-pressure_pa / w, -self.pressure_pa / w) + self._offset
         p = np.asarray(pressure_pa)
         excess = (p - self.pressure_pa) / w
-        if excess.size and np.max(excess) > 700.0:   # exp would overflow: a very narrow knee
+        if excess.size and np.max(excess) > 700.0:  # exp would overflow: a very narrow knee
             return -w * np.logaddexp(-p / w, -self.pressure_pa / w) + self._offset
         # the same value as p - w log(1 + exp(excess)); np.exp is vectorised, np.logaddexp is not
         return p - w * np.log1p(np.exp(excess)) + self._offset
@@ -108,7 +112,8 @@ class Saturation:
     def slope(self, pressure_pa):
         """d p_eff / d p, in (0, 1]."""
         if not self._enabled:
-            return 1.0 if isinstance(pressure_pa, float) else np.ones_like(np.asarray(pressure_pa, dtype=float))
+            return (1.0 if isinstance(pressure_pa, float) else np.ones_like(
+                np.asarray(pressure_pa, dtype=float)))
         z = (np.asarray(pressure_pa, dtype=float) - self.pressure_pa) / self.width_pa
         if isinstance(pressure_pa, float):
             return 0.5 * (1.0 - math.tanh(0.5 * float(z)))
@@ -125,15 +130,16 @@ class LinearBending:
 
     name = "l0"
 
-    def __init__(self, geometry: FingerGeometry, material: YeohMaterial, calibration: BendingCalibration):
+    def __init__(self, geometry: FingerGeometry, material: YeohMaterial,
+                 calibration: BendingCalibration):
         self.geometry, self.material, self.calibration = geometry, material, calibration
         self.saturation = Saturation(calibration)
         section = geometry.segment_length_m
         wall = geometry.wall_thickness_m
         d = geometry.chamber_bottom_to_sidewall_m
-        self.gains_rad_per_pa = tuple(
-            calibration.gain * section * (depth - 2.0 * wall) ** 2 / (32.0 * wall * material.c10_pa * d * d)
-            for depth in geometry.chamber_depths_m)
+        self.gains_rad_per_pa = tuple(calibration.gain * section * (depth - 2.0 * wall)**2 /
+                                      (32.0 * wall * material.c10_pa * d * d)
+                                      for depth in geometry.chamber_depths_m)
         self._gains = np.array(self.gains_rad_per_pa)
 
     def angles(self, pressure_pa):
@@ -166,14 +172,15 @@ class YeohMomentBalance:
     """
 
     name = "l1"
-    STRAIN_FLOOR = -0.95      # a chamber wall compressed beyond this has collapsed
+    STRAIN_FLOOR = -0.95  # a chamber wall compressed beyond this has collapsed
 
-    def __init__(self, geometry: FingerGeometry, material: YeohMaterial, calibration: BendingCalibration):
+    def __init__(self, geometry: FingerGeometry, material: YeohMaterial,
+                 calibration: BendingCalibration):
         self.geometry, self.material, self.calibration = geometry, material, calibration
         self.saturation = Saturation(calibration)
         d = geometry.chamber_bottom_to_sidewall_m
         wall = geometry.wall_thickness_m
-        self.stress_per_pa = tuple(calibration.gain * (depth - 2.0 * wall) ** 2 / (2.0 * d * d)
+        self.stress_per_pa = tuple(calibration.gain * (depth - 2.0 * wall)**2 / (2.0 * d * d)
                                    for depth in geometry.chamber_depths_m)
         self._stress_per_pa = np.array(self.stress_per_pa)
         self.angle_per_strain = geometry.segment_length_m / (2.0 * wall)
@@ -181,8 +188,10 @@ class YeohMomentBalance:
 
         def planar_stress(e: float) -> float:
             one_plus = 1.0 + e
-            x = (e * (2.0 + e) / one_plus) ** 2
-            return 2.0 * e * (4.0 + e * (6.0 + e * (4.0 + e))) / one_plus**3 * (c10 + 2.0 * c20 * x + 3.0 * c30 * x * x)
+            x = (e * (2.0 + e) / one_plus)**2
+            return 2.0 * e * (4.0 + e * (6.0 + e *
+                                         (4.0 + e))) / one_plus**3 * (c10 + 2.0 * c20 * x +
+                                                                      3.0 * c30 * x * x)
 
         self._planar_stress = planar_stress
         self._floor_stress = planar_stress(self.STRAIN_FLOOR)
@@ -203,7 +212,8 @@ class YeohMomentBalance:
             low, high = max(self.STRAIN_FLOOR, guess), 0.0
             if f(low) > wall_stress_pa:
                 low = self.STRAIN_FLOOR
-        return brentq(lambda e: f(e) - wall_stress_pa, low, high, xtol=1e-300, rtol=4 * np.finfo(float).eps)
+        return brentq(lambda e: f(e) - wall_stress_pa, low, high, xtol=1e-300,
+                      rtol=4 * np.finfo(float).eps)
 
     def strains(self, wall_stress_pa: np.ndarray) -> np.ndarray:
         """Vectorised :meth:`strain`: Newton steps kept inside a bisection bracket."""
@@ -229,7 +239,8 @@ class YeohMomentBalance:
             # done when the step, the residual or the bracket is down to rounding
             # (a converged root can otherwise ping-pong between its two neighbours)
             rounding = 8 * np.finfo(float).eps
-            done = ((np.abs(candidate - e) <= rounding * np.abs(e)) | (np.abs(residual) <= rounding * np.abs(sigma))
+            done = ((np.abs(candidate - e) <= rounding * np.abs(e)) |
+                    (np.abs(residual) <= rounding * np.abs(sigma))
                     | (high - low <= rounding * np.abs(e)))
             e = np.where(done, e, candidate)
             if done.all():
@@ -239,7 +250,8 @@ class YeohMomentBalance:
     def angles(self, pressure_pa):
         p_eff = self.saturation.effective_pressure(pressure_pa)
         if isinstance(p_eff, float):
-            return tuple(self.strain(s * p_eff) * self.angle_per_strain for s in self.stress_per_pa)
+            return tuple(
+                self.strain(s * p_eff) * self.angle_per_strain for s in self.stress_per_pa)
         return self.strains(np.multiply.outer(p_eff, self._stress_per_pa)) * self.angle_per_strain
 
     def angle_columns(self, pressures_pa: np.ndarray, effective_pressures_pa=None) -> list:
@@ -254,9 +266,9 @@ class YeohMomentBalance:
         p = np.asarray(pressure_pa, dtype=float)
         sigma = np.multiply.outer(self.saturation.effective_pressure(p), self._stress_per_pa)
         e = self.strains(sigma)
-        slopes = (self.angle_per_strain * self._stress_per_pa
-                  / self.material.planar_nominal_stress_slope(1.0 + e)
-                  * np.expand_dims(self.saturation.slope(p), -1))
+        slopes = (self.angle_per_strain * self._stress_per_pa /
+                  self.material.planar_nominal_stress_slope(1.0 + e) *
+                  np.expand_dims(self.saturation.slope(p), -1))
         if isinstance(pressure_pa, float):
             return tuple(float(v) for v in slopes)
         return slopes
@@ -270,6 +282,6 @@ def make_bending_law(name: str, geometry: FingerGeometry, material: YeohMaterial
     try:
         law = BENDING_LAWS[name]
     except KeyError:
-        raise ValueError(f"unknown bending model {name!r}; choose one of {sorted(BENDING_LAWS)}") from None
+        raise ValueError(
+            f"unknown bending model {name!r}; choose one of {sorted(BENDING_LAWS)}") from None
     return law(geometry, material, calibration)
-

@@ -41,15 +41,15 @@ class PaperNumbers:
     """The numbers of paper_results.yaml used here, in SI units."""
 
     material: YeohMaterial
-    alpha_25kpa_rad: dict            # cavity type -> alpha at 25 kPa
+    alpha_25kpa_rad: dict  # cavity type -> alpha at 25 kPa
     d1_0_m: float
     d1_50kpa_m: float
     d2_0_m: float
     d2_50kpa_m: float
-    growth_50_55: float              # fractional curvature growth
+    growth_50_55: float  # fractional curvature growth
     growth_55_60: float
     validated_max_pressure_pa: float
-    linear_model_max_error: float    # model vs FEA below 45 kPa, fraction
+    linear_model_max_error: float  # model vs FEA below 45 kPa, fraction
 
     @classmethod
     def load(cls, path=None) -> "PaperNumbers":
@@ -61,9 +61,12 @@ class PaperNumbers:
         alpha = doc["included_angle_alpha"]
         curvature = doc["curvature_vs_pressure_type_II"]
         return cls(
-            material=YeohMaterial(doc["material"]["C10_MPa"] * 1e6, doc["material"]["C20_MPa"] * 1e6),
-            alpha_25kpa_rad={f"type_{name.split('_')[1]}": math.radians(entry["alpha_deg"])
-                             for name, entry in alpha.items() if name.startswith("type_")},
+            material=YeohMaterial(doc["material"]["C10_MPa"] * 1e6,
+                                  doc["material"]["C20_MPa"] * 1e6),
+            alpha_25kpa_rad={
+                f"type_{name.split('_')[1]}": math.radians(entry["alpha_deg"])
+                for name, entry in alpha.items() if name.startswith("type_")
+            },
             d1_0_m=doc["root_spacing_D1_type_II"]["p0_mm"] * 1e-3,
             d1_50kpa_m=doc["root_spacing_D1_type_II"]["p50_mm"] * 1e-3,
             d2_0_m=doc["tip_spacing_D2_type_II"]["p0_mm"] * 1e-3,
@@ -83,15 +86,19 @@ def mean_curvature_per_m(kinematics: GripperKinematics, pressure_pa: float) -> f
 
 def fit_saturation(growth_50_55: float, growth_55_60: float) -> tuple[float, float]:
     """(p_sat, w) in Pa such that p_eff grows by the two FEA fractions."""
+
     def residuals(params):
         p_sat, width = params * 1e3
-        sat = Saturation(BendingCalibration(saturation_pressure_pa=p_sat, saturation_width_pa=width))
+        sat = Saturation(
+            BendingCalibration(saturation_pressure_pa=p_sat, saturation_width_pa=width))
         e50, e55, e60 = (sat.effective_pressure(p * 1e3) for p in (50.0, 55.0, 60.0))
         return [(e55 / e50 - 1.0 - growth_50_55) * 100.0, (e60 / e55 - 1.0 - growth_55_60) * 100.0]
 
-    fit = least_squares(residuals, x0=[55.0, 2.0], bounds=([40.0, 0.1], [80.0, 20.0]), xtol=1e-14, ftol=1e-14)
+    fit = least_squares(residuals, x0=[55.0, 2.0], bounds=([40.0, 0.1], [80.0, 20.0]), xtol=1e-14,
+                        ftol=1e-14)
     if max(abs(r) for r in fit.fun) > 1e-6:
-        raise RuntimeError(f"saturation fit did not converge: residuals {fit.fun} (percentage points)")
+        raise RuntimeError(
+            f"saturation fit did not converge: residuals {fit.fun} (percentage points)")
     return float(fit.x[0] * 1e3), float(fit.x[1] * 1e3)
 
 
@@ -99,25 +106,32 @@ def calibrate_type_ii(geometry: FingerGeometry, paper: PaperNumbers) -> BendingC
     p_sat, width = fit_saturation(paper.growth_50_55, paper.growth_55_60)
 
     def model(gain, compliance):
-        return GripperKinematics(geometry, BendingCalibration(
-            gain=float(gain), ballooning_compliance_per_pa=float(compliance), saturation_pressure_pa=p_sat,
-            saturation_width_pa=width, validated_max_pressure_pa=paper.validated_max_pressure_pa),
+        return GripperKinematics(
+            geometry,
+            BendingCalibration(gain=float(gain), ballooning_compliance_per_pa=float(compliance),
+                               saturation_pressure_pa=p_sat, saturation_width_pa=width,
+                               validated_max_pressure_pa=paper.validated_max_pressure_pa),
             material=paper.material, model="l0", max_pressure_pa=60e3)
 
     def residuals(params):
         kin = model(params[0], params[1] * 1e-6)
-        return [(kin.pose(25e3).included_angle_rad / paper.alpha_25kpa_rad["type_II"] - 1.0) * 100.0,
-                (kin.pose(50e3).tip_spacing_m / paper.d2_50kpa_m - 1.0) * 100.0]
+        return [
+            (kin.pose(25e3).included_angle_rad / paper.alpha_25kpa_rad["type_II"] - 1.0) * 100.0,
+            (kin.pose(50e3).tip_spacing_m / paper.d2_50kpa_m - 1.0) * 100.0
+        ]
 
-    fit = least_squares(residuals, x0=[5.0, 0.1], bounds=([0.01, 0.0], [100.0, 100.0]), xtol=1e-14, ftol=1e-14)
+    fit = least_squares(residuals, x0=[5.0, 0.1], bounds=([0.01, 0.0], [100.0, 100.0]), xtol=1e-14,
+                        ftol=1e-14)
     if max(abs(r) for r in fit.fun) > 1e-6:
         raise RuntimeError(f"type II calibration did not converge: residuals {fit.fun} %")
     return model(fit.x[0], fit.x[1] * 1e-6).calibration
 
 
-def calibrate_gain_from_alpha(geometry: FingerGeometry, paper: PaperNumbers, alpha_25kpa_rad: float,
+def calibrate_gain_from_alpha(geometry: FingerGeometry, paper: PaperNumbers,
+                              alpha_25kpa_rad: float,
                               base: BendingCalibration) -> BendingCalibration:
     """A type's own gain from its alpha at 25 kPa, everything else from ``base``."""
+
     def residual(params):
         calibration = dataclasses.replace(base, gain=float(params[0]))
         kin = GripperKinematics(geometry, calibration, material=paper.material, model="l0")
@@ -141,18 +155,28 @@ def write_calibration(calibrations: dict, path, paper_path: str) -> None:
     doc = {
         "provenance": {
             "date": datetime.date.today().isoformat(),
-            "data": f"{paper_path}: alpha(25 kPa) per type, D2(50 kPa) type II, FEA curvature growth 50-55-60 kPa",
-            "method": ("softgrip_ros.model.calibration (scripts/validate_model.py --calibrate): "
-                       "L0 model; saturation (2 constants) solved from the 2 growth figures; "
-                       "type II gain and ballooning compliance (2 constants) solved from alpha(25 kPa) "
-                       "and D2(50 kPa) by least squares (exactly determined); types I and III: "
-                       "gain only, from their alpha(25 kPa). Held out: D1(0), D1(50 kPa)."),
+            "data": f"{paper_path}: alpha(25 kPa) per type, D2(50 kPa) type II, FEA curvature "
+                    "growth 50-55-60 kPa",
+            "method": (
+                "softgrip_ros.model.calibration (scripts/validate_model.py --calibrate): "
+                "L0 model; saturation (2 constants) solved from the 2 growth figures; "
+                "type II gain and ballooning compliance (2 constants) solved from alpha(25 kPa) "
+                "and D2(50 kPa) by least squares (exactly determined); types I and III: "
+                "gain only, from their alpha(25 kPa). Held out: D1(0), D1(50 kPa)."),
         },
-        "types": {name: {field.name: float(getattr(cal, field.name)) for field in dataclasses.fields(cal)}
-                  for name, cal in calibrations.items()},
+        "types": {
+            name: {
+                field.name: float(getattr(cal, field.name))
+                for field in dataclasses.fields(cal)
+            }
+            for name, cal in calibrations.items()
+        },
     }
     with pathlib.Path(path).open("w") as handle:
-        handle.write("# Bending-model calibration, written by scripts/validate_model.py --calibrate. Do not edit by hand.\n")
+        handle.write(
+            "# Bending-model calibration, written by scripts/validate_model.py --calibrate. Do "
+            "not edit by hand.\n"
+        )
         yaml.safe_dump(doc, handle, sort_keys=False)
 
 
@@ -169,9 +193,10 @@ def load_calibration(cavity_type: str = "type_II", path=None) -> BendingCalibrat
     return BendingCalibration(**{k: float(v) for k, v in entry.items()})
 
 
-def build_kinematics(model: str = "l0", cavity_type: str = "type_II", max_pressure_pa: float = 50e3,
-                     geometry_path=None, calibration_path=None) -> GripperKinematics:
+def build_kinematics(model: str = "l0", cavity_type: str = "type_II",
+                     max_pressure_pa: float = 50e3, geometry_path=None,
+                     calibration_path=None) -> GripperKinematics:
     """The calibrated model of one cavity type, from the packaged configuration."""
     return GripperKinematics(load_geometry(cavity_type, geometry_path),
-                             load_calibration(cavity_type, calibration_path),
-                             model=model, max_pressure_pa=max_pressure_pa)
+                             load_calibration(cavity_type, calibration_path), model=model,
+                             max_pressure_pa=max_pressure_pa)

@@ -48,7 +48,9 @@ class FingerGeometry:
         for field in positive:
             value = getattr(self, field)
             if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0.0:
-                raise ValueError(f"geometry {self.name}: {field} must be a positive finite number, got {value!r}")
+                raise ValueError(
+                    f"geometry {self.name}: {field} must be a positive finite number, got "
+                    f"{value!r}")
         for field in ("first_chamber_offset_m", "tip_gap_m"):
             value = getattr(self, field)
             if not math.isfinite(value) or value < 0.0:
@@ -60,23 +62,29 @@ class FingerGeometry:
             raise ValueError(f"geometry {self.name}: initial_included_angle must be finite")
         depths = tuple(self.chamber_depths_m)
         if len(depths) != CHAMBER_COUNT:
-            raise ValueError(f"geometry {self.name}: chamber_depths_m needs {CHAMBER_COUNT} depths "
-                             f"(root to tip), got {len(depths)}")
+            raise ValueError(
+                f"geometry {self.name}: chamber_depths_m needs {CHAMBER_COUNT} depths "
+                f"(root to tip), got {len(depths)}")
         for index, depth in enumerate(depths, start=1):
             if not math.isfinite(depth) or depth <= 2.0 * self.wall_thickness_m:
-                raise ValueError(f"geometry {self.name}: chamber {index} depth {depth} m must exceed "
-                                 f"two wall thicknesses ({2 * self.wall_thickness_m} m)")
+                raise ValueError(
+                    f"geometry {self.name}: chamber {index} depth {depth} m must exceed "
+                    f"two wall thicknesses ({2 * self.wall_thickness_m} m)")
         object.__setattr__(self, "chamber_depths_m", depths)
         if self.tip_length_m < 0.0:
-            raise ValueError(f"geometry {self.name}: the chambers ({self.first_chamber_offset_m + CHAMBER_COUNT * self.segment_length_m:.4f} m) "
-                             f"do not fit on the inclined part ({self.inclined_length_m} m)")
+            raise ValueError(
+                f"geometry {self.name}: the chambers "
+                f"({self.first_chamber_offset_m + CHAMBER_COUNT * self.segment_length_m:.4f} m) "
+                f"do not fit on the inclined part ({self.inclined_length_m} m)")
         height = self.vertical_height_m + self.inclined_length_m * math.cos(self.inclination_rad)
         if abs(height - self.total_length_m) > TOTAL_LENGTH_TOLERANCE_M:
-            raise ValueError(f"geometry {self.name}: h1 + L2 cos(inclination) = {height:.4f} m disagrees "
-                             f"with total_length_m = {self.total_length_m} m")
+            raise ValueError(
+                f"geometry {self.name}: h1 + L2 cos(inclination) = {height:.4f} m disagrees "
+                f"with total_length_m = {self.total_length_m} m")
         if self.root_x_m <= 0.0:
-            raise ValueError(f"geometry {self.name}: the tip gap and chamber depths put the finger root "
-                             f"on the wrong side of the centre line")
+            raise ValueError(
+                f"geometry {self.name}: the tip gap and chamber depths put the finger root "
+                f"on the wrong side of the centre line")
 
     @property
     def segment_length_m(self) -> float:
@@ -86,7 +94,8 @@ class FingerGeometry:
     @property
     def tip_length_m(self) -> float:
         """Rigid tip after the last segment."""
-        return self.inclined_length_m - self.first_chamber_offset_m - CHAMBER_COUNT * self.segment_length_m
+        return (self.inclined_length_m - self.first_chamber_offset_m -
+                CHAMBER_COUNT * self.segment_length_m)
 
     def chamber_face_offset_m(self, index: int) -> float:
         """Distance from the backbone to chamber ``index``'s face (d2 + m_i), at rest."""
@@ -94,11 +103,14 @@ class FingerGeometry:
 
     @property
     def root_x_m(self) -> float:
-        """|x| of each finger's backbone root, fixed by the tip gap v between the tip-chamber faces."""
-        arc_to_tip_chamber = (self.first_chamber_offset_m + (CHAMBER_COUNT - 1) * self.segment_length_m
-                              + 0.5 * self.chamber_length_m)
-        face_x_from_root = (arc_to_tip_chamber * math.sin(self.inclination_rad)
-                            + self.chamber_face_offset_m(CHAMBER_COUNT - 1) * math.cos(self.inclination_rad))
+        """|x| of each finger's backbone root, fixed by the tip gap v between the tip-chamber
+        faces."""
+        arc_to_tip_chamber = (self.first_chamber_offset_m +
+                              (CHAMBER_COUNT - 1) * self.segment_length_m +
+                              0.5 * self.chamber_length_m)
+        face_x_from_root = (
+            arc_to_tip_chamber * math.sin(self.inclination_rad) +
+            self.chamber_face_offset_m(CHAMBER_COUNT - 1) * math.cos(self.inclination_rad))
         return face_x_from_root + 0.5 * self.tip_gap_m
 
 
@@ -121,7 +133,10 @@ def load_geometry(cavity_type: str | None = None, path=None) -> FingerGeometry:
         raise ValueError(f"{path}: unknown cavity type {cavity_type!r}; known: {sorted(types)}")
     fields = _resolve(types, cavity_type, path, seen=())
     known = {f.name for f in dataclasses.fields(FingerGeometry)}
-    renamed = {"inclination_deg": "inclination_rad", "initial_included_angle_deg": "initial_included_angle_rad"}
+    renamed = {
+        "inclination_deg": "inclination_rad",
+        "initial_included_angle_deg": "initial_included_angle_rad"
+    }
     values = {}
     for key, value in fields.items():
         target = renamed.get(key, key)

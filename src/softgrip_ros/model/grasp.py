@@ -27,7 +27,8 @@ G_M_PER_S2 = 9.80665
 @dataclasses.dataclass(frozen=True)
 class ClampForceLaw:
     """stiffness_n_per_pa: k; friction_coefficient: mu used when a command gives none;
-    safety_factor: SF; min_squeeze_pa: the least squeeze below contact, even for a weightless object."""
+    safety_factor: SF; min_squeeze_pa: the least squeeze below contact, even for a weightless
+    object."""
 
     stiffness_n_per_pa: float = G_M_PER_S2 * 1.0 / (2.0 * 0.5 * 60e3)
     friction_coefficient: float = 0.5
@@ -45,12 +46,14 @@ class ClampForceLaw:
         """F_n of one finger at ``pressure_pa`` (0 before contact)."""
         return self.stiffness_n_per_pa * max(contact_pressure_pa - pressure_pa, 0.0)
 
-    def required_normal_force_n(self, mass_kg: float, friction_coefficient: float | None = None) -> float:
+    def required_normal_force_n(self, mass_kg: float,
+                                friction_coefficient: float | None = None) -> float:
         mu = self.friction_coefficient if friction_coefficient is None else friction_coefficient
         return self.safety_factor * mass_kg * G_M_PER_S2 / (2.0 * mu)
 
     def clamp_pressure_pa(self, mass_kg: float, contact_pressure_pa: float,
                           friction_coefficient: float | None = None) -> float:
         """The gauge pressure that holds ``mass_kg`` with the safety factor."""
-        squeeze = self.required_normal_force_n(mass_kg, friction_coefficient) / self.stiffness_n_per_pa
+        squeeze = self.required_normal_force_n(mass_kg,
+                                               friction_coefficient) / self.stiffness_n_per_pa
         return contact_pressure_pa - max(squeeze, self.min_squeeze_pa)

@@ -72,7 +72,7 @@ def _trig_array(x):
 
 # Taylor coefficients of sinc(x) = sin(x)/x in x^2, up to x^16: for |x| < 1 the truncation error is
 # below 1/19! ~ 8e-18, under float64 rounding.
-_SINC_TAYLOR = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(9))
+_SINC_TAYLOR = tuple((-1.0)**k / math.factorial(2 * k + 1) for k in range(9))
 
 
 def _trig_small_array(x):
@@ -91,7 +91,8 @@ def _trig_small_array(x):
 
 _SCALAR_OPS = types.SimpleNamespace(trig=_trig_scalar, sinc_slope=_sinc_slope_scalar)
 _ARRAY_OPS = types.SimpleNamespace(trig=_trig_array, sinc_slope=_sinc_slope_array)
-_SMALL_ANGLE_ARRAY_OPS = types.SimpleNamespace(trig=_trig_small_array, sinc_slope=_sinc_slope_array)
+_SMALL_ANGLE_ARRAY_OPS = types.SimpleNamespace(trig=_trig_small_array,
+                                               sinc_slope=_sinc_slope_array)
 BATCH_CHUNK = 8192  # keeps a chunk's temporaries in cache; 100k at once runs ~2x slower
 # A batch's float results, one row each, in one block: a block of 4 MB or more is backed by huge
 # pages (numpy asks for them), where separate arrays took ~45 page faults per 1,000 pressures.
@@ -101,20 +102,21 @@ _BATCH_ROWS = ("left_tip_x_m", "left_tip_z_m", "left_tip_angle_rad", "included_a
 
 @dataclasses.dataclass(frozen=True)
 class GripperPose:
-    """The modelled state at one pressure (floats) or a batch of N pressures (arrays of shape (N,)).
+    """The modelled state at one pressure (floats) or a batch of N pressures (arrays of shape
+    (N,)).
 
     Tip poses are given for the left finger; the right finger is its mirror image
     (x -> -x, angle -> -angle): see :meth:`right_tip`.
     """
 
     pressure_pa: object
-    segment_angles_rad: object          # (5,) or (N, 5)
+    segment_angles_rad: object  # (5,) or (N, 5)
     left_tip_x_m: object
     left_tip_z_m: object
-    left_tip_angle_rad: object          # tangent angle from +z, positive towards the centre line
-    included_angle_rad: object          # alpha
-    root_spacing_m: object              # D1
-    tip_spacing_m: object               # D2
+    left_tip_angle_rad: object  # tangent angle from +z, positive towards the centre line
+    included_angle_rad: object  # alpha
+    root_spacing_m: object  # D1
+    tip_spacing_m: object  # D2
     in_validated_range: object
     in_contact: object
     model: str
@@ -130,7 +132,7 @@ class GripperKinematics:
     max_pressure_pa: the highest gauge pressure the inverse may command.
     """
 
-    MODEL_MAX_PRESSURE_PA = 60.0e3   # the paper's FEA range; the forward model refuses beyond
+    MODEL_MAX_PRESSURE_PA = 60.0e3  # the paper's FEA range; the forward model refuses beyond
     MODEL_MIN_PRESSURE_PA = -100.0e3  # no gauge vacuum goes below -1 atm
 
     def __init__(self, geometry: FingerGeometry, calibration: BendingCalibration,
@@ -142,12 +144,15 @@ class GripperKinematics:
         self.bending = make_bending_law(model, geometry, self.material, calibration)
         self.model = self.bending.name
         if not (0.0 < max_pressure_pa <= self.MODEL_MAX_PRESSURE_PA):
-            raise ValueError(f"max_pressure_pa must lie in (0, {self.MODEL_MAX_PRESSURE_PA}] Pa, got {max_pressure_pa}")
+            raise ValueError(
+                f"max_pressure_pa must lie in (0, {self.MODEL_MAX_PRESSURE_PA}] Pa, got "
+                f"{max_pressure_pa}"
+            )
         self.max_pressure_pa = float(max_pressure_pa)
         g = geometry
         self._face_offsets = tuple(g.chamber_face_offset_m(i) for i in range(CHAMBER_COUNT))
-        self._bulge_per_pa = tuple(calibration.ballooning_compliance_per_pa * m * m / g.chamber_length_m
-                                   for m in g.chamber_depths_m)
+        self._bulge_per_pa = tuple(calibration.ballooning_compliance_per_pa * m * m /
+                                   g.chamber_length_m for m in g.chamber_depths_m)
         self._bulge_per_pa_array = np.array(self._bulge_per_pa)
         self._tilt_per_bulge = 4.0 / g.chamber_length_m
         self._half_chamber_fraction = 0.5 * g.chamber_length_m / g.segment_length_m
@@ -187,7 +192,10 @@ class GripperKinematics:
         p_kin = np.maximum(p, self.contact_pressure_pa)
         p_eff = self.bending.saturation.effective_pressure(p_kin)
         theta = self.bending.angle_columns(p_kin, p_eff)
-        bulge = [k * p_eff if i in self.MEASURED_CHAMBERS else 0.0 for i, k in enumerate(self._bulge_per_pa)]
+        bulge = [
+            k * p_eff if i in self.MEASURED_CHAMBERS else 0.0
+            for i, k in enumerate(self._bulge_per_pa)
+        ]
         small = all(float(np.max(np.abs(column), initial=0.0)) < 2.0 for column in theta)
         return self._assemble(p, theta, bulge, _SMALL_ANGLE_ARRAY_OPS if small else _ARRAY_OPS,
                               in_contact=p <= self.contact_pressure_pa)
@@ -201,16 +209,19 @@ class GripperKinematics:
         faces, tip, _ = self._chain(theta, bulge, ops)
         (root_x, root_angle), (tip_face_x, tip_face_angle) = faces
         thetas = tuple(theta) if ops is _SCALAR_OPS else np.column_stack(theta)
-        validated = (p >= self.contact_pressure_pa) & (p <= self.calibration.validated_max_pressure_pa)
+        validated = (p >= self.contact_pressure_pa) & (
+            p <= self.calibration.validated_max_pressure_pa)
         return GripperPose(
-            pressure_pa=p, segment_angles_rad=thetas,
-            left_tip_x_m=tip[0], left_tip_z_m=tip[1], left_tip_angle_rad=tip[2],
-            included_angle_rad=self.geometry.initial_included_angle_rad + (root_angle - tip_face_angle),
-            root_spacing_m=-2.0 * root_x, tip_spacing_m=-2.0 * tip_face_x,
+            pressure_pa=p, segment_angles_rad=thetas, left_tip_x_m=tip[0], left_tip_z_m=tip[1],
+            left_tip_angle_rad=tip[2],
+            included_angle_rad=self.geometry.initial_included_angle_rad +
+            (root_angle - tip_face_angle), root_spacing_m=-2.0 * root_x,
+            tip_spacing_m=-2.0 * tip_face_x,
             in_validated_range=bool(validated) if ops is _SCALAR_OPS else validated,
             in_contact=in_contact, model=self.model)
 
-    MEASURED_CHAMBERS = (0, CHAMBER_COUNT - 1)  # alpha, D1 and D2 need the root and tip chambers only
+    # alpha, D1 and D2 need the root and tip chambers only
+    MEASURED_CHAMBERS = (0, CHAMBER_COUNT - 1)
 
     def _chain(self, theta, bulge, ops):
         """Walk the left finger's backbone. Returns the root and tip chamber faces (x,
@@ -235,7 +246,7 @@ class GripperKinematics:
             half = 0.5 * th
             sin_half, cos_half, sinc_half = ops.trig(half)
             chord = seg * sinc_half
-            sin_heading = sin_phi * cos_half - cos_phi * sin_half     # phi - theta/2
+            sin_heading = sin_phi * cos_half - cos_phi * sin_half  # phi - theta/2
             cos_heading = cos_phi * cos_half + sin_phi * sin_half
             x = x + chord * sin_heading
             z = z + chord * cos_heading
@@ -249,7 +260,7 @@ class GripperKinematics:
     def _face(self, x, phi, sin_phi, cos_phi, th, bulge, i, ops):
         """Chamber i's face centre x and surface angle, for a segment starting at (x, phi).
         Only x is needed: alpha, D1 and D2 are measured across the gap between the fingers."""
-        half = 0.5 * th * self._half_chamber_fraction   # a partial arc of L3/2 into the segment
+        half = 0.5 * th * self._half_chamber_fraction  # a partial arc of L3/2 into the segment
         sin_half, cos_half, sinc_half = ops.trig(half)
         chord = self.geometry.segment_length_m * self._half_chamber_fraction * sinc_half
         sin_heading = sin_phi * cos_half - cos_phi * sin_half
@@ -263,7 +274,8 @@ class GripperKinematics:
         """The left tip (x, z, angle) for explicit segment bends (5 floats), without ballooning."""
         thetas = [float(t) for t in segment_angles_rad]
         if len(thetas) != CHAMBER_COUNT or not all(math.isfinite(t) for t in thetas):
-            raise ValueError(f"need {CHAMBER_COUNT} finite segment angles, got {segment_angles_rad!r}")
+            raise ValueError(
+                f"need {CHAMBER_COUNT} finite segment angles, got {segment_angles_rad!r}")
         return self._chain(thetas, [0.0] * CHAMBER_COUNT, _SCALAR_OPS)[1]
 
     # ---- derivative -----------------------------------------------------------------------
@@ -277,7 +289,8 @@ class GripperKinematics:
         p_kin = np.maximum(p, self.contact_pressure_pa)
         slopes = np.asarray(self.bending.angle_slopes(p_kin))
         theta = self.bending.angle_columns(p_kin)
-        dx, dz = self._tip_position_slope(theta, [slopes[:, i] for i in range(CHAMBER_COUNT)], _ARRAY_OPS)
+        dx, dz = self._tip_position_slope(theta, [slopes[:, i] for i in range(CHAMBER_COUNT)],
+                                          _ARRAY_OPS)
         blocked = p < self.contact_pressure_pa
         return np.where(blocked[:, None], 0.0, np.column_stack([dx, dz, -slopes.sum(axis=1)]))
 
@@ -308,7 +321,8 @@ class GripperKinematics:
         return dx, dz
 
     def backbone(self, pressure_pa: float, points_per_segment: int = 8) -> np.ndarray:
-        """The left finger's backbone as a polyline, shape (K, 2) in (x, z); mirror x for the right."""
+        """The left finger's backbone as a polyline, shape (K, 2) in (x, z); mirror x for the
+        right."""
         p = _checked_scalar(pressure_pa)
         if points_per_segment < 1:
             raise ValueError("points_per_segment must be >= 1")
@@ -350,16 +364,18 @@ class GripperKinematics:
         if high_d2 < target <= high_d2 + rounding:
             return self.max_pressure_pa
         if not low_d2 <= target <= high_d2:
-            raise ValueError(f"tip spacing {target * 1e3:.2f} mm is out of reach: the gripper spans "
-                             f"{low_d2 * 1e3:.2f} mm (tips touching) to {high_d2 * 1e3:.2f} mm "
-                             f"(at the {self.max_pressure_pa / 1e3:.1f} kPa limit)")
+            raise ValueError(
+                f"tip spacing {target * 1e3:.2f} mm is out of reach: the gripper spans "
+                f"{low_d2 * 1e3:.2f} mm (tips touching) to {high_d2 * 1e3:.2f} mm "
+                f"(at the {self.max_pressure_pa / 1e3:.1f} kPa limit)")
         if target == low_d2:
             return self.contact_pressure_pa
         return brentq(lambda p: self._free_tip_spacing(p) - target, self.contact_pressure_pa,
                       self.max_pressure_pa, xtol=1e-9, rtol=4 * np.finfo(float).eps)
 
     def _free_tip_spacing(self, p: float) -> float:
-        """D2 at p ignoring tip contact (the inverse's and the contact search's cheap forward map)."""
+        """D2 at p ignoring tip contact (the inverse's and the contact search's cheap forward
+        map)."""
         faces, _, _ = self._chain(self.bending.angles(p), self._bulges(p), _SCALAR_OPS)
         return -2.0 * faces[-1][0]
 
@@ -375,13 +391,17 @@ class GripperKinematics:
 
     def _check_range(self, low: float, high: float):
         if low < self.MODEL_MIN_PRESSURE_PA or high > self.MODEL_MAX_PRESSURE_PA:
-            raise ValueError(f"pressure out of the model's range [{self.MODEL_MIN_PRESSURE_PA / 1e3:.0f}, "
-                             f"{self.MODEL_MAX_PRESSURE_PA / 1e3:.0f}] kPa: got {low / 1e3:.3f} to {high / 1e3:.3f} kPa")
+            raise ValueError(
+                f"pressure out of the model's range [{self.MODEL_MIN_PRESSURE_PA / 1e3:.0f}, "
+                f"{self.MODEL_MAX_PRESSURE_PA / 1e3:.0f}] kPa: got {low / 1e3:.3f} to "
+                f"{high / 1e3:.3f} kPa"
+            )
 
 
 def _checked_scalar(value, what: str = "pressure") -> float:
     if isinstance(value, (np.ndarray, list, tuple)):
-        raise ValueError(f"{what} must be a single number here, got an array of shape {np.shape(value)}")
+        raise ValueError(
+            f"{what} must be a single number here, got an array of shape {np.shape(value)}")
     try:
         value = float(value)
     except (TypeError, ValueError):
@@ -413,7 +433,8 @@ class TipTable:
     the model itself; build refuses a grid whose error exceeds ``max_allowed_error_m``.
     """
 
-    def __init__(self, kinematics: GripperKinematics, step_pa: float = 100.0, max_allowed_error_m: float = 1e-7):
+    def __init__(self, kinematics: GripperKinematics, step_pa: float = 100.0,
+                 max_allowed_error_m: float = 1e-7):
         if not (math.isfinite(step_pa) and 1.0 <= step_pa <= 5e3):
             raise ValueError(f"step_pa must lie in [1, 5000] Pa, got {step_pa}")
         self.kinematics = kinematics
@@ -423,21 +444,31 @@ class TipTable:
         self.low_pa, self.high_pa, self.step_pa = low, high, (high - low) / cells
         grid = np.linspace(low, high, cells + 1)
         pose = kinematics.poses(grid)
-        self._values = np.column_stack([pose.left_tip_x_m, pose.left_tip_z_m, pose.left_tip_angle_rad])
+        self._values = np.column_stack(
+            [pose.left_tip_x_m, pose.left_tip_z_m, pose.left_tip_angle_rad])
         self._slopes = kinematics.tip_slope(grid)
-        self._slopes[0] = kinematics.tip_slope(np.array([low + 1e-6]))[0]     # the contact node's slope from above
-        self._rows = [(tuple(v), tuple(s)) for v, s in zip(self._values.tolist(), self._slopes.tolist())]
+        # the contact node's slope from above
+        self._slopes[0] = kinematics.tip_slope(np.array([low + 1e-6]))[0]
+        self._rows = [(tuple(v), tuple(s))
+                      for v, s in zip(self._values.tolist(), self._slopes.tolist())]
         midpoints = 0.5 * (grid[1:] + grid[:-1])
         exact = kinematics.poses(midpoints)
         looked_up = np.array([self.tip(p)[0] for p in midpoints])
-        self.max_error_m = float(np.max(np.hypot(looked_up[:, 0] - exact.left_tip_x_m, looked_up[:, 1] - exact.left_tip_z_m)))
-        self.max_angle_error_rad = float(np.max(np.abs(looked_up[:, 2] - exact.left_tip_angle_rad)))
+        self.max_error_m = float(
+            np.max(
+                np.hypot(looked_up[:, 0] - exact.left_tip_x_m,
+                         looked_up[:, 1] - exact.left_tip_z_m)))
+        self.max_angle_error_rad = float(np.max(np.abs(looked_up[:, 2] -
+                                                       exact.left_tip_angle_rad)))
         if self.max_error_m > max_allowed_error_m:
-            raise ValueError(f"a {step_pa:g} Pa grid interpolates {self.model} within {self.max_error_m:.2e} m only, "
-                             f"more than the allowed {max_allowed_error_m:.2e} m: use a finer step")
+            raise ValueError(
+                f"a {step_pa:g} Pa grid interpolates {self.model} within {self.max_error_m:.2e} m "
+                "only, "
+                f"more than the allowed {max_allowed_error_m:.2e} m: use a finer step")
 
     def tip(self, pressure_pa: float) -> tuple[tuple, tuple]:
-        """((x, z, angle), (dx/dp, dz/dp, dangle/dp)) of the left tip at ``pressure_pa`` (floats)."""
+        """((x, z, angle), (dx/dp, dz/dp, dangle/dp)) of the left tip at ``pressure_pa``
+        (floats)."""
         p = _checked_scalar(pressure_pa)
         self.kinematics._check_range(p, p)
         if p <= self.low_pa:
@@ -451,8 +482,11 @@ class TipTable:
         t = position - i
         (v0, s0), (v1, s1) = self._rows[i], self._rows[i + 1]
         t2, t3, h = t * t, t * t * t, self.step_pa
-        h00, h10, h01, h11 = 2 * t3 - 3 * t2 + 1, (t3 - 2 * t2 + t) * h, -2 * t3 + 3 * t2, (t3 - t2) * h
-        value = tuple(h00 * a + h10 * da + h01 * b + h11 * db for a, da, b, db in zip(v0, s0, v1, s1))
-        g00, g10, g11 = (6 * t2 - 6 * t) / h, 3 * t2 - 4 * t + 1, 3 * t2 - 2 * t    # the interpolant's derivative
+        h00, h10, h01, h11 = 2 * t3 - 3 * t2 + 1, (t3 - 2 * t2 + t) * h, -2 * t3 + 3 * t2, (t3 -
+                                                                                            t2) * h
+        value = tuple(h00 * a + h10 * da + h01 * b + h11 * db
+                      for a, da, b, db in zip(v0, s0, v1, s1))
+        # the interpolant's derivative
+        g00, g10, g11 = (6 * t2 - 6 * t) / h, 3 * t2 - 4 * t + 1, 3 * t2 - 2 * t
         slope = tuple(g00 * (a - b) + g10 * da + g11 * db for a, da, b, db in zip(v0, s0, v1, s1))
         return value, slope

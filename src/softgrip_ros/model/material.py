@@ -41,7 +41,8 @@ class YeohMaterial:
             if not math.isfinite(value):
                 raise ValueError(f"YeohMaterial.{name} must be finite, got {value!r}")
         if self.c10_pa <= 0.0:
-            raise ValueError(f"YeohMaterial.c10_pa must be > 0 (initial shear modulus / 2), got {self.c10_pa}")
+            raise ValueError(
+                f"YeohMaterial.c10_pa must be > 0 (initial shear modulus / 2), got {self.c10_pa}")
 
     def dw_di1(self, i1_minus_3):
         """dW/dI1 at I1 - 3 (Pa)."""
@@ -75,11 +76,12 @@ class YeohMaterial:
         if np.any(e <= -1.0):
             raise ValueError("strain must be > -1 (stretch > 0)")
         one_plus = 1.0 + e
-        x = (e * (2.0 + e) / one_plus) ** 2
+        x = (e * (2.0 + e) / one_plus)**2
         return 2.0 * e * (4.0 + e * (6.0 + e * (4.0 + e))) / one_plus**3 * self.dw_di1(x)
 
     def planar_nominal_stress_slope(self, stretch):
-        """dP/dlambda of the planar nominal stress (Pa), for Newton steps and implicit derivatives."""
+        """dP/dlambda of the planar nominal stress (Pa), for Newton steps and implicit
+        derivatives."""
         lam = _positive_stretch(stretch)
         x = lam**2 + lam**-2 - 2.0
         dx = 2.0 * lam - 2.0 * lam**-3
@@ -107,7 +109,8 @@ def _positive_stretch(stretch):
 
 @dataclasses.dataclass(frozen=True)
 class YeohFit:
-    """Result of :func:`fit_yeoh`: constants (Pa), standard errors (Pa) and confidence intervals."""
+    """Result of :func:`fit_yeoh`: constants (Pa), standard errors (Pa) and confidence
+    intervals."""
 
     material: YeohMaterial
     standard_errors_pa: dict
@@ -121,9 +124,13 @@ class YeohFit:
         for name in self.standard_errors_pa:
             value = getattr(self.material, name)
             low, high = self.confidence_intervals_pa[name]
-            lines.append(f"  {name[:3].upper():4s} = {value / 1e6:.5f} MPa  "
-                         f"(se {self.standard_errors_pa[name] / 1e6:.5f}, CI [{low / 1e6:.5f}, {high / 1e6:.5f}] MPa)")
-        lines.append(f"  residual RMS of the linearised stress y = {self.residual_rms_pa / 1e3:.3f} kPa")
+            lines.append(
+                f"  {name[:3].upper():4s} = {value / 1e6:.5f} MPa  "
+                f"(se {self.standard_errors_pa[name] / 1e6:.5f}, CI [{low / 1e6:.5f}, "
+                f"{high / 1e6:.5f}] MPa)"
+            )
+        lines.append(
+            f"  residual RMS of the linearised stress y = {self.residual_rms_pa / 1e3:.3f} kPa")
         return "\n".join(lines)
 
 
@@ -154,7 +161,8 @@ def fit_yeoh(stretch, nominal_stress_pa, include_c30: bool = False,
     design = np.column_stack(columns)
     coefficients, _, rank, _ = np.linalg.lstsq(design, y, rcond=None)
     if rank < n_params:
-        raise ValueError("tensile data span too small a stretch range to separate the Yeoh constants")
+        raise ValueError(
+            "tensile data span too small a stretch range to separate the Yeoh constants")
     residuals = y - design @ coefficients
     dof = lam.size - n_params
     sigma2 = float(residuals @ residuals) / dof
@@ -165,9 +173,12 @@ def fit_yeoh(stretch, nominal_stress_pa, include_c30: bool = False,
     material = YeohMaterial(**dict(zip(names, (float(c) for c in coefficients))))
     return YeohFit(
         material=material,
-        standard_errors_pa={n: float(e) for n, e in zip(names, errors)},
-        confidence_intervals_pa={n: (float(c - t_value * e), float(c + t_value * e))
-                                 for n, c, e in zip(names, coefficients, errors)},
+        standard_errors_pa={n: float(e)
+                            for n, e in zip(names, errors)},
+        confidence_intervals_pa={
+            n: (float(c - t_value * e), float(c + t_value * e))
+            for n, c, e in zip(names, coefficients, errors)
+        },
         confidence_level=confidence_level,
         residual_rms_pa=float(np.sqrt(np.mean(residuals**2))),
         points=int(lam.size),
@@ -184,7 +195,8 @@ def validate_tensile_data(stretch, stress) -> None:
         if lam <= 0.0:
             raise ValueError(f"row {row}: stretch must be > 0, got {lam}")
         if row > 1 and lam <= stretch[row - 2]:
-            raise ValueError(f"row {row}: stretch is not increasing ({stretch[row - 2]} then {lam})")
+            raise ValueError(
+                f"row {row}: stretch is not increasing ({stretch[row - 2]} then {lam})")
     if stretch.size < MIN_FIT_POINTS:
         raise ValueError(f"too few points: {stretch.size}, need at least {MIN_FIT_POINTS}")
 
@@ -202,7 +214,10 @@ def load_tensile_csv(path) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"{path}: empty file")
     header = [h.strip().lower() for h in rows[0]]
     if len(header) < 2:
-        raise ValueError(f"{path}: the header needs two columns (stretch|strain, stress_pa|stress_kpa|stress_mpa)")
+        raise ValueError(
+            f"{path}: the header needs two columns (stretch|strain, "
+            "stress_pa|stress_kpa|stress_mpa)"
+        )
     kinds = {"stretch": 0.0, "strain": 1.0}
     scales = {"stress_pa": 1.0, "stress_kpa": 1e3, "stress_mpa": 1e6}
     if header[0] not in kinds or header[1] not in scales:

@@ -17,10 +17,10 @@ with pressure, V(p) = V0 + k (p - p_atm)::
 The paper assumes every orifice is choked; near equilibrium (r -> 1) that is false and a
 choked-only model never settles. The subsonic branch has an infinite slope at r = 1,
 which makes the ODE stiff there: a fixed-step explicit Euler cannot settle (it chatters
-with an amplitude that grows with dt^2, and beyond a step size it runs away). :meth:`PneumaticPlant.step`
-therefore integrates each chamber by backward Euler, solved per step by a
-bracketed Newton iteration; the backward-Euler map is monotone, so it never overshoots the
-source and settles exactly at equilibrium for any step.
+with an amplitude that grows with dt^2, and beyond a step size it runs away).
+:meth:`PneumaticPlant.step` therefore integrates each chamber by backward Euler, solved per step by
+a bracketed Newton iteration; the backward-Euler map is monotone, so it never overshoots the source
+and settles exactly at equilibrium for any step.
 
 The regulator follows its setpoint with a first-order lag and a rate limit, integrated
 exactly (stable for any step). Its flow demand is not modelled: it is assumed large
@@ -43,17 +43,17 @@ from softgrip_ros.checks import require_positive
 
 P_ATM_PA = 101_325.0
 R_AIR_J_PER_KG_K = 287.05
-RHO0_KG_PER_M3 = 1.185       # ISO 6358 reference density
-T0_K = 293.15                # ISO 6358 reference temperature
+RHO0_KG_PER_M3 = 1.185  # ISO 6358 reference density
+T0_K = 293.15  # ISO 6358 reference temperature
 
 
 class Valve(enum.IntEnum):
     """Valve-block state of one channel (the CAN ValveCommand values)."""
 
     CLOSED = 0
-    SUPPLY = 1    # chamber <-> regulator output
-    VACUUM = 2    # chamber <-> vacuum source (fast evacuation)
-    VENT = 3      # chamber <-> atmosphere
+    SUPPLY = 1  # chamber <-> regulator output
+    VACUUM = 2  # chamber <-> vacuum source (fast evacuation)
+    VENT = 3  # chamber <-> atmosphere
 
 
 @dataclasses.dataclass(frozen=True)
@@ -89,14 +89,16 @@ class PneumaticParameters:
     regulator_rate_limit_pa_per_s: float = 2.0e6
 
     def __post_init__(self):
-        require_positive(self, "chamber_volume_m3", "min_chamber_volume_m3", "supply_conductance", "vacuum_conductance",
-                         "vent_conductance", "temperature_k", "regulator_time_constant_s",
-                         "regulator_rate_limit_pa_per_s")
+        require_positive(self, "chamber_volume_m3", "min_chamber_volume_m3", "supply_conductance",
+                         "vacuum_conductance", "vent_conductance", "temperature_k",
+                         "regulator_time_constant_s", "regulator_rate_limit_pa_per_s")
         if not 1 <= self.channels <= 4:
-            raise ValueError(f"channels must lie in 1..4 (the ValveCommand frame has 4), got {self.channels}")
+            raise ValueError(
+                f"channels must lie in 1..4 (the ValveCommand frame has 4), got {self.channels}")
         if not 0.0 < self.critical_ratio < 1.0:
             raise ValueError(f"critical_ratio b must lie in (0, 1), got {self.critical_ratio}")
-        if not (math.isfinite(self.chamber_compliance_m3_per_pa) and self.chamber_compliance_m3_per_pa >= 0.0):
+        if not (math.isfinite(self.chamber_compliance_m3_per_pa) and
+                self.chamber_compliance_m3_per_pa >= 0.0):
             raise ValueError("chamber_compliance_m3_per_pa must be >= 0 and finite")
         if not -P_ATM_PA < self.vacuum_source_gauge_pa < 0.0 < self.supply_gauge_pa:
             raise ValueError("need -101325 < vacuum_source_gauge_pa < 0 < supply_gauge_pa")
@@ -106,15 +108,18 @@ class PneumaticParameters:
         return R_AIR_J_PER_KG_K * self.temperature_k
 
 
-def orifice_mass_flow(p_from_pa, p_to_pa, conductance: float, critical_ratio: float, temperature_k: float):
-    """Signed ISO 6358 mass flow (kg/s) from the ``p_from`` side to the ``p_to`` side; arrays allowed."""
+def orifice_mass_flow(p_from_pa, p_to_pa, conductance: float, critical_ratio: float,
+                      temperature_k: float):
+    """Signed ISO 6358 mass flow (kg/s) from the ``p_from`` side to the ``p_to`` side; arrays
+    allowed."""
     p_from = np.asarray(p_from_pa, dtype=float)
     p_to = np.asarray(p_to_pa, dtype=float)
     upstream = np.maximum(p_from, p_to)
     downstream = np.minimum(p_from, p_to)
     ratio = downstream / upstream
     subsonic = np.clip((ratio - critical_ratio) / (1.0 - critical_ratio), 0.0, 1.0)
-    flow = conductance * RHO0_KG_PER_M3 * upstream * math.sqrt(T0_K / temperature_k) * np.sqrt(1.0 - subsonic**2)
+    flow = conductance * RHO0_KG_PER_M3 * upstream * math.sqrt(
+        T0_K / temperature_k) * np.sqrt(1.0 - subsonic**2)
     result = np.where(p_from >= p_to, flow, -flow)
     return float(result) if result.ndim == 0 else result
 
@@ -154,43 +159,53 @@ class PneumaticPlant:
     # ---- the model ----------------------------------------------------------------------------
     def volume_m3(self, chamber_pa):
         par = self.parameters
-        return np.maximum(par.chamber_volume_m3 + par.chamber_compliance_m3_per_pa * (np.asarray(chamber_pa) - P_ATM_PA),
-                          par.min_chamber_volume_m3)
+        return np.maximum(
+            par.chamber_volume_m3 + par.chamber_compliance_m3_per_pa *
+            (np.asarray(chamber_pa) - P_ATM_PA), par.min_chamber_volume_m3)
 
     def capacitance(self, chamber_pa):
         """V + p dV/dp (m^3): the chamber's isothermal capacitance times R T."""
         par = self.parameters
-        swelling = np.where(self.volume_m3(chamber_pa) > par.min_chamber_volume_m3, par.chamber_compliance_m3_per_pa, 0.0)
+        swelling = np.where(
+            self.volume_m3(chamber_pa) > par.min_chamber_volume_m3,
+            par.chamber_compliance_m3_per_pa, 0.0)
         return self.volume_m3(chamber_pa) + np.asarray(chamber_pa) * swelling
 
-    def source(self, valve: Valve, regulator_gauge_pa: float, sources_live: bool = True) -> tuple[float, float]:
-        """(absolute pressure, conductance) a valve state connects the chamber to; conductance 0 = closed.
-        ``sources_live`` false (the regulator disabled): the vacuum line is isolated and vented."""
+    def source(self, valve: Valve, regulator_gauge_pa: float,
+               sources_live: bool = True) -> tuple[float, float]:
+        """(absolute pressure, conductance) a valve state connects the chamber to; conductance 0 =
+        closed. ``sources_live`` false (the regulator disabled): the vacuum line is isolated and
+        vented."""
         par = self.parameters
         if valve == Valve.SUPPLY:
             return P_ATM_PA + regulator_gauge_pa, par.supply_conductance
         if valve == Valve.VACUUM:
-            return P_ATM_PA + (par.vacuum_source_gauge_pa if sources_live else 0.0), par.vacuum_conductance
+            return P_ATM_PA + (par.vacuum_source_gauge_pa
+                               if sources_live else 0.0), par.vacuum_conductance
         if valve == Valve.VENT:
             return P_ATM_PA, par.vent_conductance
         return P_ATM_PA, 0.0
 
-    def chamber_mass_flow(self, chamber_pa: float, valve: Valve, regulator_gauge_pa: float) -> float:
+    def chamber_mass_flow(self, chamber_pa: float, valve: Valve,
+                          regulator_gauge_pa: float) -> float:
         """Mass flow into one chamber (kg/s)."""
         source_pa, conductance = self.source(valve, regulator_gauge_pa)
         if conductance == 0.0:
             return 0.0
-        return orifice_mass_flow(source_pa, chamber_pa, conductance, self.parameters.critical_ratio,
-                                 self.parameters.temperature_k)
+        return orifice_mass_flow(source_pa, chamber_pa, conductance,
+                                 self.parameters.critical_ratio, self.parameters.temperature_k)
 
-    def chamber_rate(self, chamber_pa: float, valve: Valve, regulator_gauge_pa: float, sources_live: bool = True) -> float:
+    def chamber_rate(self, chamber_pa: float, valve: Valve, regulator_gauge_pa: float,
+                     sources_live: bool = True) -> float:
         """dp/dt of one chamber (Pa/s)."""
         source_pa, conductance = self.source(valve, regulator_gauge_pa, sources_live)
         return self.rate_and_slopes(float(chamber_pa), source_pa, conductance)[0]
 
-    def rate_and_slopes(self, chamber_pa: float, source_pa: float, conductance: float) -> tuple[float, float, float]:
+    def rate_and_slopes(self, chamber_pa: float, source_pa: float,
+                        conductance: float) -> tuple[float, float, float]:
         """(dp/dt, its partial derivative by the chamber pressure, by the source pressure) of one
-        chamber joined to a source through ``conductance``; scalar, plain floats (the filters' hot path).
+        chamber joined to a source through ``conductance``; scalar, plain floats (the filters' hot
+        path).
 
         At r -> 1 the subsonic branch's slope is infinite; it is capped at a finite large value
         so that the implicit-step Jacobian stays defined (it then tends to the exact limit)."""
@@ -209,9 +224,11 @@ class PneumaticPlant:
             dphi = -s / (max(phi, 1e-9) * (1.0 - b))
         gain = conductance * RHO0_KG_PER_M3 * math.sqrt(T0_K / par.temperature_k)
         if inflow:
-            flow, dflow_dp, dflow_ds = gain * upstream * phi, gain * dphi, gain * (phi - ratio * dphi)
+            flow, dflow_dp, dflow_ds = gain * upstream * phi, gain * dphi, gain * (phi -
+                                                                                   ratio * dphi)
         else:
-            flow, dflow_dp, dflow_ds = -gain * upstream * phi, -gain * (phi - ratio * dphi), -gain * dphi
+            flow, dflow_dp, dflow_ds = -gain * upstream * phi, -gain * (phi -
+                                                                        ratio * dphi), -gain * dphi
         volume = par.chamber_volume_m3 + par.chamber_compliance_m3_per_pa * (chamber_pa - P_ATM_PA)
         swelling = par.chamber_compliance_m3_per_pa if volume > par.min_chamber_volume_m3 else 0.0
         capacitance = max(volume, par.min_chamber_volume_m3) + chamber_pa * swelling
@@ -223,12 +240,15 @@ class PneumaticPlant:
     def regulator_target_gauge_pa(self, inputs: PlantInputs) -> float:
         par = self.parameters
         if not inputs.regulator_enabled:
-            return 0.0                       # the inlet cut: no setpoint or fault can raise the output
-        target = min(max(inputs.regulator_setpoint_gauge_pa, par.vacuum_source_gauge_pa), par.supply_gauge_pa)
+            # the inlet cut: no setpoint or fault can raise the output
+            return 0.0
+        target = min(max(inputs.regulator_setpoint_gauge_pa, par.vacuum_source_gauge_pa),
+                     par.supply_gauge_pa)
         return min(target + inputs.regulator_overshoot_pa, par.supply_gauge_pa)
 
     def chamber_mass_kg(self, chamber_pa):
-        return np.asarray(chamber_pa) * self.volume_m3(chamber_pa) / self.parameters.gas_constant_times_temperature
+        return np.asarray(chamber_pa) * self.volume_m3(
+            chamber_pa) / self.parameters.gas_constant_times_temperature
 
     # ---- integration --------------------------------------------------------------------------
     def step(self, state: PlantState, inputs: PlantInputs, dt: float) -> PlantState:
@@ -236,8 +256,10 @@ class PneumaticPlant:
         if not (math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be positive and finite, got {dt}")
         regulator = self.regulator_step(state.regulator_gauge_pa, inputs, dt)[0]
-        chambers = np.array([self.chamber_step(p, valve, regulator, dt, inputs.regulator_enabled)[0]
-                             for p, valve in zip(state.chamber_pa, self._valves(inputs))])
+        chambers = np.array([
+            self.chamber_step(p, valve, regulator, dt, inputs.regulator_enabled)[0]
+            for p, valve in zip(state.chamber_pa, self._valves(inputs))
+        ])
         return PlantState(regulator, chambers)
 
     def chamber_step(self, chamber_pa: float, valve: Valve, regulator_gauge_pa: float, dt: float,
@@ -284,8 +306,10 @@ class PneumaticPlant:
         root_gap = 0.5 * (math.sqrt(k_dt * k_dt + 4.0 * gap_n) - k_dt)
         return source_pa - math.copysign(root_gap * root_gap, source_pa - p_n)
 
-    def regulator_step(self, regulator_gauge_pa: float, inputs: PlantInputs, dt: float) -> tuple[float, float]:
-        """The regulator after dt, exactly (lag and rate limit), and its derivative by the start value."""
+    def regulator_step(self, regulator_gauge_pa: float, inputs: PlantInputs,
+                       dt: float) -> tuple[float, float]:
+        """The regulator after dt, exactly (lag and rate limit), and its derivative by the start
+        value."""
         par = self.parameters
         target = self.regulator_target_gauge_pa(inputs)
         decay = math.exp(-dt / par.regulator_time_constant_s)
@@ -306,32 +330,45 @@ class PneumaticPlant:
     def explicit_euler_step(self, state: PlantState, inputs: PlantInputs, dt: float) -> PlantState:
         """The naive scheme, kept to show where it fails (tests and the integrator benchmark)."""
         regulator = self.regulator_step(state.regulator_gauge_pa, inputs, dt)[0]
-        chambers = np.array([p + dt * self.chamber_rate(p, valve, state.regulator_gauge_pa, inputs.regulator_enabled)
-                             for p, valve in zip(state.chamber_pa, self._valves(inputs))])
+        chambers = np.array([
+            p +
+            dt * self.chamber_rate(p, valve, state.regulator_gauge_pa, inputs.regulator_enabled)
+            for p, valve in zip(state.chamber_pa, self._valves(inputs))
+        ])
         return PlantState(regulator, chambers)
 
     def derivative(self, state_vector: np.ndarray, inputs: PlantInputs) -> np.ndarray:
-        """d/dt of [regulator gauge, chamber abs...] for scipy's solve_ivp (rate limit included)."""
+        """d/dt of [regulator gauge, chamber abs...] for scipy's solve_ivp (rate limit
+        included)."""
         par = self.parameters
         regulator, chambers = state_vector[0], state_vector[1:]
         target = self.regulator_target_gauge_pa(inputs)
-        regulator_rate = min(max((target - regulator) / par.regulator_time_constant_s,
-                                 -par.regulator_rate_limit_pa_per_s), par.regulator_rate_limit_pa_per_s)
-        rates = [self.chamber_rate(p, valve, regulator, inputs.regulator_enabled)
-                 for p, valve in zip(chambers, self._valves(inputs))]
+        regulator_rate = min(
+            max((target - regulator) / par.regulator_time_constant_s,
+                -par.regulator_rate_limit_pa_per_s), par.regulator_rate_limit_pa_per_s)
+        rates = [
+            self.chamber_rate(p, valve, regulator, inputs.regulator_enabled)
+            for p, valve in zip(chambers, self._valves(inputs))
+        ]
         return np.array([regulator_rate, *rates])
 
-    # ---- closed forms ----------------------------------------------------------------------------
-    def choked_fill_time_s(self, source_pa: float, from_pa: float, to_pa: float, conductance: float) -> float:
-        """Time to fill from ``from_pa`` to ``to_pa`` from a constant source while the flow stays choked.
+    # ---- closed forms
+    # ----------------------------------------------------------------------------
+    def choked_fill_time_s(self, source_pa: float, from_pa: float, to_pa: float,
+                           conductance: float) -> float:
+        """Time to fill from ``from_pa`` to ``to_pa`` from a constant source while the flow stays
+        choked.
 
-        The flow is constant, m = C rho0 p_s sqrt(T0/T); integrating dp (V0 + k(2p - p_atm)) = R T m dt
-        (with V(p) above its floor) gives t = [V0 (p1 - p0) + k (p1^2 - p0^2 - p_atm (p1 - p0))] / (R T m).
+        The flow is constant, m = C rho0 p_s sqrt(T0/T); integrating dp (V0 + k(2p - p_atm)) = R T
+        m dt (with V(p) above its floor) gives t = [V0 (p1 - p0) + k (p1^2 - p0^2 - p_atm (p1 -
+        p0))] / (R T m).
         """
         par = self.parameters
         if to_pa > par.critical_ratio * source_pa:
-            raise ValueError("the flow is not choked all the way: to_pa must stay below b * source_pa")
+            raise ValueError(
+                "the flow is not choked all the way: to_pa must stay below b * source_pa")
         flow = conductance * RHO0_KG_PER_M3 * source_pa * math.sqrt(T0_K / par.temperature_k)
         k, v0 = par.chamber_compliance_m3_per_pa, par.chamber_volume_m3
-        return ((v0 * (to_pa - from_pa) + k * (to_pa**2 - from_pa**2 - P_ATM_PA * (to_pa - from_pa)))
-                / (par.gas_constant_times_temperature * flow))
+        return ((v0 * (to_pa - from_pa) + k * (to_pa**2 - from_pa**2 - P_ATM_PA *
+                                               (to_pa - from_pa))) /
+                (par.gas_constant_times_temperature * flow))

@@ -52,11 +52,13 @@ class ReferenceSolution:
     """A rest state of the left finger in the PyElastica rod."""
 
     pressure_pa: float
-    tip: tuple                  # (x, z, tangent angle from +z) of the tip piece's end, as RodSolution.tip
-    nodes_m: np.ndarray         # (K, 2) rod nodes x, z
-    contact_force_n: float      # magnitude of the summed penalty forces on the finger
-    max_penetration_m: float    # deepest face point inside the object at rest
-    max_speed_m_s: float        # the largest node speed at the end (rest means below rest_speed_m_s)
+    # (x, z, tangent angle from +z) of the tip piece's end, as RodSolution.tip
+    tip: tuple
+    nodes_m: np.ndarray  # (K, 2) rod nodes x, z
+    contact_force_n: float  # magnitude of the summed penalty forces on the finger
+    max_penetration_m: float  # deepest face point inside the object at rest
+    # the largest node speed at the end (rest means below rest_speed_m_s)
+    max_speed_m_s: float
     at_rest: bool
     simulated_s: float
     steps: int
@@ -72,34 +74,42 @@ class ReferenceFinger:
     damping_per_s: the uniform damping rate that brings the rod to rest.
     """
 
-    def __init__(self, rod: RodFinger, elements_per_segment: int = 16, contact_stiffness_n_per_m: float = 2e4,
-                 damping_per_s: float = 150.0, time_step_s: float = 1e-5):
+    def __init__(self, rod: RodFinger, elements_per_segment: int = 16,
+                 contact_stiffness_n_per_m: float = 2e4, damping_per_s: float = 150.0,
+                 time_step_s: float = 1e-5):
         if not elastica_available():
             raise ImportError(INSTALL_HINT)
         if not (isinstance(elements_per_segment, int) and 2 <= elements_per_segment <= 100):
-            raise ValueError(f"elements_per_segment must be an integer in [2, 100], got {elements_per_segment!r}")
+            raise ValueError(
+                "elements_per_segment must be an integer in [2, 100], got "
+                f"{elements_per_segment!r}"
+            )
         for name, value in (("contact_stiffness_n_per_m", contact_stiffness_n_per_m),
                             ("damping_per_s", damping_per_s), ("time_step_s", time_step_s)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be positive, got {value}")
-        self.rod = RodFinger(rod.geometry, rod.calibration, rod.material, elements_per_segment=elements_per_segment,
+        self.rod = RodFinger(rod.geometry, rod.calibration, rod.material,
+                             elements_per_segment=elements_per_segment,
                              finger_width_m=rod.finger_width_m,
                              linear_density_kg_per_m=rod.linear_density_kg_per_m)
         self.contact_stiffness_n_per_m = contact_stiffness_n_per_m
         self.damping_per_s = damping_per_s
         self.time_step_s = time_step_s
         g = rod.geometry
-        # a circular section carrying L2's EI and mass per length; its radius is half the wall depth d2
+        # a circular section carrying L2's EI and mass per length; its radius is half the wall
+        # depth d2
         self.radius_m = 0.5 * g.chamber_bottom_to_sidewall_m
-        area = math.pi * self.radius_m ** 2
-        self.youngs_modulus_pa = self.rod.bending_stiffness_nm2 / (0.25 * math.pi * self.radius_m ** 4)
+        area = math.pi * self.radius_m**2
+        self.youngs_modulus_pa = self.rod.bending_stiffness_nm2 / (0.25 * math.pi *
+                                                                   self.radius_m**4)
         self.density_kg_m3 = self.rod.linear_density_kg_per_m / area
 
     def solve(self, pressure_pa: float, obstacle: Circle | Sheet | None = None, gravity_m_s2=None,
               from_pressure_pa: float | None = None, ramp_s: float = 0.2, max_time_s: float = 3.0,
               rest_speed_m_s: float = 1e-5) -> ReferenceSolution:
         """Ramp the pressure from ``from_pressure_pa`` (default: ``pressure_pa``, no ramp) and run
-        until every node moves slower than ``rest_speed_m_s`` or ``max_time_s`` of simulated time."""
+        until every node moves slower than ``rest_speed_m_s`` or ``max_time_s`` of simulated
+        time."""
         import elastica as ea
 
         from_pressure_pa = pressure_pa if from_pressure_pa is None else from_pressure_pa
@@ -107,26 +117,30 @@ class ReferenceFinger:
             if not math.isfinite(value):
                 raise ValueError(f"{name} must be finite, got {value}")
         rod_model = self.rod
-        start_kappa, end_kappa = rod_model.free_curvatures(from_pressure_pa), rod_model.free_curvatures(pressure_pa)
+        start_kappa, end_kappa = rod_model.free_curvatures(
+            from_pressure_pa), rod_model.free_curvatures(pressure_pa)
         nodes, headings, _, surface, _, theta, direction, _ = rod_model._shape(start_kappa)
         gaps = rod_model._gaps(obstacle, surface)
         if gaps.size and gaps.min() < 0.0:
-            raise ValueError(f"the object overlaps the finger's start shape at {from_pressure_pa:.0f} Pa")
+            raise ValueError(
+                f"the object overlaps the finger's start shape at {from_pressure_pa:.0f} Pa")
         n = theta.size
         ds = rod_model.element_length_m
         position = np.zeros((3, n + 1))
         position[0], position[2] = nodes[:, 0], nodes[:, 1]
-        directors = np.stack([_directors(angle) for angle in direction], axis=-1)      # (3, 3, n)
+        directors = np.stack([_directors(angle) for angle in direction], axis=-1)  # (3, 3, n)
 
         class Simulator(ea.BaseSystemCollection, ea.Constraints, ea.Forcing, ea.Damping):
             pass
 
         turning_clamp, finger_loads = _build_classes()
         simulator = Simulator()
-        cosserat = ea.CosseratRod.straight_rod(
-            n, position[:, 0], position[:, 1] - position[:, 0], directors[0, :, 0], n * ds, self.radius_m,
-            self.density_kg_m3, youngs_modulus=self.youngs_modulus_pa, shear_modulus=self.youngs_modulus_pa / 3.0,
-            position=position, directors=directors)
+        cosserat = ea.CosseratRod.straight_rod(n, position[:, 0], position[:, 1] - position[:, 0],
+                                               directors[0, :, 0], n * ds, self.radius_m,
+                                               self.density_kg_m3,
+                                               youngs_modulus=self.youngs_modulus_pa,
+                                               shear_modulus=self.youngs_modulus_pa / 3.0,
+                                               position=position, directors=directors)
         simulator.append(cosserat)
         phi0 = rod_model._start[2]
 
@@ -137,12 +151,16 @@ class ReferenceFinger:
             kappa = start_kappa + load_fraction(t) * (end_kappa - start_kappa)
             return phi0 - 0.5 * kappa[0] * ds
 
-        simulator.constrain(cosserat).using(turning_clamp, constrained_position_idx=(0,), constrained_director_idx=(0,),
+        simulator.constrain(cosserat).using(turning_clamp, constrained_position_idx=(0,),
+                                            constrained_director_idx=(0,),
                                             first_heading=first_heading)
-        gravity = None if gravity_m_s2 is None else np.asarray(gravity_m_s2, dtype=float).reshape(2)
-        loads = dict(model=rod_model, obstacle=obstacle, stiffness=self.contact_stiffness_n_per_m, gravity=gravity)
+        gravity = None if gravity_m_s2 is None else np.asarray(gravity_m_s2,
+                                                               dtype=float).reshape(2)
+        loads = dict(model=rod_model, obstacle=obstacle, stiffness=self.contact_stiffness_n_per_m,
+                     gravity=gravity)
         simulator.add_forcing_to(cosserat).using(finger_loads, **loads)
-        simulator.dampen(cosserat).using(ea.AnalyticalLinearDamper, uniform_damping_constant=self.damping_per_s,
+        simulator.dampen(cosserat).using(ea.AnalyticalLinearDamper,
+                                         uniform_damping_constant=self.damping_per_s,
                                          time_step=self.time_step_s)
         simulator.finalize()
         stepper = ea.PositionVerlet()
@@ -152,7 +170,8 @@ class ReferenceFinger:
         speed = math.inf
         while t < max_time_s:
             kappa = start_kappa + load_fraction(float(t)) * (end_kappa - start_kappa)
-            cosserat.rest_kappa[1, :] = -0.5 * (kappa[:-1] + kappa[1:])      # voronoi: mean of the two elements; elastica bends the other way about +y
+            # voronoi: mean of the two elements; elastica bends the other way about +y
+            cosserat.rest_kappa[1, :] = -0.5 * (kappa[:-1] + kappa[1:])
             for _ in range(chunk):
                 t = stepper.step(simulator, t, dt)
             steps += chunk
@@ -162,9 +181,11 @@ class ReferenceFinger:
             if t >= ramp_s and speed < rest_speed_m_s:
                 break
         wall = time.perf_counter() - started
-        return self._solution(pressure_pa, cosserat, obstacle, speed, rest_speed_m_s, float(t), steps, wall)
+        return self._solution(pressure_pa, cosserat, obstacle, speed, rest_speed_m_s, float(t),
+                              steps, wall)
 
-    def _solution(self, pressure_pa, cosserat, obstacle, speed, rest_speed, simulated, steps, wall) -> ReferenceSolution:
+    def _solution(self, pressure_pa, cosserat, obstacle, speed, rest_speed, simulated, steps,
+                  wall) -> ReferenceSolution:
         position = cosserat.position_collection
         nodes = np.column_stack([position[0], position[2]])
         surface, _ = _face_points(self.rod, cosserat)
@@ -174,12 +195,14 @@ class ReferenceFinger:
         tangent = cosserat.director_collection[2, :, -1]
         heading = math.atan2(tangent[0], tangent[2])
         tip_length = self.rod.geometry.tip_length_m
-        tip = (nodes[-1, 0] + tip_length * math.sin(heading), nodes[-1, 1] + tip_length * math.cos(heading), heading)
+        tip = (nodes[-1, 0] + tip_length * math.sin(heading),
+               nodes[-1, 1] + tip_length * math.cos(heading), heading)
         finite = bool(np.all(np.isfinite(nodes)))
-        return ReferenceSolution(pressure_pa=float(pressure_pa), tip=tip, nodes_m=nodes,
-                                 contact_force_n=float(np.linalg.norm(force.sum(axis=0))) if force.size else 0.0,
-                                 max_penetration_m=penetration, max_speed_m_s=speed,
-                                 at_rest=finite and speed < rest_speed, simulated_s=simulated, steps=steps, wall_s=wall)
+        return ReferenceSolution(
+            pressure_pa=float(pressure_pa), tip=tip, nodes_m=nodes,
+            contact_force_n=float(np.linalg.norm(force.sum(axis=0))) if force.size else 0.0,
+            max_penetration_m=penetration, max_speed_m_s=speed, at_rest=finite and
+            speed < rest_speed, simulated_s=simulated, steps=steps, wall_s=wall)
 
 
 def _directors(heading_rad: float) -> np.ndarray:
@@ -190,7 +213,7 @@ def _directors(heading_rad: float) -> np.ndarray:
 
 def _face_points(model: RodFinger, cosserat):
     """Chamber-face points of the rod's nodes (K, 2) and the inward normals there (K, 2)."""
-    tangents = cosserat.director_collection[2]                        # (3, n) element tangents
+    tangents = cosserat.director_collection[2]  # (3, n) element tangents
     node_tangents = np.empty((3, tangents.shape[1] + 1))
     node_tangents[:, 0], node_tangents[:, -1] = tangents[:, 0], tangents[:, -1]
     node_tangents[:, 1:-1] = tangents[:, :-1] + tangents[:, 1:]
@@ -232,7 +255,8 @@ def _build_classes():
             super().constrain_values(system, time)
 
     class FingerLoads(ea.NoForces):
-        """Penalty contact at the chamber faces (force and its moment) and the tip piece's weight."""
+        """Penalty contact at the chamber faces (force and its moment) and the tip piece's
+        weight."""
 
         def __init__(self, model, obstacle, stiffness, gravity):
             super().__init__()
@@ -242,7 +266,7 @@ def _build_classes():
         def apply_forces(self, system, time=0.0):
             model = self.model
             if self.gravity is not None:
-                weights = np.outer(self.gravity, model.node_masses_kg)          # (2, K)
+                weights = np.outer(self.gravity, model.node_masses_kg)  # (2, K)
                 system.external_forces[0] += weights[0]
                 system.external_forces[2] += weights[1]
                 tip_force = model.tip_mass_kg * self.gravity
@@ -264,7 +288,8 @@ def _build_classes():
             (about y) on the adjacent element(s), in their material frames."""
             system.external_forces[0, node] += force[0]
             system.external_forces[2, node] += force[1]
-            moment_y = arm[1] * force[0] - arm[0] * force[1]                   # (r x F)_y with r, F in x-z
+            # (r x F)_y with r, F in x-z
+            moment_y = arm[1] * force[0] - arm[0] * force[1]
             last = system.director_collection.shape[2] - 1
             node = node if node >= 0 else last + 1
             elements = [k for k in (node - 1, node) if 0 <= k <= last]
@@ -273,5 +298,3 @@ def _build_classes():
                 system.external_torques[:, k] += system.director_collection[:, :, k] @ torque
 
     return TurningClamp, FingerLoads
-
-

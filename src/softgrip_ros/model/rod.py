@@ -1,4 +1,5 @@
-"""L2: a quasi-static planar Kirchhoff rod of one finger's backbone, for scenes with contact or load.
+"""L2: a quasi-static planar Kirchhoff rod of one finger's backbone, for scenes with contact or
+load.
 
 The left finger's backbone follows the PCC layout of :mod:`softgrip_ros.model.kinematics`
 (rigid vertical part and first offset, five bending segments, rigid tip piece). Each bending
@@ -57,7 +58,8 @@ class Circle:
     radius_m: float
 
     def __post_init__(self):
-        if not all(math.isfinite(v) for v in (self.center_x_m, self.center_z_m, self.radius_m)) or self.radius_m <= 0:
+        if (not all(math.isfinite(v) for v in (self.center_x_m, self.center_z_m, self.radius_m)) or
+                self.radius_m <= 0):
             raise ValueError(f"a circle needs a finite centre and a positive radius, got {self}")
 
 
@@ -74,17 +76,18 @@ class Sheet:
 
 @dataclasses.dataclass
 class RodSolution:
-    """One equilibrium of the left finger. Arrays over the K = N + 1 element nodes of the bending part."""
+    """One equilibrium of the left finger. Arrays over the K = N + 1 element nodes of the bending
+    part."""
 
     pressure_pa: float
-    curvatures_per_m: np.ndarray      # (N,)
-    nodes_m: np.ndarray               # (K, 2) backbone x, z
-    surface_m: np.ndarray             # (K, 2) chamber-side surface points
-    tip: tuple                        # (x, z, tangent angle from +z) of the backbone's end
-    contact_points_m: np.ndarray      # (M, 2) surface points in contact
-    contact_forces_n: np.ndarray      # (M,) normal force at each, on the finger
-    contact_force_n: float            # magnitude of their sum
-    segment_angles_rad: np.ndarray    # (5,) theta_i, each segment's elements summed
+    curvatures_per_m: np.ndarray  # (N,)
+    nodes_m: np.ndarray  # (K, 2) backbone x, z
+    surface_m: np.ndarray  # (K, 2) chamber-side surface points
+    tip: tuple  # (x, z, tangent angle from +z) of the backbone's end
+    contact_points_m: np.ndarray  # (M, 2) surface points in contact
+    contact_forces_n: np.ndarray  # (M,) normal force at each, on the finger
+    contact_force_n: float  # magnitude of their sum
+    segment_angles_rad: np.ndarray  # (5,) theta_i, each segment's elements summed
     converged: bool
     message: str
     iterations: int
@@ -100,11 +103,13 @@ class RodFinger:
     linear_density_kg_per_m: mass per length for gravity (default: solid walls, rho w d2).
     """
 
-    def __init__(self, geometry: FingerGeometry, calibration: BendingCalibration, material: YeohMaterial | None = None,
-                 bending: str = "l1", elements_per_segment: int = 8, finger_width_m: float = 0.02,
+    def __init__(self, geometry: FingerGeometry, calibration: BendingCalibration,
+                 material: YeohMaterial | None = None, bending: str = "l1",
+                 elements_per_segment: int = 8, finger_width_m: float = 0.02,
                  linear_density_kg_per_m: float | None = None):
         if not (isinstance(elements_per_segment, int) and 1 <= elements_per_segment <= 200):
-            raise ValueError(f"elements_per_segment must be an integer in [1, 200], got {elements_per_segment!r}")
+            raise ValueError("elements_per_segment must be an integer in [1, 200], got "
+                             f"{elements_per_segment!r}")
         if not (math.isfinite(finger_width_m) and 1e-3 <= finger_width_m <= 0.2):
             raise ValueError(f"finger_width_m must lie in [0.001, 0.2] m, got {finger_width_m}")
         self.geometry, self.calibration = geometry, calibration
@@ -115,8 +120,9 @@ class RodFinger:
         self.elements_per_segment = elements_per_segment
         n = CHAMBER_COUNT * elements_per_segment
         self.element_segment = np.repeat(np.arange(CHAMBER_COUNT), elements_per_segment)
-        self.bending_stiffness_nm2 = (16.0 * self.material.c10_pa * g.wall_thickness_m * finger_width_m
-                                      * g.chamber_bottom_to_sidewall_m ** 2 / calibration.gain)
+        self.bending_stiffness_nm2 = (16.0 * self.material.c10_pa * g.wall_thickness_m *
+                                      finger_width_m * g.chamber_bottom_to_sidewall_m**2 /
+                                      calibration.gain)
         density = (SILICONE_DENSITY_KG_M3 * finger_width_m * g.chamber_bottom_to_sidewall_m
                    if linear_density_kg_per_m is None else linear_density_kg_per_m)
         if not (math.isfinite(density) and density >= 0):
@@ -128,11 +134,14 @@ class RodFinger:
         self.finger_width_m, self.linear_density_kg_per_m = finger_width_m, density
         self.tip_mass_kg = density * g.tip_length_m
         offsets = [g.chamber_face_offset_m(i) for i in range(CHAMBER_COUNT)]
-        self.surface_offsets_m = np.array([offsets[min(k // elements_per_segment, CHAMBER_COUNT - 1)]
-                                           for k in range(n + 1)])
-        # the chamber faces span the first L3 of each segment; the h3 gaps between them are recessed
-        local = np.array([(k - min(k // elements_per_segment, CHAMBER_COUNT - 1) * elements_per_segment)
-                          * self.element_length_m for k in range(n + 1)])
+        self.surface_offsets_m = np.array(
+            [offsets[min(k // elements_per_segment, CHAMBER_COUNT - 1)] for k in range(n + 1)])
+        # the chamber faces span the first L3 of each segment; the h3 gaps between them are
+        # recessed
+        local = np.array([
+            (k - min(k // elements_per_segment, CHAMBER_COUNT - 1) * elements_per_segment) *
+            self.element_length_m for k in range(n + 1)
+        ])
         self.contact_nodes = np.flatnonzero(local <= g.chamber_length_m + 1e-12)
         phi0 = g.inclination_rad
         self._start = (-g.root_x_m + g.first_chamber_offset_m * math.sin(phi0),
@@ -149,9 +158,10 @@ class RodFinger:
         """The node nearest the middle of chamber ``chamber_index``'s face (an index into
         ``RodSolution.surface_m``)."""
         if not 0 <= chamber_index < CHAMBER_COUNT:
-            raise ValueError(f"chamber_index must lie in [0, {CHAMBER_COUNT - 1}], got {chamber_index}")
-        return chamber_index * self.elements_per_segment + int(round(
-            0.5 * self.geometry.chamber_length_m / self.element_length_m))
+            raise ValueError(
+                f"chamber_index must lie in [0, {CHAMBER_COUNT - 1}], got {chamber_index}")
+        return chamber_index * self.elements_per_segment + int(
+            round(0.5 * self.geometry.chamber_length_m / self.element_length_m))
 
     def chamber_face_point_m(self, pressure_pa: float, chamber_index: int) -> np.ndarray:
         """(x, z) of the chamber-side surface at the middle of chamber ``chamber_index``'s face, in
@@ -165,7 +175,7 @@ class RodFinger:
         ds = self.element_length_m
         theta = kappa * ds
         x0, z0, phi0 = self._start
-        headings = phi0 - np.concatenate([[0.0], np.cumsum(theta)])           # (K,)
+        headings = phi0 - np.concatenate([[0.0], np.cumsum(theta)])  # (K,)
         half = 0.5 * theta
         sinc = np.where(half == 0.0, 1.0, np.sin(half) / np.where(half == 0.0, 1.0, half))
         chord = ds * sinc
@@ -174,19 +184,22 @@ class RodFinger:
         nodes[0] = (x0, z0)
         nodes[1:, 0] = x0 + np.cumsum(chord * np.sin(direction))
         nodes[1:, 1] = z0 + np.cumsum(chord * np.cos(direction))
-        normals = np.column_stack([np.cos(headings), -np.sin(headings)])        # inwards, towards the centre line
+        # inwards, towards the centre line
+        normals = np.column_stack([np.cos(headings), -np.sin(headings)])
         surface = nodes + self.surface_offsets_m[:, None] * normals
         tip_length = self.geometry.tip_length_m
-        tip = (nodes[-1, 0] + tip_length * math.sin(headings[-1]), nodes[-1, 1] + tip_length * math.cos(headings[-1]),
-               headings[-1])
+        tip = (nodes[-1, 0] + tip_length * math.sin(headings[-1]),
+               nodes[-1, 1] + tip_length * math.cos(headings[-1]), headings[-1])
         return nodes, headings, normals, surface, tip, theta, direction, chord
 
     def _tip_centre_of_mass(self, nodes, headings):
         """The middle of the rigid tip piece, where its weight acts."""
-        return nodes[-1] + 0.5 * self.geometry.tip_length_m * np.array([math.sin(headings[-1]), math.cos(headings[-1])])
+        return nodes[-1] + 0.5 * self.geometry.tip_length_m * np.array(
+            [math.sin(headings[-1]), math.cos(headings[-1])])
 
     def _jacobians(self, kappa, shape):
-        """d(nodes)/d(kappa), d(surface)/d(kappa), d(tip centre of mass)/d(kappa): (K, 2, N) and (2, N)."""
+        """d(nodes)/d(kappa), d(surface)/d(kappa), d(tip centre of mass)/d(kappa): (K, 2, N) and
+        (2, N)."""
         nodes, headings, normals, surface, tip, theta, direction, chord = shape
         ds, n = self.element_length_m, self._n
         half = 0.5 * theta
@@ -194,19 +207,27 @@ class RodFinger:
         safe = np.where(small, 1.0, half)
         sinc_slope = np.where(small, half * (-1.0 / 3.0 + half * half / 30.0),
                               (safe * np.cos(safe) - np.sin(safe)) / (safe * safe))
-        dchord = 0.5 * ds * sinc_slope                                          # d chord / d theta
-        own = np.column_stack([dchord * np.sin(direction) - 0.5 * chord * np.cos(direction),
-                               dchord * np.cos(direction) + 0.5 * chord * np.sin(direction)])   # (N, 2)
-        ends = nodes[1:]                                                        # end of element k
-        later = np.arange(n + 1)[:, None] > np.arange(n)[None, :]               # node j after element k
-        rel = nodes[:, None, :] - ends[None, :, :]                              # (K, N, 2)
-        d_nodes = np.where(later[..., None], own[None, :, :] + np.stack([-rel[..., 1], rel[..., 0]], axis=-1), 0.0)
-        d_normals = np.where(later[..., None], np.stack([np.sin(headings), np.cos(headings)], axis=-1)[:, None, :], 0.0)
+        dchord = 0.5 * ds * sinc_slope  # d chord / d theta
+        own = np.column_stack([
+            dchord * np.sin(direction) - 0.5 * chord * np.cos(direction),
+            # (N, 2)
+            dchord * np.cos(direction) + 0.5 * chord * np.sin(direction)
+        ])
+        ends = nodes[1:]  # end of element k
+        # node j after element k
+        later = np.arange(n + 1)[:, None] > np.arange(n)[None, :]
+        rel = nodes[:, None, :] - ends[None, :, :]  # (K, N, 2)
+        d_nodes = np.where(later[..., None],
+                           own[None, :, :] + np.stack([-rel[..., 1], rel[..., 0]], axis=-1), 0.0)
+        d_normals = np.where(later[..., None],
+                             np.stack([np.sin(headings), np.cos(headings)], axis=-1)[:, None, :],
+                             0.0)
         d_surface = d_nodes + self.surface_offsets_m[:, None, None] * d_normals
         tip_com = self._tip_centre_of_mass(nodes, headings)
         rel_tip = tip_com[None, :] - ends
-        d_tip_com = (own + np.column_stack([-rel_tip[:, 1], rel_tip[:, 0]])).T   # (2, N)
-        return (d_nodes * ds).transpose(0, 2, 1), (d_surface * ds).transpose(0, 2, 1), d_tip_com * ds
+        d_tip_com = (own + np.column_stack([-rel_tip[:, 1], rel_tip[:, 0]])).T  # (2, N)
+        return (d_nodes * ds).transpose(0, 2, 1), (d_surface * ds).transpose(0, 2,
+                                                                             1), d_tip_com * ds
 
     # ---- energy ------------------------------------------------------------------------------
     def _energy_and_gradient(self, kappa, kappa0, gravity):
@@ -218,7 +239,8 @@ class RodFinger:
         gradient = ei * ds * strain
         if gravity is not None:
             tip_com = self._tip_centre_of_mass(nodes, headings)
-            energy -= float(self.node_masses_kg @ (nodes @ gravity)) + self.tip_mass_kg * float(tip_com @ gravity)
+            energy -= (float(self.node_masses_kg @ (nodes @ gravity)) +
+                       self.tip_mass_kg * float(tip_com @ gravity))
             d_nodes, _, d_tip_com = self._jacobians(kappa, shape)
             gradient = gradient - np.einsum("j,jcn,c->n", self.node_masses_kg, d_nodes, gravity) \
                 - self.tip_mass_kg * (gravity @ d_tip_com)
@@ -230,7 +252,8 @@ class RodFinger:
             return np.empty(0)
         surface = surface[self.contact_nodes]
         if isinstance(obstacle, Circle):
-            return np.hypot(surface[:, 0] - obstacle.center_x_m, surface[:, 1] - obstacle.center_z_m) - obstacle.radius_m
+            return np.hypot(surface[:, 0] - obstacle.center_x_m,
+                            surface[:, 1] - obstacle.center_z_m) - obstacle.radius_m
         return -0.5 * obstacle.thickness_m - surface[:, 0]
 
     def _gap_jacobian(self, obstacle, kappa):
@@ -245,7 +268,8 @@ class RodFinger:
 
     # ---- solve -------------------------------------------------------------------------------
     def solve(self, pressure_pa: float, obstacle: Circle | Sheet | None = None, gravity_m_s2=None,
-              from_pressure_pa: float = 0.0, steps: int = 4, tolerance: float = 1e-12) -> RodSolution:
+              from_pressure_pa: float = 0.0, steps: int = 4,
+              tolerance: float = 1e-12) -> RodSolution:
         """The equilibrium at ``pressure_pa`` with an optional object and gravity (a 2-vector in
         the gripper's x, z frame; None: no gravity). Load continuation in ``steps`` from the free
         shape at ``from_pressure_pa`` (0: straight), which must clear the object."""
@@ -256,41 +280,49 @@ class RodFinger:
             raise ValueError(f"steps must be a positive integer, got {steps!r}")
         if obstacle is not None and not isinstance(obstacle, (Circle, Sheet)):
             raise ValueError(f"obstacle must be a Circle, a Sheet or None, got {obstacle!r}")
-        gravity = None if gravity_m_s2 is None else np.asarray(gravity_m_s2, dtype=float).reshape(2)
+        gravity = None if gravity_m_s2 is None else np.asarray(gravity_m_s2,
+                                                               dtype=float).reshape(2)
         if gravity is not None and not np.all(np.isfinite(gravity)):
             raise ValueError(f"gravity must be finite, got {gravity_m_s2}")
         start, end = self.free_curvatures(from_pressure_pa), self.free_curvatures(pressure_pa)
         kappa = start.copy()
         start_gap = self._gaps(obstacle, self._shape(kappa)[3])
         if start_gap.size and start_gap.min() < 0.0:
-            return self._solution(pressure_pa, kappa, obstacle, gravity, end, False, 0,
-                                  f"the object overlaps the finger's start shape at {from_pressure_pa:.0f} Pa "
-                                  f"(by {-start_gap.min() * 1e3:.2f} mm): open further first")
-        if obstacle is None and gravity is None:     # the minimiser is known in closed form
-            return self._solution(pressure_pa, end, None, None, end, True, 0, "free bending: kappa = kappa0")
+            return self._solution(
+                pressure_pa, kappa, obstacle, gravity, end, False, 0,
+                f"the object overlaps the finger's start shape at {from_pressure_pa:.0f} Pa "
+                f"(by {-start_gap.min() * 1e3:.2f} mm): open further first")
+        if obstacle is None and gravity is None:  # the minimiser is known in closed form
+            return self._solution(pressure_pa, end, None, None, end, True, 0,
+                                  "free bending: kappa = kappa0")
         iterations, message = 0, ""
         scale = max(1.0, float(np.max(np.abs(end))))
         for fraction in np.linspace(1.0 / steps, 1.0, steps):
             kappa0 = start + fraction * (end - start)
             constraints = [] if obstacle is None else [{
-                "type": "ineq", "fun": lambda u: self._gaps(obstacle, self._shape(u * scale)[3]),
-                "jac": lambda u: self._gap_jacobian(obstacle, u * scale) * scale}]
-            result = minimize(lambda u: self._scaled(u, scale, kappa0, gravity), kappa / scale, jac=True,
-                              method="SLSQP", constraints=constraints,
+                "type": "ineq", "fun": lambda u: self._gaps(obstacle,
+                                                            self._shape(u * scale)[3]),
+                "jac": lambda u: self._gap_jacobian(obstacle, u * scale) * scale
+            }]
+            result = minimize(lambda u: self._scaled(u, scale, kappa0, gravity), kappa / scale,
+                              jac=True, method="SLSQP", constraints=constraints,
                               options={"maxiter": 500, "ftol": tolerance})
             iterations += int(result.nit)
             kappa = result.x * scale
             if not result.success:
                 message = f"SLSQP did not converge at {fraction:.0%} of the load: {result.message}"
-                return self._solution(pressure_pa, kappa, obstacle, gravity, kappa0, False, iterations, message)
-        return self._solution(pressure_pa, kappa, obstacle, gravity, end, True, iterations, "converged")
+                return self._solution(pressure_pa, kappa, obstacle, gravity, kappa0, False,
+                                      iterations, message)
+        return self._solution(pressure_pa, kappa, obstacle, gravity, end, True, iterations,
+                              "converged")
 
     def _scaled(self, u, scale, kappa0, gravity):
         energy, gradient = self._energy_and_gradient(u * scale, kappa0, gravity)
         norm = self.bending_stiffness_nm2 * self.element_length_m * scale * scale
         return energy / norm, gradient * scale / norm
 
-    def _solution(self, pressure_pa, kappa, obstacle, gravity, kappa0, converged, iterations, message) -> RodSolution:
+    def _solution(self, pressure_pa, kappa, obstacle, gravity, kappa0, converged, iterations,
+                  message) -> RodSolution:
         shape = self._shape(kappa)
         nodes, surface, tip = shape[0], shape[3], shape[4]
         gaps = self._gaps(obstacle, surface)
@@ -312,8 +344,10 @@ class RodFinger:
             total = float(np.linalg.norm(forces @ normals))
         else:
             total = float(forces.sum())
-        return RodSolution(pressure_pa=float(pressure_pa), curvatures_per_m=kappa, nodes_m=nodes, surface_m=surface,
-                           tip=tip, contact_points_m=points, contact_forces_n=forces, contact_force_n=total,
-                           segment_angles_rad=kappa.reshape(CHAMBER_COUNT, -1).sum(axis=1) * self.element_length_m,
-                           converged=bool(converged), message=message, iterations=iterations,
-                           max_penetration_m=penetration)
+        return RodSolution(
+            pressure_pa=float(pressure_pa), curvatures_per_m=kappa, nodes_m=nodes,
+            surface_m=surface, tip=tip, contact_points_m=points, contact_forces_n=forces,
+            contact_force_n=total,
+            segment_angles_rad=kappa.reshape(CHAMBER_COUNT, -1).sum(axis=1) *
+            self.element_length_m, converged=bool(converged), message=message,
+            iterations=iterations, max_penetration_m=penetration)

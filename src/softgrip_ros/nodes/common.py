@@ -1,4 +1,5 @@
-"""Small pieces every softgrip node uses: the spin-and-exit-cleanly main, CAN bus opening, stamps."""
+"""Small pieces every softgrip node uses: the spin-and-exit-cleanly main, CAN bus opening,
+stamps."""
 from __future__ import annotations
 
 import contextlib
@@ -10,13 +11,15 @@ import threading
 import can
 import rclpy
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.executors import (ExternalShutdownException, MultiThreadedExecutor,
+                             SingleThreadedExecutor)
 from rclpy.time import Time
 
 from softgrip_ros.nodes.rclpy_compat import RCLError, SHUTDOWN_ERRORS, shutdown_executor
 from softgrip_ros.realtime import TimerThread
 
-SHUTDOWN_POLL_S = 0.5   # longest wait for a SIGINT/SIGTERM whose wake the executor missed (see run_node)
+# longest wait for a SIGINT/SIGTERM whose wake the executor missed (see run_node)
+SHUTDOWN_POLL_S = 0.5
 
 
 def stamp_seconds(stamp) -> float:
@@ -29,7 +32,8 @@ def future_stamp_reason(stamp_s: float, now_s: float, tolerance_s: float) -> str
     why it is refused. A stamp far ahead would make a receiver that orders or predicts by stamps
     wait for it, or step the filter that far: no message may do that."""
     if stamp_s and stamp_s - now_s > tolerance_s:
-        return f"stamped {stamp_s - now_s:.3g} s in the future (tolerance {tolerance_s:g} s): refused"
+        return (f"stamped {stamp_s - now_s:.3g} s in the future (tolerance {tolerance_s:g} s): "
+                "refused")
     return ""
 
 
@@ -69,8 +73,8 @@ def listened(node, publisher) -> bool:
 
 
 def notify(listeners, *args) -> None:
-    """Call every in-process listener with ``args``; one that raises does not starve the ones after it.
-    The first error is raised once all have run, for the caller to count and report."""
+    """Call every in-process listener with ``args``; one that raises does not starve the ones after
+    it. The first error is raised once all have run, for the caller to count and report."""
     first = None
     for listener in listeners:
         try:
@@ -89,8 +93,10 @@ class NodeTimers:
     def __init__(self, node, in_process: bool):
         self.node = node
         logger = node.get_logger()
-        self.thread = TimerThread(f"{node.get_name()}-timers", on_error=lambda name, error: logger.error(
-            f"{name} failed: {type(error).__name__}: {error}", throttle_duration_sec=5.0)) if in_process else None
+        self.thread = TimerThread(
+            f"{node.get_name()}-timers", on_error=lambda name, error: logger.error(
+                f"{name} failed: {type(error).__name__}: {error}", throttle_duration_sec=5.0)
+        ) if in_process else None
 
     def every(self, period_s: float, callback) -> None:
         if self.thread is None:
@@ -108,8 +114,8 @@ class NodeTimers:
 
 
 def run_node(node_factory, args=None, executor_factory=None) -> int:
-    """rclpy.init, build the node(s), spin until SIGINT/SIGTERM, then ``close()`` each (the pressure
-    controller vents) in reverse order of creation, and exit 0.
+    """rclpy.init, build the node(s), spin until SIGINT/SIGTERM, then ``close()`` each (the
+    pressure controller vents) in reverse order of creation, and exit 0.
 
     ``node_factory()`` returns a node or a list of nodes (a factory that fails part-way closes
     what it made before raising); ``executor_factory`` (default: a
@@ -122,11 +128,14 @@ def run_node(node_factory, args=None, executor_factory=None) -> int:
     timer it would wait forever (seen under load, 1 SIGTERM in a few dozen). So the first node
     carries a do-nothing timer every ``SHUTDOWN_POLL_S``: such a missed shutdown ends within it.
     """
-    rclpy.init(args=args)   # rclpy's own handlers turn SIGINT and SIGTERM into a shutdown that wakes spin
-    faulthandler.register(signal.SIGUSR1, all_threads=True)   # kill -USR1 <pid>: where is every thread?
+    # rclpy's own handlers turn SIGINT and SIGTERM into a shutdown that wakes spin
+    rclpy.init(args=args)
+    # kill -USR1 <pid>: where is every thread?
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     try:
         made = node_factory()
-    except (ValueError, ParameterException) as error:   # a bad parameter at start-up: say which, exit 1
+    # a bad parameter at start-up: say which, exit 1
+    except (ValueError, ParameterException) as error:
         print(f"{sys.argv[0]}: {error}", file=sys.stderr)
         rclpy.try_shutdown()
         return 1
@@ -176,8 +185,8 @@ def spinning(*nodes, context=None, threads: int = 4):
     per-callback cost is far lower); stop and join on exit. For tools that drive nodes from their
     own thread: tests, benchmarks, the demo.
     """
-    executor = (SingleThreadedExecutor(context=context) if threads == 1
-                else MultiThreadedExecutor(num_threads=threads, context=context))
+    executor = ((SingleThreadedExecutor(context=context)
+                 if threads == 1 else MultiThreadedExecutor(num_threads=threads, context=context)))
     for node in nodes:
         executor.add_node(node)
     stop = threading.Event()

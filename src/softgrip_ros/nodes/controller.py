@@ -36,7 +36,10 @@ def with_default_params(args: list) -> list:
     a params file given after ``-p`` would override it, so the default goes before the user's."""
     if "--params-file" in args:
         return args
-    return [*args[:1], "--ros-args", "--params-file", str(config_file("softgrip.yaml")), "--", *args[1:]]
+    return [
+        *args[:1], "--ros-args", "--params-file",
+        str(config_file("softgrip.yaml")), "--", *args[1:]
+    ]
 
 
 def make_nodes(context=None, overrides: dict | None = None) -> list:
@@ -45,15 +48,23 @@ def make_nodes(context=None, overrides: dict | None = None) -> list:
     overrides = overrides or {}
     nodes = []
     try:
-        controller = PressureControllerNode(in_process=True, context=context,
-                                            parameter_overrides=overrides.get("pressure_controller", []))
+        controller = PressureControllerNode(
+            in_process=True, context=context,
+            parameter_overrides=overrides.get("pressure_controller", []))
         nodes.append(controller)
         interface, channel = controller.values["can.interface"], controller.values["can.channel"]
         if interface == "virtual":
-            nodes.insert(0, SimDeviceNode(context=context, parameter_overrides=[
-                Parameter("can.interface", value=interface), Parameter("can.channel", value=channel)]))
-        estimator = EstimatorNode(in_process=True, context=context, parameter_overrides=overrides.get("estimator", []))
-        kinematics = KinematicsNode(in_process=True, context=context, parameter_overrides=overrides.get("kinematics", []))
+            nodes.insert(
+                0,
+                SimDeviceNode(
+                    context=context, parameter_overrides=[
+                        Parameter("can.interface", value=interface),
+                        Parameter("can.channel", value=channel)
+                    ]))
+        estimator = EstimatorNode(in_process=True, context=context,
+                                  parameter_overrides=overrides.get("estimator", []))
+        kinematics = KinematicsNode(in_process=True, context=context,
+                                    parameter_overrides=overrides.get("kinematics", []))
         grasp_manager = GraspManagerNode(in_process=True, context=context,
                                          parameter_overrides=overrides.get("grasp_manager", []))
         nodes += [estimator, kinematics, grasp_manager]
@@ -71,4 +82,5 @@ def make_nodes(context=None, overrides: dict | None = None) -> list:
 
 def main(args=None) -> int:
     args = with_default_params(list(sys.argv if args is None else args))
-    return run_node(make_nodes, args, executor_factory=lambda: MultiThreadedExecutor(num_threads=2))
+    return run_node(make_nodes, args,
+                    executor_factory=lambda: MultiThreadedExecutor(num_threads=2))

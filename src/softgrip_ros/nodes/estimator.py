@@ -31,9 +31,11 @@ from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import ESTIMATOR_SPECS as SPECS
 from softgrip_ros.nodes.specs import estimator_config
 
-ESTIMATOR_STATUS = "softgrip: estimator"   # its /diagnostics status (the pressure controller reads its NIS)
-EVIDENCE_PERIOD_S = 0.1        # the NIS evidence handed to the composed pressure controller this often
-REFUSAL_REPORTED_S = 5.0       # a refused message keeps the diagnostics at WARN this long
+# its /diagnostics status (the pressure controller reads its NIS)
+ESTIMATOR_STATUS = "softgrip: estimator"
+# the NIS evidence handed to the composed pressure controller this often
+EVIDENCE_PERIOD_S = 0.1
+REFUSAL_REPORTED_S = 5.0  # a refused message keeps the diagnostics at WARN this long
 PREDICTION_RATE_LIMIT_HZ = 50.0
 
 
@@ -48,17 +50,19 @@ class EstimatorNode(Node):
 
     def __init__(self, in_process: bool = False, **kwargs):
         super().__init__("estimator", **kwargs)
-        self._lock = threading.Lock()      # the in-process path calls in from the controller's CAN thread
+        # the in-process path calls in from the controller's CAN thread
+        self._lock = threading.Lock()
         self.estimate_listeners = []
-        self.consistency_listeners = []    # in-process: f(sensor, mean NIS, bound), every EVIDENCE_PERIOD_S
-        self.future_stamps = 0             # messages ignored for a stamp too far ahead
+        # in-process: f(sensor, mean NIS, bound), every EVIDENCE_PERIOD_S
+        self.consistency_listeners = []
+        self.future_stamps = 0  # messages ignored for a stamp too far ahead
         self.last_refusal, self.last_refusal_at = "", -float("inf")
         self.closed = False
         specs = {s.name: s for s in SPECS}
         self.values = declare(self, SPECS)
         self.estimator = PressureEstimator(estimator_config(self.values))
-        self.add_on_set_parameters_callback(
-            lambda params: check_all(specs, params, lambda _: "estimator parameters apply at start-up: restart the node"))
+        self.add_on_set_parameters_callback(lambda params: check_all(
+            specs, params, lambda _: "estimator parameters apply at start-up: restart the node"))
         self.period_s = 1.0 / self.values["frequency"]
         self.rest_period_s = 1.0 / self.values["rest_frequency"]
         self.last_publish_s = self.last_sample_s = -float("inf")
@@ -104,8 +108,10 @@ class EstimatorNode(Node):
             newest = None
             for name, gauge_pa, stamp_s in samples:
                 try:
-                    taken = not self.closed and self.estimator.add_measurement(name, gauge_pa, stamp_s)
-                except ValueError as error:      # an unknown sensor: the rest of the batch still counts
+                    taken = (not self.closed and
+                             self.estimator.add_measurement(name, gauge_pa, stamp_s))
+                # an unknown sensor: the rest of the batch still counts
+                except ValueError as error:
                     refused, taken = refused or error, False
                 if taken:
                     newest = stamp_s if newest is None else max(newest, stamp_s)
@@ -125,30 +131,40 @@ class EstimatorNode(Node):
 
     def on_status(self, msg: ControllerStatus) -> None:
         """The process model's inputs: the regulator command and the valve state."""
-        if not msg.valve_states or self._refused("controller/status", stamp_seconds(msg.header.stamp)):
+        if not msg.valve_states or self._refused("controller/status",
+                                                 stamp_seconds(msg.header.stamp)):
             return
         try:
             with self._lock:
-                self.estimator.set_inputs(msg.regulator_command_gauge_pressure_pa, msg.regulator_enabled,
-                                          msg.valve_states[0], stamp_seconds(msg.header.stamp))
-        except ValueError as error:     # a NaN command or an unknown valve value: keep the last inputs
-            self.get_logger().warn(f"controller/status ignored: {error}", throttle_duration_sec=5.0)
+                self.estimator.set_inputs(msg.regulator_command_gauge_pressure_pa,
+                                          msg.regulator_enabled, msg.valve_states[0],
+                                          stamp_seconds(msg.header.stamp))
+        # a NaN command or an unknown valve value: keep the last inputs
+        except ValueError as error:
+            self.get_logger().warn(f"controller/status ignored: {error}",
+                                   throttle_duration_sec=5.0)
 
     def _on_command(self, msg: PressureCommand) -> None:
-        valve = {PressureCommand.VENT: Valve.VENT, PressureCommand.HOLD: Valve.CLOSED}.get(msg.source)
-        if valve is not None and not self._refused("pressure/command", stamp_seconds(msg.header.stamp)):
+        valve = {PressureCommand.VENT: Valve.VENT,
+                 PressureCommand.HOLD: Valve.CLOSED}.get(msg.source)
+        if valve is not None and not self._refused("pressure/command",
+                                                   stamp_seconds(msg.header.stamp)):
             with self._lock:
                 inputs = self.estimator.inputs
-                self.estimator.set_inputs(inputs.regulator_setpoint_gauge_pa, inputs.regulator_enabled, valve,
+                self.estimator.set_inputs(inputs.regulator_setpoint_gauge_pa,
+                                          inputs.regulator_enabled, valve,
                                           stamp_seconds(msg.header.stamp) or self._now())
 
     def _on_timer(self) -> None:
-        """While no sample has come (and no estimate gone out) for two timer periods, publish the prediction."""
+        """While no sample has come (and no estimate gone out) for two timer periods, publish the
+        prediction."""
         now = self._now()
         with self._lock:
             estimate = None
-            if self.estimator.initialised and now - max(self.last_publish_s, self.last_sample_s) >= 2.0 / PREDICTION_RATE_LIMIT_HZ:
-                self.estimator.predict_to(now)    # committed: a sample older than this would be dropped as late anyway
+            if self.estimator.initialised and now - max(
+                    self.last_publish_s, self.last_sample_s) >= 2.0 / PREDICTION_RATE_LIMIT_HZ:
+                # committed: a sample older than this would be dropped as late anyway
+                self.estimator.predict_to(now)
                 estimate = self._take_estimate()
         self._publish(estimate)
 
@@ -163,8 +179,10 @@ class EstimatorNode(Node):
         if estimate is None:
             return
         if listened(self, self.estimate_pub):
-            publish(self, self.estimate_pub, messages.fluid_pressure(
-                estimate.gauge_pa, estimate.variance_pa2, estimate.stamp_s, "softgrip_chamber"))
+            publish(
+                self, self.estimate_pub,
+                messages.fluid_pressure(estimate.gauge_pa, estimate.variance_pa2, estimate.stamp_s,
+                                        "softgrip_chamber"))
         notify(self.estimate_listeners, estimate.stamp_s, estimate.gauge_pa, estimate.variance_pa2)
 
     def _share_evidence(self) -> None:
@@ -182,8 +200,10 @@ class EstimatorNode(Node):
         report.values["future_stamps_ignored"] = self.future_stamps
         if self._now() - self.last_refusal_at < REFUSAL_REPORTED_S:
             report = report.with_note(Health.WARN, self.last_refusal)
-        publish(self, self.diagnostics_pub, messages.diagnostics(
-            report, ESTIMATOR_STATUS, "pressure", self.get_clock().now().to_msg()))
+        publish(
+            self, self.diagnostics_pub,
+            messages.diagnostics(report, ESTIMATOR_STATUS, "pressure",
+                                 self.get_clock().now().to_msg()))
 
 
 def main(args=None) -> int:

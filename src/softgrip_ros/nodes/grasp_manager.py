@@ -46,18 +46,23 @@ class GraspManagerNode(Node):
         self.closed = False
         specs = {s.name: s for s in SPECS}
         v = self.values = declare(self, SPECS)
-        self.add_on_set_parameters_callback(
-            lambda params: check_all(specs, params, lambda _: "grasp_manager parameters apply at start-up: restart the node"))
+        self.add_on_set_parameters_callback(lambda params: check_all(
+            specs, params, lambda _: "grasp_manager parameters apply at start-up: restart the node"
+        ))
         config, force_law = grasp_config(v), clamp_force_law(v)
-        kinematics = build_kinematics(v["fidelity"], v["cavity_type"], max_pressure_pa=v["max_gauge_pressure_pa"])
+        kinematics = build_kinematics(v["fidelity"], v["cavity_type"],
+                                      max_pressure_pa=v["max_gauge_pressure_pa"])
         scene_model = SceneModel(v["scene_fidelity"], v["tolerance_m"], v["cavity_type"])
         self.fsm = GraspStateMachine(kinematics, config, force_law, scene_model)
         self.scene = FREE
-        self.scene_listeners = []            # in-process: kinematics.on_scene
-        self.command_listeners = []          # in-process: pressure_controller.on_command (it takes no lock of ours)
-        self.scene_pub = self.create_publisher(GraspScene, "grasp_scene", QoSProfile(
-            depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
-        self.feedback = ControllerFeedback(v["estimate_timeout"], v["status_timeout"], v["sensor_fault_grace"])
+        self.scene_listeners = []  # in-process: kinematics.on_scene
+        # in-process: pressure_controller.on_command (it takes no lock of ours)
+        self.command_listeners = []
+        self.scene_pub = self.create_publisher(
+            GraspScene, "grasp_scene",
+            QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        self.feedback = ControllerFeedback(v["estimate_timeout"], v["status_timeout"],
+                                           v["sensor_fault_grace"])
         self.sent = (None, -math.inf)
         self.published_changes = -1
         self.waiters: list[Future] = []
@@ -66,8 +71,9 @@ class GraspManagerNode(Node):
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(GraspCommand, "grasp_command", self._on_command, 10)
         if not in_process:
-            self.create_subscription(FluidPressure, "pressure/estimate", lambda msg: self.on_estimate(
-                None, messages.gauge_pa(msg), msg.variance), 10)
+            self.create_subscription(
+                FluidPressure, "pressure/estimate",
+                lambda msg: self.on_estimate(None, messages.gauge_pa(msg), msg.variance), 10)
             self.create_subscription(ControllerStatus, "controller/status", self.on_status, 10)
         self.periodic = NodeTimers(self, in_process)
         self.periodic.every(1.0 / v["state_rate_hz"], self._on_timer)
@@ -118,7 +124,8 @@ class GraspManagerNode(Node):
     def on_status(self, msg: ControllerStatus) -> None:
         with self._lock:
             if not self.closed:
-                self.feedback.on_status(msg.fault_flags, msg.measured_gauge_pressure_pa, self._now(), msg.message)
+                self.feedback.on_status(msg.fault_flags, msg.measured_gauge_pressure_pa,
+                                        self._now(), msg.message)
 
     def _on_timer(self) -> None:
         with self._lock:
@@ -128,7 +135,8 @@ class GraspManagerNode(Node):
         now = self._now()
         gauge, std = self.feedback.pressure(now)
         fault = self._controller_fault(now)
-        self.fsm.update(now, gauge, std, fault, controller_blind=bool(fault) and self.feedback.blind(now),
+        self.fsm.update(now, gauge, std, fault, controller_blind=bool(fault) and
+                        self.feedback.blind(now),
                         controller_safe_state=self.feedback.safe_state(now))
         self._after_change(now, force_state)
 
@@ -147,7 +155,8 @@ class GraspManagerNode(Node):
     # ---- outputs --------------------------------------------------------------------------------
     def _send(self, request, now: float) -> None:
         self.sent = (request, now)
-        message = messages.pressure_command(request.target_gauge_pa, request.source, self._header())
+        message = messages.pressure_command(request.target_gauge_pa, request.source,
+                                            self._header())
         notify(self.command_listeners, message)
         publish(self, self.command_pub, message)
 
@@ -172,23 +181,26 @@ class GraspManagerNode(Node):
     def _publish_diagnostics(self) -> None:
         with self._lock:
             report = grasp_report(self.fsm.state)
-        publish(self, self.diagnostics_pub, messages.diagnostics(
-            report, "softgrip: grasp manager", "gripper", self.get_clock().now().to_msg()))
+        publish(
+            self, self.diagnostics_pub,
+            messages.diagnostics(report, "softgrip: grasp manager", "gripper",
+                                 self.get_clock().now().to_msg()))
 
     # ---- the Grasp action -----------------------------------------------------------------------
     async def _execute(self, goal_handle):
-        """A goal runs its command's task (see GraspStateMachine.outcome): a CLAMP that goes on with
-        it, from the topic or another goal, keeps it running to HOLDING; any other command
+        """A goal runs its command's task (see GraspStateMachine.outcome): a CLAMP that goes on
+        with it, from the topic or another goal, keeps it running to HOLDING; any other command
         supersedes it; a cancel stops and vents."""
         request = messages.grasp_request(goal_handle.request.command)
-        with self._lock:       # the task is the one this goal's command started or went on with
+        with self._lock:  # the task is the one this goal's command started or went on with
             reason = self.submit(request)
             task = self.fsm.task
         if reason:
             goal_handle.abort()
             return self._result(False, f"rejected: {reason}")
         while True:
-            with self._lock:   # check and register the waiter in one step, so that no change slips between
+            # check and register the waiter in one step, so that no change slips between
+            with self._lock:
                 if goal_handle.is_cancel_requested:
                     self.submit(GraspRequest(GraspMode.STOP, command_id=request.command_id))
                     goal_handle.canceled()
@@ -196,7 +208,8 @@ class GraspManagerNode(Node):
                 outcome = self.fsm.outcome(task, request.mode)
                 if outcome == "superseded":
                     goal_handle.abort()
-                    return self._result(False, f"superseded by command {self.fsm.state.command_id!r}")
+                    return self._result(False,
+                                        f"superseded by command {self.fsm.state.command_id!r}")
                 if outcome:
                     held = self.fsm.state.phase == Phase.HOLDING
                     (goal_handle.succeed if outcome == "succeeded" else goal_handle.abort)()
@@ -209,7 +222,8 @@ class GraspManagerNode(Node):
 
     def _result(self, held: bool, message: str) -> Grasp.Result:
         s = self.fsm.state
-        return Grasp.Result(object_held=held, final_phase=int(s.phase), final_gauge_pressure_pa=s.estimated_gauge_pa,
+        return Grasp.Result(object_held=held, final_phase=int(s.phase),
+                            final_gauge_pressure_pa=s.estimated_gauge_pa,
                             clamp_force_n=s.clamp_force_n, message=message)
 
 

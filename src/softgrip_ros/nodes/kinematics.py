@@ -46,32 +46,38 @@ class KinematicsNode(Node):
 
     def __init__(self, in_process: bool = False, **kwargs):
         super().__init__("kinematics", **kwargs)
-        self._lock = threading.Lock()      # the in-process path calls in from the controller's CAN thread
+        # the in-process path calls in from the controller's CAN thread
+        self._lock = threading.Lock()
         self.closed = False
         specs = {s.name: s for s in SPECS}
         self.values = declare(self, SPECS)
-        self.add_on_set_parameters_callback(
-            lambda params: check_all(specs, params, lambda _: "kinematics parameters apply at start-up: restart the node"))
-        # L2 runs in a process of its own: in this one it would starve the controller's threads of the GIL
-        self.rod_solver = (RodSolverProcess(self.values["cavity_type"], self.values["l2_nice_increment"],
-                                            ROD_CONTINUATION_STEPS)
+        self.add_on_set_parameters_callback(lambda params: check_all(
+            specs, params, lambda _: "kinematics parameters apply at start-up: restart the node"))
+        # L2 runs in a process of its own: in this one it would starve the controller's threads of
+        # the GIL
+        self.rod_solver = (RodSolverProcess(
+            self.values["cavity_type"], self.values["l2_nice_increment"], ROD_CONTINUATION_STEPS)
                            if self.values["fidelity"] in ("l2", "auto") else None)
-        self.model = SceneModel(self.values["fidelity"], self.values["tolerance_m"], self.values["cavity_type"],
+        self.model = SceneModel(self.values["fidelity"], self.values["tolerance_m"],
+                                self.values["cavity_type"],
                                 resolve_pressure_pa=self.values["resolve_pressure_pa"],
-                                min_solve_interval_s=self.values["min_solve_interval"], rod_solver=self.rod_solver)
+                                min_solve_interval_s=self.values["min_solve_interval"],
+                                rod_solver=self.rod_solver)
         self.scene = FREE
         logger = self.get_logger()
-        self.solver = LatestSolveThread(self.model, name="kinematics-l2", on_error=lambda pressure, error: logger.error(
-            f"L2 solve at {pressure:.0f} Pa failed: {error!r}"))
+        self.solver = LatestSolveThread(
+            self.model, name="kinematics-l2", on_error=lambda pressure, error: logger.error(
+                f"L2 solve at {pressure:.0f} Pa failed: {error!r}"))
         self.period_s = 1.0 / self.values["publish_rate_hz"]
         self.last_publish_s = -math.inf
-        self.last = None                     # (variance, Evaluation)
+        self.last = None  # (variance, Evaluation)
         self.left_pub = self.create_publisher(PoseWithCovarianceStamped, "tip_pose/left", 10)
         self.right_pub = self.create_publisher(PoseWithCovarianceStamped, "tip_pose/right", 10)
         self.marker_pub = self.create_publisher(MarkerArray, "finger_markers", 1)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         if not in_process:
-            self.create_subscription(FluidPressure, "pressure/estimate", self._on_estimate_message, 10)
+            self.create_subscription(FluidPressure, "pressure/estimate", self._on_estimate_message,
+                                     10)
             latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
             self.create_subscription(GraspScene, "grasp_scene", self._on_scene_message, latched)
         self.periodic = NodeTimers(self, in_process)
@@ -103,16 +109,20 @@ class KinematicsNode(Node):
 
     def _on_estimate_message(self, msg: FluidPressure) -> None:
         stamp_s = stamp_seconds(msg.header.stamp)
-        refused = future_stamp_reason(stamp_s, self.get_clock().now().nanoseconds * 1e-9, self.values["stamp_tolerance"])
-        if refused:    # it would hold every later pose back until its stamp
+        refused = future_stamp_reason(stamp_s,
+                                      self.get_clock().now().nanoseconds * 1e-9,
+                                      self.values["stamp_tolerance"])
+        if refused:  # it would hold every later pose back until its stamp
             self.get_logger().warn(f"pressure/estimate {refused}", throttle_duration_sec=5.0)
             return
         self.on_estimate(stamp_s, messages.gauge_pa(msg), msg.variance)
 
     def on_estimate(self, stamp_s: float, gauge_pa: float, variance_pa2: float) -> None:
-        """Publish both tip poses for the estimate at ``stamp_s``, unless one went out less than a period ago."""
+        """Publish both tip poses for the estimate at ``stamp_s``, unless one went out less than a
+        period ago."""
         with self._lock:
-            if self.closed or stamp_s - self.last_publish_s < 0.9 * self.period_s or not math.isfinite(gauge_pa):
+            if (self.closed or stamp_s - self.last_publish_s < 0.9 * self.period_s or
+                    not math.isfinite(gauge_pa)):
                 return
             evaluation = self.model.evaluate(gauge_pa, self.scene, solve=False)
             if self.model.needs_solve(evaluation.pressure_pa, self.scene, stamp_s):
@@ -122,20 +132,24 @@ class KinematicsNode(Node):
         header = Header(stamp=stamp_msg(stamp_s), frame_id=self.values["frame_id"])
         for sign, publisher in ((1.0, self.left_pub), (-1.0, self.right_pub)):
             if listened(self, publisher):
-                publish(self, publisher, messages.tip_pose(evaluation.tip, evaluation.tip_slope,
-                                                           variance_pa2, sign, header))
+                publish(
+                    self, publisher,
+                    messages.tip_pose(evaluation.tip, evaluation.tip_slope, variance_pa2, sign,
+                                      header))
 
     def _publish_markers(self) -> None:
         if self.last is None or not listened(self, self.marker_pub):
-            return                                          # model no more than a scene needs
+            return  # model no more than a scene needs
         header = Header(stamp=self.get_clock().now().to_msg(), frame_id=self.values["frame_id"])
         publish(self, self.marker_pub, messages.finger_markers(self.last[1].backbone(), header))
 
     def _publish_diagnostics(self) -> None:
-        report = (Report(Health.WARN, "no pressure estimate yet", {}) if self.last is None
-                  else self.last[1].report(self.model.solves))
-        publish(self, self.diagnostics_pub, messages.diagnostics(
-            report, "softgrip: kinematics", "model", self.get_clock().now().to_msg()))
+        report = (Report(Health.WARN, "no pressure estimate yet", {})
+                  if self.last is None else self.last[1].report(self.model.solves))
+        publish(
+            self, self.diagnostics_pub,
+            messages.diagnostics(report, "softgrip: kinematics", "model",
+                                 self.get_clock().now().to_msg()))
 
 
 def main(args=None) -> int:

@@ -21,20 +21,22 @@ from softgrip_ros.model.pneumatics import P_ATM_PA
 from softgrip_ros.model.rod import Circle, Sheet
 from softgrip_ros.nodes.common import stamp_msg
 
-_SOURCES = {Source.SUPPLY: PressureCommand.SUPPLY, Source.VACUUM: PressureCommand.VACUUM,
-            Source.VENT: PressureCommand.VENT, Source.HOLD: PressureCommand.HOLD}
+_SOURCES = {
+    Source.SUPPLY: PressureCommand.SUPPLY, Source.VACUUM: PressureCommand.VACUUM,
+    Source.VENT: PressureCommand.VENT, Source.HOLD: PressureCommand.HOLD
+}
 
-
-_LEVELS = {Health.OK: DiagnosticStatus.OK, Health.WARN: DiagnosticStatus.WARN,
-           Health.ERROR: DiagnosticStatus.ERROR}   # the field is a byte, not an int
+_LEVELS = {
+    Health.OK: DiagnosticStatus.OK, Health.WARN: DiagnosticStatus.WARN,
+    Health.ERROR: DiagnosticStatus.ERROR
+}  # the field is a byte, not an int
 
 
 def diagnostics(report: Report, name: str, hardware_id: str, stamp) -> DiagnosticArray:
     """One DiagnosticStatus (its level the report's health) in a DiagnosticArray."""
-    status = DiagnosticStatus(name=name, hardware_id=hardware_id, level=_LEVELS[report.health],
-                              message=report.message,
-                              values=[KeyValue(key=k, value=str(v))
-                                      for k, v in report.values.items()])
+    status = DiagnosticStatus(
+        name=name, hardware_id=hardware_id, level=_LEVELS[report.health], message=report.message,
+        values=[KeyValue(key=k, value=str(v)) for k, v in report.values.items()])
     return DiagnosticArray(header=Header(stamp=stamp), status=[status])
 
 
@@ -65,9 +67,8 @@ def controller_status(output, link, header: Header, note: str) -> ControllerStat
         estimated_gauge_pressure_pa=link.controller.estimate_gauge_pa(now),
         regulator_actual_gauge_pressure_pa=link.regulator_actual_gauge_pa,
         regulator_command_gauge_pressure_pa=output.regulator_setpoint_gauge_pa,
-        regulator_enabled=output.regulator_enabled,
-        valve_states=[int(v) for v in output.valves], frames_rx=link.frames_rx,
-        frames_tx=link.frames_tx, frames_bad=link.frames_bad,
+        regulator_enabled=output.regulator_enabled, valve_states=[int(v) for v in output.valves],
+        frames_rx=link.frames_rx, frames_tx=link.frames_tx, frames_bad=link.frames_bad,
         last_sensor_frame_age_s=link.last_sensor_age_s(), fault_flags=int(output.fault_flags),
         message="; ".join(m for m in (output.message, note) if m))
 
@@ -99,22 +100,23 @@ def grasp_request(msg: GraspCommand) -> GraspRequest:
 
 def gripper_state(state: GraspState, header: Header) -> GripperState:
     s = state
-    return GripperState(
-        header=header, phase=int(s.phase), mode=int(s.mode), command_id=s.command_id,
-        command_rejected=s.command_rejected, target_gauge_pressure_pa=s.target_gauge_pa,
-        estimated_gauge_pressure_pa=s.estimated_gauge_pa,
-        estimated_gauge_pressure_std_pa=s.estimated_std_pa,
-        included_angle_rad=s.included_angle_rad, tip_spacing_m=s.tip_spacing_m,
-        root_spacing_m=s.root_spacing_m, clamp_force_n=s.clamp_force_n,
-        model_fidelity=s.model_fidelity, pressure_in_validated_range=s.in_validated_range,
-        message=s.message)
+    return GripperState(header=header, phase=int(s.phase), mode=int(s.mode),
+                        command_id=s.command_id, command_rejected=s.command_rejected,
+                        target_gauge_pressure_pa=s.target_gauge_pa,
+                        estimated_gauge_pressure_pa=s.estimated_gauge_pa,
+                        estimated_gauge_pressure_std_pa=s.estimated_std_pa,
+                        included_angle_rad=s.included_angle_rad, tip_spacing_m=s.tip_spacing_m,
+                        root_spacing_m=s.root_spacing_m, clamp_force_n=s.clamp_force_n,
+                        model_fidelity=s.model_fidelity,
+                        pressure_in_validated_range=s.in_validated_range, message=s.message)
 
 
 def scene_message(scene: Scene) -> GraspScene:
     message = GraspScene(kind=GraspScene.FREE,
                          opening_gauge_pressure_pa=float(scene.opening_gauge_pa))
     if isinstance(scene.obstacle, Circle):
-        message.kind, message.object_diameter_m = GraspScene.CYLINDER, 2.0 * scene.obstacle.radius_m
+        message.kind = GraspScene.CYLINDER
+        message.object_diameter_m = 2.0 * scene.obstacle.radius_m
         message.object_center_z_m = scene.obstacle.center_z_m
     elif isinstance(scene.obstacle, Sheet):
         message.kind, message.object_diameter_m = GraspScene.SHEET, scene.obstacle.thickness_m
@@ -144,11 +146,11 @@ def tip_pose(tip, tip_slope, variance_pa2: float, sign: float,
     pressure variance pushed through that derivative, J var J'."""
     (x_left, z, angle_left), slope = tip, tip_slope
     x, angle = x_left * sign, angle_left * sign
-    jacobian = (sign * slope[0], 0.0, slope[1], 0.0, sign * slope[2], 0.0)   # over x y z rx ry rz
+    jacobian = (sign * slope[0], 0.0, slope[1], 0.0, sign * slope[2], 0.0)  # over x y z rx ry rz
     message = PoseWithCovarianceStamped(header=header)
     message.pose.pose.position.x, message.pose.pose.position.z = x, z
     orientation = message.pose.pose.orientation
-    orientation.y, orientation.w = math.sin(0.5 * angle), math.cos(0.5 * angle)   # about +y
+    orientation.y, orientation.w = math.sin(0.5 * angle), math.cos(0.5 * angle)  # about +y
     message.pose.covariance = [a * b * variance_pa2 for a in jacobian for b in jacobian]
     return message
 
@@ -157,8 +159,8 @@ def finger_markers(backbone, header: Header) -> MarkerArray:
     """Line strips of both fingers' backbones (``backbone``: the left's (x, z) points)."""
     markers = MarkerArray()
     for marker_id, sign in enumerate((1.0, -1.0)):
-        marker = Marker(header=header, ns="softgrip_fingers", id=marker_id,
-                        type=Marker.LINE_STRIP, action=Marker.ADD)
+        marker = Marker(header=header, ns="softgrip_fingers", id=marker_id, type=Marker.LINE_STRIP,
+                        action=Marker.ADD)
         marker.scale.x = 0.004
         marker.pose.orientation.w = 1.0
         marker.color = ColorRGBA(r=0.9, g=0.5, b=0.1, a=1.0)

@@ -4,7 +4,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -19,8 +20,9 @@ class ParamSpec:
     high: float | None = None
     choices: tuple = ()
     read_only: bool = False
-    allow_empty: bool = False       # for strings: '' is a meaningful value (e.g. "no fault")
-    field: str = ""                 # the core's configuration field it sets ("safety.x": a nested one)
+    allow_empty: bool = False  # for strings: '' is a meaningful value (e.g. "no fault")
+    # the core's configuration field it sets ("safety.x": a nested one)
+    field: str = ""
 
     def descriptor(self) -> ParameterDescriptor:
         text = self.description + (f" [{self.unit}]" if self.unit else "")
@@ -28,9 +30,14 @@ class ParamSpec:
             text += f" (one of: {', '.join(map(str, self.choices))})"
         descriptor = ParameterDescriptor(description=text, read_only=self.read_only)
         if self.low is not None and isinstance(self.default, float):
-            descriptor.floating_point_range = [FloatingPointRange(from_value=float(self.low), to_value=float(self.high))]
-        elif self.low is not None and isinstance(self.default, int) and not isinstance(self.default, bool):
-            descriptor.integer_range = [IntegerRange(from_value=int(self.low), to_value=int(self.high))]
+            descriptor.floating_point_range = [
+                FloatingPointRange(from_value=float(self.low), to_value=float(self.high))
+            ]
+        elif self.low is not None and isinstance(self.default,
+                                                 int) and not isinstance(self.default, bool):
+            descriptor.integer_range = [
+                IntegerRange(from_value=int(self.low), to_value=int(self.high))
+            ]
         return descriptor
 
     def check(self, value) -> str:
@@ -39,9 +46,11 @@ class ParamSpec:
             return f"{self.name} must be finite, got {value}"
         if self.choices and value not in self.choices:
             return f"{self.name} must be one of {list(self.choices)}, got {value!r}"
-        if self.low is not None and isinstance(value, (int, float)) and not isinstance(value, bool):
+        if self.low is not None and isinstance(value,
+                                               (int, float)) and not isinstance(value, bool):
             if not self.low <= value <= self.high:
-                return f"{self.name} must lie in [{self.low}, {self.high}] {self.unit}, got {value}"
+                return (f"{self.name} must lie in [{self.low}, {self.high}] {self.unit}, got "
+                        f"{value}")
         if isinstance(value, str) and not value and not self.allow_empty:
             return f"{self.name} must not be empty"
         return ""
@@ -53,7 +62,8 @@ def declare(node, specs) -> dict:
     A value given at start-up that fails its check raises ValueError naming it."""
     values = {}
     for spec in specs:
-        values[spec.name] = node.declare_parameter(spec.name, spec.default, spec.descriptor()).value
+        values[spec.name] = node.declare_parameter(spec.name, spec.default,
+                                                   spec.descriptor()).value
         problem = spec.check(values[spec.name])
         if problem:
             raise ValueError(f"parameter {problem}")
@@ -94,7 +104,9 @@ def check_all(specs_by_name: dict, parameters, extra_check=None) -> SetParameter
 
 # The CAN bus parameters every node that opens a bus declares.
 CAN_SPECS = [
-    ParamSpec("can.interface", "virtual", "python-can interface (virtual, softgrip_ipc, socketcan, pcan, ...)"),
+    ParamSpec("can.interface", "virtual",
+              "python-can interface (virtual, softgrip_ipc, socketcan, pcan, ...)"),
     ParamSpec("can.channel", "softgrip", "python-can channel (e.g. can0)"),
-    ParamSpec("can.bitrate", 500_000, "CAN bit rate (ignored by virtual and softgrip_ipc)", "bit/s", 10_000, 1_000_000),
+    ParamSpec("can.bitrate", 500_000, "CAN bit rate (ignored by virtual and softgrip_ipc)",
+              "bit/s", 10_000, 1_000_000),
 ]

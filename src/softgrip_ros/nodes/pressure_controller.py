@@ -25,14 +25,15 @@ from softgrip_ros.nodes.common import (future_stamp_reason, listened, notify, op
                                        run_node, stamp_seconds)
 from softgrip_ros.nodes.estimator import ESTIMATOR_STATUS
 from softgrip_ros.nodes.parameters import check_all, declare
-from softgrip_ros.nodes.specs import (PRESSURE_CONFIGURE_PREFIXES, check_rest_rate, frame_id_overrides,
-                                      frame_id_specs, pressure_control_config, sensor_settings)
+from softgrip_ros.nodes.specs import (PRESSURE_CONFIGURE_PREFIXES, check_rest_rate,
+                                      frame_id_overrides, frame_id_specs, pressure_control_config,
+                                      sensor_settings)
 from softgrip_ros.nodes.specs import PRESSURE_CONTROLLER_SPECS as SPECS
 
 
 class PressureControllerNode(LifecycleNode):
-    """in_process: composed with the estimator, which hands its NIS evidence over by direct calls to
-    :meth:`on_consistency`; alone, that evidence comes from the estimator's /diagnostics."""
+    """in_process: composed with the estimator, which hands its NIS evidence over by direct calls
+    to :meth:`on_consistency`; alone, that evidence comes from the estimator's /diagnostics."""
 
     def __init__(self, in_process: bool = False, **kwargs):
         super().__init__("pressure_controller", **kwargs)
@@ -42,15 +43,18 @@ class PressureControllerNode(LifecycleNode):
         frame_specs = frame_id_specs(self.codec.message_names)
         self.specs.update({s.name: s for s in frame_specs})
         self.values.update(declare(self, frame_specs))
-        check_rest_rate(self.values)        # at start-up: exit 1 with the reason
-        self.controller = PressureController(pressure_control_config(self.values), sensor_noise_pa=dict(
-            zip(self.values["sensors.names"], self.values["sensors.noise_std_pa"])))
+        check_rest_rate(self.values)  # at start-up: exit 1 with the reason
+        self.controller = PressureController(
+            pressure_control_config(self.values), sensor_noise_pa=dict(
+                zip(self.values["sensors.names"], self.values["sensors.noise_std_pa"])))
         self.add_on_set_parameters_callback(self._on_set)
         self.status_pub = self.create_publisher(ControllerStatus, "controller/status", 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.sensor_pubs = {}
-        self.sensor_listeners = []       # in-process consumers of the readings: f([(name, gauge_pa, stamp_s)]) per batch
-        self.status_listeners = []       # in-process consumers of each controller/status: f(ControllerStatus)
+        # in-process consumers of the readings: f([(name, gauge_pa, stamp_s)]) per batch
+        self.sensor_listeners = []
+        # in-process consumers of each controller/status: f(ControllerStatus)
+        self.status_listeners = []
         self.create_subscription(PressureCommand, "pressure/command", self.on_command, 10)
         if not in_process:
             self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
@@ -61,15 +65,19 @@ class PressureControllerNode(LifecycleNode):
         self.last_output = None
         self.last_note = ""
         self.create_timer(1.0, self._publish_diagnostics)
-        if self.values["autostart"] and self.trigger_configure() == TransitionCallbackReturn.SUCCESS:
+        if self.values["autostart"] and self.trigger_configure(
+        ) == TransitionCallbackReturn.SUCCESS:
             self.trigger_activate()
 
     # ---- parameters ---------------------------------------------------------------------------
     def _on_set(self, parameters):
+
         def extra(params):
             changed = {p.name: p.value for p in params}
-            if self.link is not None and any(n.startswith(PRESSURE_CONFIGURE_PREFIXES) for n in changed):
-                return "CAN, sensor and rate parameters apply at configure: deactivate and clean up first"
+            if self.link is not None and any(
+                    n.startswith(PRESSURE_CONFIGURE_PREFIXES) for n in changed):
+                return ("CAN, sensor and rate parameters apply at configure: deactivate and clean "
+                        "up first")
             if any(self.specs[n].field for n in changed if n in self.specs):
                 try:
                     config = pressure_control_config({**self.values, **changed})
@@ -80,13 +88,16 @@ class PressureControllerNode(LifecycleNode):
                 self._subscribe_estimate(changed["use_estimate"])
             self.values.update(changed)
             return ""
+
         return check_all(self.specs, parameters, extra)
 
     def _subscribe_estimate(self, wanted: bool) -> None:
-        """pressure/estimate only while use_estimate: at the estimator's rate it is the busiest topic."""
+        """pressure/estimate only while use_estimate: at the estimator's rate it is the busiest
+        topic."""
         if wanted and self.estimate_subscription is None:
-            # no QoS event handlers: destroying a subscription while the executor waits on its handler
-            # raises InvalidHandle in the spin thread (rclpy Jazzy); plain subscriptions are guarded
+            # no QoS event handlers: destroying a subscription while the executor waits on its
+            # handler raises InvalidHandle in the spin thread (rclpy Jazzy); plain subscriptions
+            # are guarded
             self.estimate_subscription = self.create_subscription(
                 FluidPressure, "pressure/estimate", self._on_estimate, 10,
                 event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
@@ -102,26 +113,31 @@ class PressureControllerNode(LifecycleNode):
             check_rest_rate(v)
             self.codec = FrameCodec(frame_ids=frame_id_overrides(v, self.codec.message_names))
             self.bus = open_bus(v["can.interface"], v["can.channel"], v["can.bitrate"])
-            self.link = ControllerLink(
-                self.bus, self.controller, [SensorBinding(n, m) for n, m, _ in sensors],
-                codec=self.codec, on_readings=self._publish_readings,
-                rest_receive_period_s=v["rest_receive_period"],
-                command_frame_period_s=v["command_frame_period"],
-                valve_lifetime_s=v["valve_lifetime"], control_period_s=1.0 / v["control_rate_hz"])
+            self.link = ControllerLink(self.bus, self.controller,
+                                       [SensorBinding(n, m) for n, m, _ in sensors],
+                                       codec=self.codec, on_readings=self._publish_readings,
+                                       rest_receive_period_s=v["rest_receive_period"],
+                                       command_frame_period_s=v["command_frame_period"],
+                                       valve_lifetime_s=v["valve_lifetime"],
+                                       control_period_s=1.0 / v["control_rate_hz"])
         except (ValueError, can.CanError, OSError, ImportError) as error:
             self.get_logger().error(f"configure failed: {error}")
             self._close_bus()
             return TransitionCallbackReturn.FAILURE
-        self.noise_variance = {n: noise ** 2 for n, _, noise in sensors}
-        self.sensor_pubs = {n: self.create_publisher(FluidPressure, f"pressure/sensor/{n}", 10)
-                            for n, _, _ in sensors}
+        self.noise_variance = {n: noise**2 for n, _, noise in sensors}
+        self.sensor_pubs = {
+            n: self.create_publisher(FluidPressure, f"pressure/sensor/{n}", 10)
+            for n, _, _ in sensors
+        }
         self.get_logger().info(f"bus {v['can.interface']}:{v['can.channel']} open")
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state) -> TransitionCallbackReturn:
         self.controller.active = True
-        self.loop = make_control_loop(self.link, self.values["control_rate_hz"], self.values["status_rate_hz"],
-                                      on_status=self._on_loop_output, rest_rate_hz=self.values["rest_rate_hz"])
+        self.loop = make_control_loop(self.link, self.values["control_rate_hz"],
+                                      self.values["status_rate_hz"],
+                                      on_status=self._on_loop_output,
+                                      rest_rate_hz=self.values["rest_rate_hz"])
         self.loop.start()
         return super().on_activate(state)
 
@@ -164,39 +180,43 @@ class PressureControllerNode(LifecycleNode):
         self._publish_status()
 
     def on_command(self, msg: PressureCommand):
-        """A pressure command, from the topic or (composed) by a direct call from the grasp manager,
-        which saves a trip through DDS and the executor; its later DDS copy is recognised and ignored
-        (see :meth:`ControllerLink.command`). A command stamped further ahead than
+        """A pressure command, from the topic or (composed) by a direct call from the grasp
+        manager, which saves a trip through DDS and the executor; its later DDS copy is recognised
+        and ignored (see :meth:`ControllerLink.command`). A command stamped further ahead than
         ``stamp_tolerance`` is refused, with its reason in the status."""
         if self.link is None:
             self.get_logger().warn("pressure command ignored: the controller is not configured")
             return
         stamp_s = stamp_seconds(msg.header.stamp)
-        refused = future_stamp_reason(stamp_s, self.get_clock().now().nanoseconds * 1e-9, self.values["stamp_tolerance"])
+        refused = future_stamp_reason(stamp_s,
+                                      self.get_clock().now().nanoseconds * 1e-9,
+                                      self.values["stamp_tolerance"])
         if refused:
             note = f"pressure command {refused}"
-            self.link.reject_command(note)          # the status carries it until a command applies
+            self.link.reject_command(note)  # the status carries it until a command applies
         else:
             try:
-                note = self.link.command(msg.target_gauge_pressure_pa, msg.source, msg.max_rate_pa_per_s, stamp_s,
-                                         on_applied=self._set_note)
+                note = self.link.command(msg.target_gauge_pressure_pa, msg.source,
+                                         msg.max_rate_pa_per_s, stamp_s, on_applied=self._set_note)
             except ValueError as error:
                 note = self.last_note = f"command rejected: {error}"
         if note:
             self.get_logger().warn(note, throttle_duration_sec=1.0)
 
     def on_consistency(self, name: str, mean_nis: float, bound: float) -> None:
-        """The estimator's evidence on a sensor (composed: a direct call; else from /diagnostics)."""
+        """The estimator's evidence on a sensor (composed: a direct call; else from
+        /diagnostics)."""
         if self.link is not None:
             self.link.update_consistency(name, mean_nis, bound)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         """The estimator's NIS per sensor, from its /diagnostics (a separate estimator node)."""
-        for name, nis, bound in messages.estimator_nis(msg, ESTIMATOR_STATUS, self.values["sensors.names"]):
+        for name, nis, bound in messages.estimator_nis(msg, ESTIMATOR_STATUS,
+                                                       self.values["sensors.names"]):
             self.on_consistency(name, nis, bound)
 
     def _set_note(self, note: str) -> None:
-        self.last_note = note     # before the step the command triggers publishes the status
+        self.last_note = note  # before the step the command triggers publishes the status
 
     def _on_estimate(self, msg: FluidPressure):
         if self.values["use_estimate"] and self.link is not None:
@@ -217,15 +237,18 @@ class PressureControllerNode(LifecycleNode):
             return
         # stamped when measured, not when processed (they differ when this process is starved)
         ros_now_s, link_now_s = self.get_clock().now().nanoseconds * 1e-9, link.clock()
-        samples = [(name, gauge_pa, ros_now_s - max(0.0, link_now_s - sent_at)) for name, gauge_pa, sent_at in readings]
-        wanted = {}       # whether anyone subscribes: asked once per sensor and batch, not per reading
+        samples = [(name, gauge_pa, ros_now_s - max(0.0, link_now_s - sent_at))
+                   for name, gauge_pa, sent_at in readings]
+        # whether anyone subscribes: asked once per sensor and batch, not per reading
+        wanted = {}
         for name, gauge_pa, measured_s in samples:
             publisher = self.sensor_pubs.get(name)
             if publisher is not None and name not in wanted:
                 wanted[name] = listened(self, publisher)
             if wanted.get(name):
-                publish(self, publisher, messages.fluid_pressure(gauge_pa, self.noise_variance[name],
-                                                                 measured_s, name))
+                publish(
+                    self, publisher,
+                    messages.fluid_pressure(gauge_pa, self.noise_variance[name], measured_s, name))
         notify(self.sensor_listeners, samples)
 
     def _header(self, frame_id="softgrip_base"):
@@ -236,7 +259,7 @@ class PressureControllerNode(LifecycleNode):
         if out is None or link is None:
             return
         status = messages.controller_status(out, link, self._header(), self.last_note)
-        if listened(self, self.status_pub):     # 50 Hz; the composed nodes take it by direct call
+        if listened(self, self.status_pub):  # 50 Hz; the composed nodes take it by direct call
             publish(self, self.status_pub, status)
         notify(self.status_listeners, status)
 
@@ -244,9 +267,11 @@ class PressureControllerNode(LifecycleNode):
         link, loop = self.link, self.loop
         stats = None if link is None else link.stats(self.values["sensors.names"], loop)
         report = pressure_controller_report(self.last_output, stats)
-        publish(self, self.diagnostics_pub, messages.diagnostics(
-            report, "softgrip: pressure controller", self.values["can.channel"],
-            self.get_clock().now().to_msg()))
+        publish(
+            self, self.diagnostics_pub,
+            messages.diagnostics(report, "softgrip: pressure controller",
+                                 self.values["can.channel"],
+                                 self.get_clock().now().to_msg()))
 
 
 def main(args=None) -> int:

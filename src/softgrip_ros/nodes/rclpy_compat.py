@@ -40,5 +40,6 @@ def read_errors_of_unfinished_callbacks(executor) -> None:
     for future in list(getattr(executor, "_futures", [])):
         error = future.exception() if future.done() else None
         if error is not None and not isinstance(error, SHUTDOWN_ERRORS):
-            print(f"{sys.argv[0]}: a callback failed during shutdown: "
-                  f"{type(error).__name__}: {error}", file=sys.stderr)
+            print(
+                f"{sys.argv[0]}: a callback failed during shutdown: "
+                f"{type(error).__name__}: {error}", file=sys.stderr)

@@ -9,39 +9,54 @@ from __future__ import annotations
 import can
 from rclpy.node import Node
 
-from softgrip_ros.canbus.sim_device import (DEFAULT_SENSORS, FAULT_CHOICES, FAULTS, STUCK_READINGS_PA, SimDeviceConfig,
-                                            SimulatedDevice)
+from softgrip_ros.canbus.sim_device import (DEFAULT_SENSORS, FAULT_CHOICES, FAULTS,
+                                            STUCK_READINGS_PA, SimDeviceConfig, SimulatedDevice)
 from softgrip_ros.nodes.common import open_bus, run_node
 from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, check_all, declare
 
 FAULT_SPECS = [
-    ParamSpec("fault.sensor_dropout", "", "silence a sensor (its name, or 'all'); '' = none", allow_empty=True),
-    ParamSpec("fault.sensor_stuck", "", "stick a sensor at fault.sensor_stuck_at (its name, or 'all'); '' = none",
+    ParamSpec("fault.sensor_dropout", "", "silence a sensor (its name, or 'all'); '' = none",
               allow_empty=True),
-    ParamSpec("fault.sensor_stuck_at", "present", "what a stuck sensor reads: its last reading, or a fixed "
-              f"{STUCK_READINGS_PA['low']:.0f} or {STUCK_READINGS_PA['high']:.0f} Pa", choices=FAULT_CHOICES["sensor_stuck_at"]),
+    ParamSpec("fault.sensor_stuck", "",
+              "stick a sensor at fault.sensor_stuck_at (its name, or 'all'); '' = none",
+              allow_empty=True),
+    ParamSpec(
+        "fault.sensor_stuck_at", "present",
+        "what a stuck sensor reads: its last reading, or a fixed "
+        f"{STUCK_READINGS_PA['low']:.0f} or {STUCK_READINGS_PA['high']:.0f} Pa",
+        choices=FAULT_CHOICES["sensor_stuck_at"]),
     ParamSpec("fault.sensor_bias_pa", 0.0, "bias added to every reading", "Pa", -50e3, 50e3),
-    ParamSpec("fault.sensor_noise_scale", 1.0, "every sensor's noise multiplied by this", "", 0.0, 100.0),
-    ParamSpec("fault.regulator_overshoot_pa", 0.0, "the regulator settles this far above its setpoint", "Pa", -50e3, 100e3),
+    ParamSpec("fault.sensor_noise_scale", 1.0, "every sensor's noise multiplied by this", "", 0.0,
+              100.0),
+    ParamSpec("fault.regulator_overshoot_pa", 0.0,
+              "the regulator settles this far above its setpoint", "Pa", -50e3, 100e3),
     ParamSpec("fault.valve_stuck", False, "the valves ignore commands and keep their state"),
-    ParamSpec("fault.valve_stuck_open", False, "the valves ignore commands and stay open to SUPPLY"),
+    ParamSpec("fault.valve_stuck_open", False,
+              "the valves ignore commands and stay open to SUPPLY"),
     ParamSpec("fault.bus_silent", False, "the device stops sending"),
-    ParamSpec("fault.corrupt_rate", 0.0, "fraction of frames sent with a bad CRC or a repeated counter", "", 0.0, 1.0),
-    ParamSpec("fault.replay_rate_hz", 0.0, "bursts per second of replayed old frames (old sensor frames on the bus, "
-              "an old ValveCommand into the device); 0 = none", "Hz", 0.0, 100.0),
+    ParamSpec("fault.corrupt_rate", 0.0,
+              "fraction of frames sent with a bad CRC or a repeated counter", "", 0.0, 1.0),
+    ParamSpec(
+        "fault.replay_rate_hz", 0.0,
+        "bursts per second of replayed old frames (old sensor frames on the bus, "
+        "an old ValveCommand into the device); 0 = none", "Hz", 0.0, 100.0),
 ]
-SPECS = CAN_SPECS + [ParamSpec("plant_rate_hz", 1000.0, "plant integration rate", "Hz", 50.0, 5000.0),
-                     ParamSpec("seed", -1, "noise seed; -1 = random", "", -1, 2**31 - 1)] + FAULT_SPECS
+SPECS = CAN_SPECS + [
+    ParamSpec("plant_rate_hz", 1000.0, "plant integration rate", "Hz", 50.0, 5000.0),
+    ParamSpec("seed", -1, "noise seed; -1 = random", "", -1, 2**31 - 1)
+] + FAULT_SPECS
 assert {s.name[len("fault."):] for s in FAULT_SPECS} == set(FAULTS)
 
 
 class SimDeviceNode(Node):
+
     def __init__(self, bus: can.BusABC | None = None, **kwargs):
         super().__init__("sim_device", **kwargs)
         self.specs = {s.name: s for s in SPECS}
         values = declare(self, SPECS)
         self._own_bus = bus is None
-        self.bus = bus or open_bus(values["can.interface"], values["can.channel"], values["can.bitrate"])
+        self.bus = bus or open_bus(values["can.interface"], values["can.channel"],
+                                   values["can.bitrate"])
         config = SimDeviceConfig(sensors=DEFAULT_SENSORS, plant_rate_hz=values["plant_rate_hz"],
                                  seed=None if values["seed"] < 0 else values["seed"])
         self.device = SimulatedDevice(self.bus, config)
@@ -49,9 +64,11 @@ class SimDeviceNode(Node):
             self.device.set_fault(name, values[f"fault.{name}"])
         self.add_on_set_parameters_callback(self._on_set)
         self.device.start()
-        self.get_logger().info(f"simulated device on {values['can.interface']}:{values['can.channel']}")
+        self.get_logger().info(
+            f"simulated device on {values['can.interface']}:{values['can.channel']}")
 
     def _on_set(self, parameters):
+
         def apply(params):
             for parameter in params:
                 if parameter.name.startswith("fault."):
@@ -59,10 +76,12 @@ class SimDeviceNode(Node):
                         self.device.set_fault(parameter.name[len("fault."):], parameter.value)
                     except ValueError as error:
                         return str(error)
-                    self.get_logger().warn(f"fault injected: {parameter.name} = {parameter.value!r}")
+                    self.get_logger().warn(
+                        f"fault injected: {parameter.name} = {parameter.value!r}")
                 elif parameter.name in self.specs:
                     return f"{parameter.name} is read at start-up only"
             return ""
+
         return check_all(self.specs, parameters, apply)
 
     def close(self) -> None:

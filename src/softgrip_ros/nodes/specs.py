@@ -30,7 +30,7 @@ def _safety(name: str, field: str, description: str, unit: str, low: float, high
                      field=f"safety.{field}")
 
 
-PRESSURE_CONTROL_SPECS = [    # the control law and safety rules (settable while running)
+PRESSURE_CONTROL_SPECS = [  # the control law and safety rules (settable while running)
     ParamSpec("max_gauge_pressure_pa", _P.max_gauge_pa, "hard upper limit of the setpoint", "Pa",
               1e3, 100e3, field="max_gauge_pa"),
     ParamSpec("min_gauge_pressure_pa", _P.min_gauge_pa, "hard lower limit of the setpoint", "Pa",
@@ -50,8 +50,9 @@ PRESSURE_CONTROL_SPECS = [    # the control law and safety rules (settable while
               field="ki_per_s"),
     ParamSpec("trim_limit_pa", _P.trim_limit_pa, "largest trim of the regulator setpoint", "Pa",
               0.0, 50e3, field="trim_limit_pa"),
-    _safety("reaction_time", "reaction_time_s", "the limit trip extrapolates each pressure over "
-            "this: a control period, the bus and the valve's response", "s", 0.001, 0.2),
+    _safety(
+        "reaction_time", "reaction_time_s", "the limit trip extrapolates each pressure over "
+        "this: a control period, the bus and the valve's response", "s", 0.001, 0.2),
     _safety("disagreement_pa", "disagreement_pa", "two sensors further apart than this ...", "Pa",
             500.0, 50e3),
     _safety("disagreement_time", "disagreement_time_s", "... for this long: SENSOR_DISAGREE", "s",
@@ -62,19 +63,22 @@ PRESSURE_CONTROL_SPECS = [    # the control law and safety rules (settable while
     _safety("noise_ratio", "noise_ratio", "a sensor's noise above this times its rated noise ...",
             "", 1.5, 1000.0),
     _safety("noise_time", "noise_time_s", "... for this long: SENSOR_NOISE", "s", 0.01, 10.0),
-    _safety("jump_sigmas", "jump_sigmas", "every sensor stepping, in one sample, by more than the "
-            "plant's fastest rate allows plus this many noise sigmas: SENSOR_IMPLAUSIBLE", "",
-            3.0, 1000.0),
+    _safety(
+        "jump_sigmas", "jump_sigmas", "every sensor stepping, in one sample, by more than the "
+        "plant's fastest rate allows plus this many noise sigmas: SENSOR_IMPLAUSIBLE", "", 3.0,
+        1000.0),
     _safety("response_window", "response_window_s", "the chamber's response to a valve state is "
             "judged over this", "s", 0.01, 1.0),
     _safety("response_settle", "response_settle_s", "... from this long after the valve state was "
             "commanded", "s", 0.0, 1.0),
-    _safety("response_min_change_pa", "response_min_change_pa", "a change judged against the "
-            "plant must be predicted this large; a chamber moving this much with the valves "
-            "closed is a fault", "Pa", 100.0, 50e3),
-    _safety("response_tolerance", "response_tolerance", "the measured change may differ from the "
-            "plant's by this fraction of it (the model's rates within about 2x of the "
-            "hardware's)", "", 0.05, 0.95),
+    _safety(
+        "response_min_change_pa", "response_min_change_pa", "a change judged against the "
+        "plant must be predicted this large; a chamber moving this much with the valves "
+        "closed is a fault", "Pa", 100.0, 50e3),
+    _safety(
+        "response_tolerance", "response_tolerance", "the measured change may differ from the "
+        "plant's by this fraction of it (the model's rates within about 2x of the "
+        "hardware's)", "", 0.05, 0.95),
     _safety("response_time", "response_time_s", "a response off the plant in every check this "
             "long: RESPONSE", "s", 0.005, 5.0),
     _safety("regulator_deviation_pa", "regulator_deviation_pa", "the regulator's output further "
@@ -87,25 +91,30 @@ PRESSURE_CONTROL_SPECS = [    # the control law and safety rules (settable while
     _safety("clear_time", "clear_time_s", "a safety fault clears on a new command once its "
             "evidence has been gone this long", "s", 0.05, 60.0),
 ]
-PRESSURE_CONTROLLER_SPECS = CAN_SPECS + [
+PRESSURE_CONTROLLER_SPECS = (CAN_SPECS + [
     ParamSpec("autostart", True, "configure and activate on start-up"),
     ParamSpec("control_rate_hz", 500.0, "control loop rate", "Hz", 10.0, 1000.0),
-    ParamSpec("rest_rate_hz", 50.0, "control loop rate while venting, holding or faulted (a "
-              "command or a reading beyond the limits steps at once); <= control_rate_hz", "Hz",
-              10.0, 1000.0),
-    ParamSpec("rest_receive_period", 0.01, "while the controller rests (not regulating), "
-              "received frames are taken in batches this often, one thread wake each instead of "
-              "one per frame; a reading beyond the limits is then acted on within it; 0 = each "
-              "frame at once", "s", 0.0, 0.05),
+    ParamSpec(
+        "rest_rate_hz", 50.0, "control loop rate while venting, holding or faulted (a "
+        "command or a reading beyond the limits steps at once); <= control_rate_hz", "Hz", 10.0,
+        1000.0),
+    ParamSpec(
+        "rest_receive_period", 0.01, "while the controller rests (not regulating), "
+        "received frames are taken in batches this often, one thread wake each instead of "
+        "one per frame; a reading beyond the limits is then acted on within it; 0 = each "
+        "frame at once", "s", 0.0, 0.05),
     ParamSpec("status_rate_hz", 50.0, "controller/status publish rate", "Hz", 1.0, 200.0),
-    ParamSpec("command_frame_period", 0.01, "RegulatorSetpoint and ValveCommand re-sent this "
-              "often when unchanged (a change goes out in its control period); 0 = every "
-              "period", "s", 0.0, 0.1),
-    ParamSpec("valve_lifetime", 0.025, "the device closes SUPPLY/VACUUM valves this long after "
-              "the last ValveCommand (a stalled controller leaves the chamber held); >= 2 "
-              "re-send periods", "s", 0.004, 0.255),
-    ParamSpec("use_estimate", False, "regulate on pressure/estimate while it is fresh (its "
-              "latency makes the boost overshoot)"),
+    ParamSpec(
+        "command_frame_period", 0.01, "RegulatorSetpoint and ValveCommand re-sent this "
+        "often when unchanged (a change goes out in its control period); 0 = every "
+        "period", "s", 0.0, 0.1),
+    ParamSpec(
+        "valve_lifetime", 0.025, "the device closes SUPPLY/VACUUM valves this long after "
+        "the last ValveCommand (a stalled controller leaves the chamber held); >= 2 "
+        "re-send periods", "s", 0.004, 0.255),
+    ParamSpec(
+        "use_estimate", False, "regulate on pressure/estimate while it is fresh (its "
+        "latency makes the boost overshoot)"),
     ParamSpec("sensors.names", ["chamber_a", "chamber_b"], "sensor names: topics "
               "pressure/sensor/<name>"),
     ParamSpec("sensors.messages", ["PressureSensor1", "PressureSensor2"], "the DBC message of "
@@ -114,7 +123,7 @@ PRESSURE_CONTROLLER_SPECS = CAN_SPECS + [
               "FluidPressure.variance and the noise check", "Pa"),
     _stamp_tolerance("a command"),
     *PRESSURE_CONTROL_SPECS,
-]
+])
 # the settings the bus, the sensors and the loop are built with: they apply at configure
 PRESSURE_CONFIGURE_PREFIXES = ("can.", "sensors.", "control_rate_hz", "rest_rate_hz",
                                "rest_receive_period", "command_frame_period", "valve_lifetime")
@@ -122,8 +131,10 @@ PRESSURE_CONFIGURE_PREFIXES = ("can.", "sensors.", "control_rate_hz", "rest_rate
 
 def frame_id_specs(message_names) -> list:
     """can.frame_ids.<message> for each DBC message: an arbitration ID that replaces the DBC's."""
-    return [ParamSpec(f"can.frame_ids.{name}", 0, f"arbitration ID of {name}; 0 = the DBC's", "",
-                      0, 0x7FF) for name in message_names]
+    return [
+        ParamSpec(f"can.frame_ids.{name}", 0, f"arbitration ID of {name}; 0 = the DBC's", "", 0,
+                  0x7FF) for name in message_names
+    ]
 
 
 def frame_id_overrides(values: dict, message_names) -> dict:
@@ -159,24 +170,29 @@ ESTIMATOR_FILTER_SPECS = [
               "fusion", "s", 0.001, 10.0, field="sensor_timeout_s"),
     ParamSpec("filter_type", _E.filter_type, "the filter", choices=("kf", "ekf", "ukf"),
               field="filter_type"),
-    ParamSpec("fusion_window", 0.02, "while the chamber rests, samples this close are fused in "
-              "one filter step (0: each at once; 20 ms: one fusion every other bus batch while "
-              "the controller rests)", "s", 0.0, 0.02, field="fusion_window_s"),
-    ParamSpec("input_timing_std", _E.input_timing_std_s, "how far an input's effect at the "
-              "device may lie from its stamp (1 sigma); P grows by the change in rate times "
-              "this at each input change", "s", 0.0, 0.1, field="input_timing_std_s"),
-    ParamSpec("nis_input_settle", _E.nis_input_settle_s, "samples this soon after an input "
-              "change stay out of the NIS window (still gated and fused): the input's timing is "
-              "uncertain there", "s", 0.0, 1.0, field="nis_input_settle_s"),
-    ParamSpec("max_fusion_shift_pa", _E.max_fusion_shift_pa, "the chamber rests (see "
-              "fusion_window) while its modelled change over the window stays within this", "Pa",
-              1.0, 1000.0, field="max_fusion_shift_pa"),
+    ParamSpec(
+        "fusion_window", 0.02, "while the chamber rests, samples this close are fused in "
+        "one filter step (0: each at once; 20 ms: one fusion every other bus batch while "
+        "the controller rests)", "s", 0.0, 0.02, field="fusion_window_s"),
+    ParamSpec(
+        "input_timing_std", _E.input_timing_std_s, "how far an input's effect at the "
+        "device may lie from its stamp (1 sigma); P grows by the change in rate times "
+        "this at each input change", "s", 0.0, 0.1, field="input_timing_std_s"),
+    ParamSpec(
+        "nis_input_settle", _E.nis_input_settle_s, "samples this soon after an input "
+        "change stay out of the NIS window (still gated and fused): the input's timing is "
+        "uncertain there", "s", 0.0, 1.0, field="nis_input_settle_s"),
+    ParamSpec(
+        "max_fusion_shift_pa", _E.max_fusion_shift_pa, "the chamber rests (see "
+        "fusion_window) while its modelled change over the window stays within this", "Pa", 1.0,
+        1000.0, field="max_fusion_shift_pa"),
 ]
 ESTIMATOR_SPECS = [
     ParamSpec("frequency", 200.0, "largest pressure/estimate rate (predictions while silent: at "
               "most 50 Hz)", "Hz", 1.0, 2000.0),
-    ParamSpec("rest_frequency", 20.0, "pressure/estimate rate while the chamber rests (see "
-              "fusion_window); <= frequency", "Hz", 1.0, 2000.0),
+    ParamSpec(
+        "rest_frequency", 20.0, "pressure/estimate rate while the chamber rests (see "
+        "fusion_window); <= frequency", "Hz", 1.0, 2000.0),
     *ESTIMATOR_FILTER_SPECS,
     ParamSpec("sensors.names", ["chamber_a", "chamber_b"], "sensors fused: topics "
               "pressure/sensor/<name>"),
@@ -184,9 +200,10 @@ ESTIMATOR_SPECS = [
               "(R = noise^2)", "Pa"),
     ParamSpec("sensors.rejection_threshold", [16.0, 16.0], "Mahalanobis gate of each sensor, "
               "chi-square with 1 dof (16 = 4 sigma)"),
-    ParamSpec("process_noise_covariance", list(_E.process_noise_pa2_per_s),
-              "Q spectral density over [chamber, regulator]: 2 values (diagonal) or 4 (full, "
-              "row-major)", "Pa^2/s"),
+    ParamSpec(
+        "process_noise_covariance", list(_E.process_noise_pa2_per_s),
+        "Q spectral density over [chamber, regulator]: 2 values (diagonal) or 4 (full, "
+        "row-major)", "Pa^2/s"),
     ParamSpec("nis_window", _E.nis_window, "samples per sensor in the NIS consistency window", "",
               10, 100000),
     ParamSpec("max_consecutive_rejections", _E.max_consecutive_rejections,
@@ -221,15 +238,17 @@ KINEMATICS_SPECS = [
     ParamSpec("marker_rate_hz", 10.0, "finger_markers rate while subscribed", "Hz", 0.5, 60.0),
     ParamSpec("fidelity", "auto", "model: l0, l1, l2, or auto (the cheapest whose error bound "
               "meets tolerance_m)", choices=FIDELITY_CHOICES),
-    ParamSpec("tolerance_m", 1e-3, "tip-position error auto must stay within (bounds: "
-              "config/model_error_bounds.yaml)", "m", 1e-6, 0.1),
+    ParamSpec(
+        "tolerance_m", 1e-3, "tip-position error auto must stay within (bounds: "
+        "config/model_error_bounds.yaml)", "m", 1e-6, 0.1),
     ParamSpec("resolve_pressure_pa", 200.0, "an L2 solve runs again once the pressure moved by "
               "more than this", "Pa", 0.0, 5000.0),
     ParamSpec("min_solve_interval", 0.1, "... and at most once per this (its CPU would starve "
               "the pressure loop)", "s", 0.0, 10.0),
-    ParamSpec("l2_nice_increment", SOLVER_PROCESS_NICE_INCREMENT, "added to the nice value of "
-              "the L2 solver's child process, so that its solves yield the CPU to the pressure "
-              "loop, the CAN reception and the estimator", "", 0, 19),
+    ParamSpec(
+        "l2_nice_increment", SOLVER_PROCESS_NICE_INCREMENT, "added to the nice value of "
+        "the L2 solver's child process, so that its solves yield the CPU to the pressure "
+        "loop, the CAN reception and the estimator", "", 0, 19),
     ParamSpec("cavity_type", "type_II", "finger type of config/gripper_geometry.yaml",
               choices=CAVITY_TYPES),
     ParamSpec("frame_id", "softgrip_base", "frame of the tip poses and markers"),
@@ -255,24 +274,24 @@ GRASP_FSM_SPECS = [
               0.01, 5.0, field="settle_s"),
     ParamSpec("auto_clamp_delay", _G.auto_clamp_delay_s, "ENVELOPED to CLAMPING on its own after "
               "this; < 0: wait for CLAMP", "s", -1.0, 600.0, field="auto_clamp_delay_s"),
-    ParamSpec("opening_timeout", _G.opening_timeout_s, "OPENING longer than this: FAULT", "s",
-              0.1, 60.0, field="opening_timeout_s"),
+    ParamSpec("opening_timeout", _G.opening_timeout_s, "OPENING longer than this: FAULT", "s", 0.1,
+              60.0, field="opening_timeout_s"),
     ParamSpec("clamping_timeout", _G.clamping_timeout_s, "CLAMPING longer than this: FAULT", "s",
               0.1, 60.0, field="clamping_timeout_s"),
     ParamSpec("releasing_timeout", _G.releasing_timeout_s, "RELEASING longer than this: FAULT",
               "s", 0.1, 60.0, field="releasing_timeout_s"),
     ParamSpec("hold_error_limit_pa", _G.hold_error_limit_pa, "HOLDING pressure off target by "
               "more than this ...", "Pa", 500.0, 50e3, field="hold_error_limit_pa"),
-    ParamSpec("hold_error_time", _G.hold_error_time_s, "... for this long: FAULT", "s", 0.01,
-              10.0, field="hold_error_time_s"),
+    ParamSpec("hold_error_time", _G.hold_error_time_s, "... for this long: FAULT", "s", 0.01, 10.0,
+              field="hold_error_time_s"),
 ]
 CLAMP_FORCE_SPECS = [
     ParamSpec("clamp_stiffness_n_per_pa", _F.stiffness_n_per_pa, "clamp force law: normal force "
               "per Pa below contact", "N/Pa", 1e-6, 1e-2, field="stiffness_n_per_pa"),
     ParamSpec("friction_coefficient", _F.friction_coefficient, "friction when a command gives "
               "none", "", 0.05, 2.0, field="friction_coefficient"),
-    ParamSpec("safety_factor", _F.safety_factor, "clamp force over what the weight needs", "",
-              1.0, 10.0, field="safety_factor"),
+    ParamSpec("safety_factor", _F.safety_factor, "clamp force over what the weight needs", "", 1.0,
+              10.0, field="safety_factor"),
 ]
 GRASP_MANAGER_SPECS = [
     ParamSpec("cavity_type", "type_II", "finger type of config/gripper_geometry.yaml",
@@ -289,8 +308,9 @@ GRASP_MANAGER_SPECS = [
               "(controller/status instead)", "s", 0.01, 5.0),
     ParamSpec("status_timeout", 1.0, "no controller/status this long during a grasp: FAULT", "s",
               0.1, 60.0),
-    ParamSpec("sensor_fault_grace", 0.3, "a sensor timeout or silent bus this long during a "
-              "grasp: FAULT (the controller holds meanwhile)", "s", 0.0, 5.0),
+    ParamSpec(
+        "sensor_fault_grace", 0.3, "a sensor timeout or silent bus this long during a "
+        "grasp: FAULT (the controller holds meanwhile)", "s", 0.0, 5.0),
     *GRASP_FSM_SPECS,
     *CLAMP_FORCE_SPECS,
 ]
@@ -310,9 +330,10 @@ SIM_FAULT_SPECS = [
               allow_empty=True),
     ParamSpec("fault.sensor_stuck", "", "stick a sensor at fault.sensor_stuck_at (its name, or "
               "'all'); '' = none", allow_empty=True),
-    ParamSpec("fault.sensor_stuck_at", "present", "what a stuck sensor reads: its last reading, "
-              f"or a fixed {STUCK_READINGS_PA['low']:.0f} or {STUCK_READINGS_PA['high']:.0f} Pa",
-              choices=FAULT_CHOICES["sensor_stuck_at"]),
+    ParamSpec(
+        "fault.sensor_stuck_at", "present", "what a stuck sensor reads: its last reading, "
+        f"or a fixed {STUCK_READINGS_PA['low']:.0f} or {STUCK_READINGS_PA['high']:.0f} Pa",
+        choices=FAULT_CHOICES["sensor_stuck_at"]),
     ParamSpec("fault.sensor_bias_pa", 0.0, "bias added to every reading", "Pa", -50e3, 50e3),
     ParamSpec("fault.sensor_noise_scale", 1.0, "every sensor's noise multiplied by this", "", 0.0,
               100.0),
@@ -324,9 +345,9 @@ SIM_FAULT_SPECS = [
     ParamSpec("fault.bus_silent", False, "the device stops sending"),
     ParamSpec("fault.corrupt_rate", 0.0, "fraction of frames sent with a bad CRC or a repeated "
               "counter", "", 0.0, 1.0),
-    ParamSpec("fault.replay_rate_hz", 0.0, "bursts per second of replayed old frames (old sensor "
-              "frames on the bus, an old ValveCommand into the device); 0 = none", "Hz", 0.0,
-              100.0),
+    ParamSpec(
+        "fault.replay_rate_hz", 0.0, "bursts per second of replayed old frames (old sensor "
+        "frames on the bus, an old ValveCommand into the device); 0 = none", "Hz", 0.0, 100.0),
 ]
 SIM_DEVICE_SPECS = CAN_SPECS + [
     ParamSpec("plant_rate_hz", 1000.0, "plant integration rate", "Hz", 50.0, 5000.0),

@@ -1,4 +1,5 @@
-"""The L2 rod solver in a child process of its own, and the thread that feeds it the latest request.
+"""The L2 rod solver in a child process of its own, and the thread that feeds it the latest
+request.
 
 This module imports nothing heavy at its top: the child imports it first, to run
 :func:`_start_rod_worker`, which starts the parent watch before the model's imports (about a
@@ -20,8 +21,8 @@ from concurrent.futures import ProcessPoolExecutor
 SOLVER_PROCESS_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
 # A solve holds a core for ~8.5 ms; at the default nice value the scheduler shares that core
 # evenly with the pressure loop, the CAN reception and the estimator, which wait behind it. Raised
-# by 10, the child yields to them (bench_e2e: the sensor-to-pose p99 lower in each of 4 comparisons,
-# by 0.05-0.7 ms; see docs/benchmarks.md).
+# by 10, the child yields to them (bench_e2e: the sensor-to-pose p99 lower in each of 4
+# comparisons, by 0.05-0.7 ms; see docs/benchmarks.md).
 SOLVER_PROCESS_NICE_INCREMENT = 10
 
 
@@ -64,33 +65,36 @@ class RodSolverProcess:
 
     continuation_steps: the load steps of each solve (SceneModel's ROD_CONTINUATION_STEPS)."""
 
-    def __init__(self, cavity_type: str = "type_II", nice_increment: int = SOLVER_PROCESS_NICE_INCREMENT,
-                 continuation_steps: int = 4):
+    def __init__(self, cavity_type: str = "type_II",
+                 nice_increment: int = SOLVER_PROCESS_NICE_INCREMENT, continuation_steps: int = 4):
         if not 0 <= nice_increment <= 19:
             raise ValueError(f"nice_increment must lie in [0, 19], got {nice_increment}")
-        self._executor = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
-                                             initializer=_start_rod_worker,
-                                             initargs=(cavity_type, nice_increment, os.getpid(), continuation_steps))
+        self._executor = ProcessPoolExecutor(
+            1, mp_context=multiprocessing.get_context("spawn"), initializer=_start_rod_worker,
+            initargs=(cavity_type, nice_increment, os.getpid(), continuation_steps))
         with _environment_defaults(SOLVER_PROCESS_ENVIRONMENT), _sigint_blocked_for_children():
-            self._executor.submit(int)      # start the child now (about a second), not at the first solve
+            # start the child now (about a second), not at the first solve
+            self._executor.submit(int)
 
     def __call__(self, pressure_pa: float, obstacle, from_pressure_pa: float):
-        return self._executor.submit(_solve_in_rod_worker, pressure_pa, obstacle, from_pressure_pa).result()
+        return self._executor.submit(_solve_in_rod_worker, pressure_pa, obstacle,
+                                     from_pressure_pa).result()
 
     def close(self) -> None:
         self._executor.shutdown(wait=True, cancel_futures=True)
 
 
 class LatestSolveThread:
-    """:meth:`~softgrip_ros.model.fidelity.SceneModel.solve_rod` on a thread of its own, for a caller that cannot wait
-    milliseconds (the kinematics node answers each estimate at once, with the last solve).
-    :meth:`request` replaces a request not yet started: the latest pressure is the one worth
-    solving. A failed solve goes to ``on_error(pressure_pa, error)`` and the thread goes on."""
+    """:meth:`~softgrip_ros.model.fidelity.SceneModel.solve_rod` on a thread of its own, for a
+    caller that cannot wait milliseconds (the kinematics node answers each estimate at once, with
+    the last solve). :meth:`request` replaces a request not yet started: the latest pressure is the
+    one worth solving. A failed solve goes to ``on_error(pressure_pa, error)`` and the thread goes
+    on."""
 
     def __init__(self, model, on_error=None, name: str = "softgrip-l2"):
         self.model, self.on_error = model, on_error
         self._wanted = threading.Condition()
-        self._request = None                 # (pressure, scene, stamp)
+        self._request = None  # (pressure, scene, stamp)
         self._closed = False
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
@@ -116,13 +120,13 @@ class LatestSolveThread:
                 (pressure, scene, stamp_s), self._request = self._request, None
             try:
                 self.model.solve_rod(pressure, scene, stamp_s)
-            except Exception as error:        # noqa: BLE001 - a failed solve must not end the thread
+            except Exception as error:  # noqa: BLE001 - a failed solve must not end the thread
                 if self.on_error is not None:
                     self.on_error(pressure, error)
 
 
-_WORKER = {}            # the child's rod and continuation steps (set by _start_rod_worker)
-PARENT_POLL_S = 0.2     # the L2 child checks this often that its parent lives
+_WORKER = {}  # the child's rod and continuation steps (set by _start_rod_worker)
+PARENT_POLL_S = 0.2  # the L2 child checks this often that its parent lives
 
 
 def _exit_with_parent(parent_pid: int) -> None:
@@ -135,7 +139,8 @@ def _exit_with_parent(parent_pid: int) -> None:
     os._exit(0)
 
 
-def _start_rod_worker(cavity_type: str, nice_increment: int, parent_pid: int, continuation_steps: int) -> None:
+def _start_rod_worker(cavity_type: str, nice_increment: int, parent_pid: int,
+                      continuation_steps: int) -> None:
     # Ctrl-C in a terminal reaches the whole process group: the parent decides when this child
     # ends (close()), and a KeyboardInterrupt here would only print a traceback. Born with SIGINT
     # blocked (see _sigint_blocked_for_children): ignored from here on, then unblocked.
@@ -145,7 +150,8 @@ def _start_rod_worker(cavity_type: str, nice_increment: int, parent_pid: int, co
                      daemon=True).start()
     if nice_increment:
         os.nice(nice_increment)
-    from softgrip_ros.model.calibration import build_kinematics     # the heavy imports, once watched
+    # the heavy imports, once watched
+    from softgrip_ros.model.calibration import build_kinematics
     from softgrip_ros.model.rod import RodFinger
     l1 = build_kinematics("l1", cavity_type)
     _WORKER.update(rod=RodFinger(l1.geometry, l1.calibration), steps=continuation_steps)
