@@ -6,11 +6,14 @@
 set -euo pipefail
 
 with_reference=0
+which_control_msgs=0
+usage="usage: scripts/setup.sh [--with-reference] [--which-control-msgs]"
 for arg in "$@"; do
   case "$arg" in
     --with-reference) with_reference=1 ;;   # the optional PyElastica reference (requirements/reference.txt)
-    -h|--help) echo "usage: scripts/setup.sh [--with-reference]"; exit 0 ;;
-    *) echo "[setup] ERROR: unknown argument '$arg' (usage: scripts/setup.sh [--with-reference])" >&2; exit 2 ;;
+    --which-control-msgs) which_control_msgs=1 ;;   # print the prefix of a real control_msgs, or "stand-in"; build nothing
+    -h|--help) echo "$usage"; exit 0 ;;
+    *) echo "[setup] ERROR: unknown argument '$arg' ($usage)" >&2; exit 2 ;;
   esac
 done
 
@@ -21,6 +24,24 @@ python_bin="${SOFTGRIP_PYTHON:-python3}"
 
 say() { printf '[setup] %s\n' "$*"; }
 die() { printf '[setup] ERROR: %s\n' "$*" >&2; exit 1; }
+
+# control_msgs is not on PyPI. The partial stand-in in compat/ (its gripper interfaces only) is
+# built only when no other prefix provides the real package: a partial one must never shadow it.
+real_control_msgs() {
+  local prefix prefixes
+  IFS=':' read -r -a prefixes <<< "$venv:${AMENT_PREFIX_PATH:-}"
+  for prefix in "${prefixes[@]}"; do
+    case "$prefix" in ""|"$repo_root/install"|"$repo_root/install/"*) continue ;; esac
+    if [ -e "$prefix/share/ament_index/resource_index/packages/control_msgs" ]; then
+      echo "$prefix"; return 0
+    fi
+  done
+}
+if [ "$which_control_msgs" = 1 ]; then
+  found="$(real_control_msgs)"
+  echo "${found:-stand-in}"
+  exit 0
+fi
 
 # ---- platform: the ROS 2 Jazzy wheels exist for CPython 3.10-3.13 on x86_64 only
 arch="$(uname -m)"
@@ -83,25 +104,33 @@ fi
 # ---- 3. colcon build of both packages, when their sources changed
 build_inputs() {
   local inputs=() path
-  for path in msg_defs package.xml setup.py setup.cfg resource config src; do
+  for path in msg_defs compat package.xml setup.py setup.cfg resource config src urdf launch; do
     [ -e "$path" ] && inputs+=("$path")
   done
   find "${inputs[@]}" -type f \
       -not -path '*/__pycache__/*' -not -name '*.pyc' | LC_ALL=C sort
 }
-build_hash="$requirements_hash-$(build_inputs | xargs sha256sum | sha256sum | cut -d' ' -f1)"
+base_paths=(. msg_defs)
+real_control_msgs="$(real_control_msgs)"
+if [ -n "$real_control_msgs" ]; then
+  say "control_msgs found in $real_control_msgs: the partial stand-in is not built"
+  rm -rf install/control_msgs build/control_msgs
+else
+  base_paths+=(compat/control_msgs)
+fi
+build_hash="$requirements_hash-${base_paths[*]}-$(build_inputs | xargs sha256sum | sha256sum | cut -d' ' -f1)"
 build_stamp="$repo_root/install/.softgrip-build"
 if stamp_matches "$build_stamp" "$build_hash"; then
   say "install/ up to date"
 else
-  say "colcon build (softgrip_interfaces, softgrip_ros)"
+  say "colcon build (${base_paths[*]})"
   mkdir -p log
   # shellcheck disable=SC1091
   source "$venv/bin/activate"
   export AMENT_PREFIX_PATH="$VIRTUAL_ENV${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
   export CMAKE_PREFIX_PATH="$VIRTUAL_ENV${CMAKE_PREFIX_PATH:+:$CMAKE_PREFIX_PATH}"
   export PYTHONWARNINGS="ignore:setup.py install is deprecated,ignore:easy_install command is deprecated"
-  colcon --log-base log build --base-paths . msg_defs --symlink-install \
+  colcon --log-base log build --base-paths "${base_paths[@]}" --symlink-install \
       --event-handlers console_cohesion- summary+ status- \
       --cmake-args -DPython3_EXECUTABLE="$venv/bin/python" -DBUILD_TESTING=OFF \
       > log/colcon-build.txt 2>&1 || { tail -n 60 log/colcon-build.txt >&2; die "colcon build failed (full log: log/colcon-build.txt)"; }
@@ -111,6 +140,6 @@ fi
 # ---- 4. verify: both packages import from the built workspace
 # shellcheck disable=SC1091
 source "$repo_root/scripts/env.sh"
-python -c 'import softgrip_interfaces.msg, softgrip_interfaces.action, softgrip_ros, rclpy' \
+python -c 'import softgrip_interfaces.msg, softgrip_interfaces.action, softgrip_ros, rclpy, control_msgs.action' \
   || die "the built packages do not import; see log/colcon-build.txt"
 say "ready: source scripts/env.sh to use the workspace"
