@@ -19,6 +19,8 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE_NAME}"]),
         (f"share/{PACKAGE_NAME}", ["package.xml"]),
         (f"share/{PACKAGE_NAME}/config", sorted(glob("config/*"))),
+        (f"share/{PACKAGE_NAME}/urdf", sorted(glob("urdf/*.xacro"))),
+        (f"share/{PACKAGE_NAME}/launch", sorted(glob("launch/*.launch.py"))),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
@@ -35,6 +37,7 @@ setup(
             "kinematics = softgrip_ros.nodes.kinematics:main",
             "grasp_manager = softgrip_ros.nodes.grasp_manager:main",
             "controller = softgrip_ros.nodes.controller:main",
+            "softgrip = softgrip_ros.cli:main",
         ],
         # python-can finds this interface by name: can.Bus(interface="softgrip_ipc", channel=...)
         "can.interface": [

@@ -1,4 +1,5 @@
-"""config/softgrip.yaml holds every declared parameter of every node, at its declared default."""
+"""config/softgrip.yaml holds every declared parameter of every node, at its declared default,
+under a key that matches the node in any namespace."""
 import pathlib
 
 import pytest
@@ -33,7 +34,7 @@ def test_every_parameter_is_in_the_params_file_at_its_default(rclpy_context, nod
         if section == "pressure_controller" else [])
     try:
         in_code = declared(node)
-        in_file = PARAMS[section]["ros__parameters"]
+        in_file = PARAMS[f"/**/{section}"]["ros__parameters"]
         if section == "pressure_controller":
             in_file = {**in_file, "autostart": False}
         assert set(in_code) == set(in_file), (f"only in code: {set(in_code) - set(in_file)}; "
@@ -47,3 +48,26 @@ def test_every_parameter_is_in_the_params_file_at_its_default(rclpy_context, nod
     finally:
         node.close()
         node.destroy_node()
+
+
+@pytest.mark.ros
+def test_the_params_file_applies_to_a_node_in_a_namespace(tmp_path):
+    """Two grippers run in namespaces (/g1, /g2): the file's values must reach them too."""
+    import rclpy
+    from softgrip_ros.nodes.kinematics import KinematicsNode
+    edited = tmp_path / "softgrip.yaml"
+    edited.write_text((REPO_ROOT / "config" / "softgrip.yaml").read_text().replace(
+        "frame_id:                      softgrip_base", "frame_id:                      hand"))
+    context = rclpy.Context()
+    rclpy.init(context=context, args=["--ros-args", "--params-file", str(edited), "-r",
+                                      "__ns:=/g1"])
+    try:
+        node = KinematicsNode(context=context)
+        try:
+            assert node.get_namespace() == "/g1"
+            assert node.get_parameter("frame_id").value == "hand"
+        finally:
+            node.close()
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=context)

@@ -20,12 +20,13 @@ import math
 import pathlib
 import typing
 
+import numpy as np
 import yaml
 
 from softgrip_ros.health import Health, Report
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.geometry import CHAMBER_COUNT
-from softgrip_ros.model.kinematics import TipTable
+from softgrip_ros.model.kinematics import TipTable, chord_joints, pcc_joints
 from softgrip_ros.model.rod import Circle, RodFinger, Sheet
 
 BOUNDS_FILE = "model_error_bounds.yaml"
@@ -178,6 +179,9 @@ class Evaluation:
     bound_m: float
     meets_tolerance: bool
     message: str
+    # () -> (five (turn, chord, turn) joints of the left finger's segments, D2 m): the shape as
+    # joint_states gives it (see kinematics.pcc_joints), computed only when asked for
+    joints: object = None
 
     def report(self, l2_solves: int) -> Report:
         """OK while the pressure lies in the validated range and the bound meets the tolerance."""
@@ -269,7 +273,8 @@ class SceneModel:
                     lambda nodes=solution.nodes_m: [tuple(map(float, p)) for p in nodes],
                     validated, solution.contact_force_n, choice.bound_m, choice.meets_tolerance,
                     message + (f" (l2 at {last.pressure_pa:.0f} Pa)"
-                               if last.pressure_pa != pressure else ""))
+                               if last.pressure_pa != pressure else ""),
+                    lambda: rod_joints(solution, free.geometry))
             reason = (f"l2 failed ({last.solution.message})"
                       if last is not None and last.scene == scene else "l2 pending")
             message = f"{reason}; l1 used, which ignores {scene.describe()}"
@@ -277,9 +282,15 @@ class SceneModel:
         tip, slope = self.tips[free.model].tip(pressure)
         free_validated = (free.contact_pressure_pa <= pressure <=
                           free.calibration.validated_max_pressure_pa)
+        table = self.tips[free.model]
+
+        def joints():
+            angles, tip_spacing_m = table.shape(pressure)
+            return pcc_joints(angles, free.geometry.segment_length_m), tip_spacing_m
+
         return Evaluation(choice.model, choice.scene_class, pressure, tip, slope,
                           lambda: [tuple(p) for p in free.backbone(pressure)], free_validated, 0.0,
-                          choice.bound_m, choice.meets_tolerance, message)
+                          choice.bound_m, choice.meets_tolerance, message, joints)
 
     def needs_solve(self, gauge_pa: float, scene: Scene, now_s: float | None = None) -> bool:
         """Whether L2 is chosen here and its last solve is for another scene, or too far in
@@ -309,3 +320,20 @@ class SceneModel:
                               slope, math.nan if now_s is None else now_s)  # one assignment
         self.solves += 1
         return solution
+
+
+def rod_joints(solution, geometry) -> tuple:
+    """An L2 shape as joint_states gives it: each segment's (turn, chord, turn) from the rod's
+    nodes at the segment ends (exact there: :func:`kinematics.chord_joints`), and D2 from the
+    chamber-side surface at the tip chamber's centre."""
+    nodes = np.asarray(solution.nodes_m)
+    per_segment = (len(nodes) - 1) // CHAMBER_COUNT
+    element_m = geometry.segment_length_m / per_segment
+    angles = geometry.inclination_rad - np.concatenate(
+        [[0.0], np.cumsum(np.asarray(solution.curvatures_per_m) * element_m)])
+    ends = range(0, len(nodes), per_segment)
+    joints = chord_joints([(float(nodes[k][0]), float(nodes[k][1]), float(angles[k]))
+                           for k in ends])
+    centre = (CHAMBER_COUNT - 1) * per_segment + round(
+        per_segment * 0.5 * geometry.chamber_length_m / geometry.segment_length_m)
+    return joints, -2.0 * float(np.asarray(solution.surface_m)[centre][0])

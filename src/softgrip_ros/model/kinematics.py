@@ -451,6 +451,17 @@ class TipTable:
         self._slopes[0] = kinematics.tip_slope(np.array([low + 1e-6]))[0]
         self._rows = [(tuple(v), tuple(s))
                       for v, s in zip(self._values.tolist(), self._slopes.tolist())]
+        # the shape: the five segment angles (analytic slopes) and D2 (its slope by a central
+        # difference of 1 Pa, one-sided at the grid's ends), for joint_states and the grasp
+        angle_slopes = np.asarray(kinematics.bending.angle_slopes(grid))
+        angle_slopes[0] = np.asarray(kinematics.bending.angle_slopes(np.array([low + 1e-6])))[0]
+        above, below = np.minimum(grid + 1.0, high), np.maximum(grid - 1.0, low)
+        d2_slope = ((kinematics.poses(above).tip_spacing_m - kinematics.poses(below).tip_spacing_m)
+                    / (above - below))
+        shape_values = np.column_stack([pose.segment_angles_rad, pose.tip_spacing_m])
+        shape_slopes = np.column_stack([angle_slopes, d2_slope])
+        self._shape_rows = [(tuple(v), tuple(s))
+                            for v, s in zip(shape_values.tolist(), shape_slopes.tolist())]
         midpoints = 0.5 * (grid[1:] + grid[:-1])
         exact = kinematics.poses(midpoints)
         looked_up = np.array([self.tip(p)[0] for p in midpoints])
@@ -460,7 +471,12 @@ class TipTable:
                          looked_up[:, 1] - exact.left_tip_z_m)))
         self.max_angle_error_rad = float(np.max(np.abs(looked_up[:, 2] -
                                                        exact.left_tip_angle_rad)))
-        if self.max_error_m > max_allowed_error_m:
+        shapes = np.array([self.shape(p)[0] + (self.shape(p)[1],) for p in midpoints])
+        self.max_shape_angle_error_rad = float(np.max(np.abs(shapes[:, :CHAMBER_COUNT] -
+                                                             exact.segment_angles_rad)))
+        self.max_tip_spacing_error_m = float(np.max(np.abs(shapes[:, CHAMBER_COUNT] -
+                                                           exact.tip_spacing_m)))
+        if max(self.max_error_m, self.max_tip_spacing_error_m) > max_allowed_error_m:
             raise ValueError(
                 f"a {step_pa:g} Pa grid interpolates {self.model} within {self.max_error_m:.2e} m "
                 "only, "
@@ -469,24 +485,56 @@ class TipTable:
     def tip(self, pressure_pa: float) -> tuple[tuple, tuple]:
         """((x, z, angle), (dx/dp, dz/dp, dangle/dp)) of the left tip at ``pressure_pa``
         (floats)."""
+        return self._lookup(self._rows, pressure_pa)
+
+    def shape(self, pressure_pa: float) -> tuple[tuple, float]:
+        """(the five segment angles theta_i, rad; D2, m) at ``pressure_pa``, tabulated as the
+        tip is (blocked below contact)."""
+        values, _ = self._lookup(self._shape_rows, pressure_pa)
+        return values[:CHAMBER_COUNT], values[CHAMBER_COUNT]
+
+    def _lookup(self, rows, pressure_pa: float) -> tuple[tuple, tuple]:
         p = _checked_scalar(pressure_pa)
         self.kinematics._check_range(p, p)
         if p <= self.low_pa:
-            return self._rows[0][0], (0.0, 0.0, 0.0)
+            return rows[0][0], (0.0,) * len(rows[0][0])
         if p >= self.high_pa:
             if p > self.high_pa:
                 raise ValueError(f"pressure {p:.0f} Pa above the table's {self.high_pa:.0f} Pa")
-            return self._rows[-1]
+            return rows[-1]
         position = (p - self.low_pa) / self.step_pa
-        i = min(int(position), len(self._rows) - 2)
+        i = min(int(position), len(rows) - 2)
         t = position - i
-        (v0, s0), (v1, s1) = self._rows[i], self._rows[i + 1]
+        (v0, s0), (v1, s1) = rows[i], rows[i + 1]
         t2, t3, h = t * t, t * t * t, self.step_pa
-        h00, h10, h01, h11 = 2 * t3 - 3 * t2 + 1, (t3 - 2 * t2 + t) * h, -2 * t3 + 3 * t2, (t3 -
-                                                                                            t2) * h
+        h00, h01 = 2 * t3 - 3 * t2 + 1, -2 * t3 + 3 * t2
+        h10, h11 = (t3 - 2 * t2 + t) * h, (t3 - t2) * h
         value = tuple(h00 * a + h10 * da + h01 * b + h11 * db
                       for a, da, b, db in zip(v0, s0, v1, s1))
         # the interpolant's derivative
         g00, g10, g11 = (6 * t2 - 6 * t) / h, 3 * t2 - 4 * t + 1, 3 * t2 - 2 * t
         slope = tuple(g00 * (a - b) + g10 * da + g11 * db for a, da, b, db in zip(v0, s0, v1, s1))
         return value, slope
+
+
+def pcc_joints(segment_angles_rad, segment_length_m: float) -> tuple:
+    """Each bending segment of arc length s bent by theta as three joints, (turn, chord, turn):
+    a turn of theta/2, a straight chord of s sinc(theta/2) and a turn of theta/2, which put the
+    segment's end where the circular arc ends, with its tangent (the URDF's form: turns
+    positive away from the centre line, as the opening pressure bends the finger)."""
+    joints = []
+    for theta in segment_angles_rad:
+        half = 0.5 * float(theta)
+        joints.append((half, segment_length_m * _ratio_scalar(math.sin(half), half), half))
+    return tuple(joints)
+
+
+def chord_joints(boundaries) -> tuple:
+    """(turn, chord, turn) for each piece of a planar curve given at its ends: ``boundaries``
+    [(x, z, tangent angle from +z)], one more than the pieces. Exact for any shape at those
+    ends (the L2 rod's too); for a circular arc both turns are theta/2 (:func:`pcc_joints`)."""
+    joints = []
+    for (x0, z0, phi0), (x1, z1, phi1) in zip(boundaries[:-1], boundaries[1:]):
+        heading = math.atan2(x1 - x0, z1 - z0)
+        joints.append((phi0 - heading, math.hypot(x1 - x0, z1 - z0), heading - phi1))
+    return tuple(joints)

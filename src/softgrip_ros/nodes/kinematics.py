@@ -1,20 +1,22 @@
 """kinematics: tip poses from the pressure estimate.
 
 In: pressure/estimate. Out: tip_pose/left and tip_pose/right (PoseWithCovarianceStamped, in
-``frame_id``: x from the left finger to the right, z towards the tips; the orientation turns +z
-to the tip's tangent about y), after each estimate (at most ``publish_rate_hz``). Their
-covariance is the pressure variance pushed through the model's tip derivative,
-J var J' with J = d(x, z, tip angle)/dp. finger_markers (MarkerArray line strips of both
-backbones) only while someone subscribes. /diagnostics: the model in use, its error bound and
-whether the pressure lies in its validated range.
+``prefix`` + ``frame_id``: x from the left finger to the right, z towards the tips; the
+orientation turns +z to the tip's tangent about y), after each estimate (at most
+``publish_rate_hz``). Their covariance is the pressure variance pushed through the model's tip
+derivative, J var J' with J = d(x, z, tip angle)/dp. joint_states (JointState) from the same
+estimate with the same stamp: every movable joint of urdf/softgrip_macro.xacro, so that
+robot_state_publisher puts the URDF's tips where tip_pose says, and ``tip_spacing`` (D2).
+finger_markers (MarkerArray line strips of both backbones) only while someone subscribes.
+/diagnostics: the model in use, its error bound and whether the pressure lies in its validated
+range.
 
 ``fidelity``: l0, l1, l2, or auto: the cheapest model whose error bound for the scene meets
 ``tolerance_m`` (softgrip_ros.model.fidelity). The scene comes from the grasp manager on
 ``grasp_scene`` (or by direct calls in the composed controller): free bending, or an object
 clamped or pinched. L2 solves (milliseconds) run in a child process, handed over by a worker
-thread, only when the pressure moved
-by more than ``resolve_pressure_pa`` and at most once per ``min_solve_interval``; the poses use the
-latest solve meanwhile.
+thread, only when the pressure moved by more than ``resolve_pressure_pa`` and at most once per
+``min_solve_interval``; the poses and joints use the latest solve meanwhile.
 """
 from __future__ import annotations
 
@@ -25,7 +27,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
-from sensor_msgs.msg import FluidPressure
+from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
@@ -73,6 +75,8 @@ class KinematicsNode(Node):
         self.last = None  # (variance, Evaluation)
         self.left_pub = self.create_publisher(PoseWithCovarianceStamped, "tip_pose/left", 10)
         self.right_pub = self.create_publisher(PoseWithCovarianceStamped, "tip_pose/right", 10)
+        self.joints_pub = self.create_publisher(JointState, "joint_states", 10)
+        self.frame_id = self.values["prefix"] + self.values["frame_id"]
         self.marker_pub = self.create_publisher(MarkerArray, "finger_markers", 1)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         if not in_process:
@@ -129,7 +133,10 @@ class KinematicsNode(Node):
                 self.solver.request(evaluation.pressure_pa, self.scene, stamp_s)
             self.last = (variance_pa2, evaluation)
             self.last_publish_s = stamp_s
-        header = Header(stamp=stamp_msg(stamp_s), frame_id=self.values["frame_id"])
+        header = Header(stamp=stamp_msg(stamp_s), frame_id=self.frame_id)
+        if listened(self, self.joints_pub):
+            publish(self, self.joints_pub, messages.joint_state(evaluation.joints(),
+                                                                self.values["prefix"], header))
         for sign, publisher in ((1.0, self.left_pub), (-1.0, self.right_pub)):
             if listened(self, publisher):
                 publish(
@@ -140,7 +147,7 @@ class KinematicsNode(Node):
     def _publish_markers(self) -> None:
         if self.last is None or not listened(self, self.marker_pub):
             return  # model no more than a scene needs
-        header = Header(stamp=self.get_clock().now().to_msg(), frame_id=self.values["frame_id"])
+        header = Header(stamp=self.get_clock().now().to_msg(), frame_id=self.frame_id)
         publish(self, self.marker_pub, messages.finger_markers(self.last[1].backbone(), header))
 
     def _publish_diagnostics(self) -> None:

@@ -7,7 +7,7 @@ import math
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Point, PoseWithCovarianceStamped
-from sensor_msgs.msg import FluidPressure
+from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
@@ -167,3 +167,26 @@ def finger_markers(backbone, header: Header) -> MarkerArray:
         marker.points = [Point(x=sign * x, y=0.0, z=z) for x, z in backbone]
         markers.markers.append(marker)
     return markers
+
+
+SIDES = ("left", "right")
+TIP_SPACING_JOINT = "tip_spacing"
+
+
+def joint_names(prefix: str) -> list:
+    """The movable joints of urdf/softgrip_macro.xacro, in joint_states order: per finger and
+    segment i (1 = root), ``<side>_seg<i>_in`` (turn), ``_chord`` (prismatic), ``_out`` (turn);
+    then ``tip_spacing``, the D2 the gripper actions command."""
+    return [f"{prefix}{side}_seg{i}_{part}" for side in SIDES
+            for i in range(1, 6) for part in ("in", "chord", "out")] + [prefix + TIP_SPACING_JOINT]
+
+
+def joint_state(joints, prefix: str, header: Header) -> JointState:
+    """JointState of the model's shape: ``joints`` = (five (turn, chord, turn), D2) of the left
+    finger (:attr:`Evaluation.joints`); the right finger's joints turn the other way about y
+    in the URDF, so they carry the same values."""
+    segments, tip_spacing_m = joints
+    one_finger = [float(v) for segment in segments for v in segment]
+    # D2 at tip contact is 0 up to rounding; the URDF's tip_spacing stops at 0
+    return JointState(header=header, name=joint_names(prefix),
+                      position=one_finger + one_finger + [max(0.0, float(tip_spacing_m))])

@@ -251,7 +251,9 @@ KINEMATICS_SPECS = [
         "loop, the CAN reception and the estimator", "", 0, 19),
     ParamSpec("cavity_type", "type_II", "finger type of config/gripper_geometry.yaml",
               choices=CAVITY_TYPES),
-    ParamSpec("frame_id", "softgrip_base", "frame of the tip poses and markers"),
+    ParamSpec("frame_id", "softgrip_base", "frame of the tip poses and markers (after prefix)"),
+    ParamSpec("prefix", "", "put before every joint and frame name, as the URDF's prefix does "
+              "(several grippers in one robot)", allow_empty=True),
     _stamp_tolerance("an estimate"),
 ]
 
@@ -311,6 +313,17 @@ GRASP_MANAGER_SPECS = [
     ParamSpec(
         "sensor_fault_grace", 0.3, "a sensor timeout or silent bus this long during a "
         "grasp: FAULT (the controller holds meanwhile)", "s", 0.0, 5.0),
+    ParamSpec("gripper_action", "gripper_cmd", "name of the control_msgs/GripperCommand "
+              "action (relative: a namespace applies)"),
+    ParamSpec("parallel_gripper_action", "parallel_gripper_cmd", "name of the "
+              "control_msgs/ParallelGripperCommand action"),
+    ParamSpec("goal_tolerance_m", 0.005, "a gripper goal's position counts as reached within "
+              "this of the modelled D2 (an opening aims pressure_tolerance_pa above the goal's "
+              "pressure: some mm)", "m", 1e-4, 0.05),
+    ParamSpec("default_effort_n", 2.0, "the closing force per finger of a gripper goal whose "
+              "max_effort is 0", "N", 0.01, 20.0),
+    ParamSpec("prefix", "", "put before the tip_spacing joint name of ParallelGripperCommand, "
+              "as the URDF's prefix", allow_empty=True),
     *GRASP_FSM_SPECS,
     *CLAMP_FORCE_SPECS,
 ]
