@@ -296,7 +296,58 @@ class GraspStateMachine:
         if controller_fault and mode != GraspMode.STOP:
             return self._reject(request,
                                 f"the pressure controller reports a fault: {controller_fault}")
-        plan = self._planners[mode](request)
+        return self._accept(request, self._planners[mode](request), now)
+
+    def close_on(self, diameter_m: float, force_n: float, now: float, command_id: str = "",
+                 controller_fault: str = "") -> str:
+        """Close until the fingers press an object ``diameter_m`` wide with ``force_n`` each (the
+        clamp force law inverted: the clamp pressure is the one at which that force comes out),
+        from any phase but FAULT; CLAMPING, then HOLDING. The gripper actions' closing goal: ''
+        or why it is refused."""
+        request = GraspRequest(GraspMode.PINCH if diameter_m <= self.config.pinch_max_diameter_m
+                               else GraspMode.CLAMP, object_diameter_m=diameter_m,
+                               command_id=command_id)
+        if controller_fault:
+            return self._reject(request,
+                                f"the pressure controller reports a fault: {controller_fault}")
+        return self._accept(request, self._plan_close(diameter_m, force_n), now)
+
+    def _plan_close(self, diameter_m: float, force_n: float) -> "Plan | str":
+        c = self.config
+        high = self.kinematics.tip_spacing_range_m()[1]
+        if not (math.isfinite(diameter_m) and 0.0 <= diameter_m <= high):
+            return (f"the opening must lie in [0, {high * 1e3:.1f}] mm, got "
+                    f"{diameter_m * 1e3:.1f} mm")
+        if not (math.isfinite(force_n) and force_n >= 0.0):
+            return f"the force must be finite and >= 0 N, got {force_n}"
+        contact = self._contact_pressure(diameter_m)
+        most_n = self.force_law.normal_force_n(c.min_gauge_pa, contact)
+        if force_n > most_n:
+            return (f"an effort of {force_n:.2f} N needs more vacuum than the limit "
+                    f"{c.min_gauge_pa / 1e3:.0f} kPa allows at {diameter_m * 1e3:.1f} mm "
+                    f"(at most {most_n:.2f} N)")
+        law = self.force_law
+        squeeze_pa = max(force_n / law.stiffness_n_per_pa, law.min_squeeze_pa)
+        clamp = max(contact - squeeze_pa, c.min_gauge_pa)
+        grasp = GraspRequest(GraspMode.PINCH if diameter_m <= c.pinch_max_diameter_m
+                             else GraspMode.CLAMP, object_diameter_m=diameter_m)
+        return Plan(Phase.CLAMPING, self._pressure(clamp), f"closing to {diameter_m * 1e3:.1f} mm",
+                    grasp=grasp, clamp_pa=clamp, contact_pa=contact)
+
+    def hold_here(self, now: float, message: str) -> None:
+        """Keep the present pressure, valves closed (a canceled gripper goal, as the
+        ros2_controllers gripper controllers stop where they are): held open (ENVELOPED) at a
+        positive pressure, held closed (HOLDING) at a negative one. A new task: whatever ran is
+        over. STOP still vents."""
+        estimate = self.state.estimated_gauge_pa
+        target = estimate if math.isfinite(estimate) else self.request.target_gauge_pa
+        self.task += 1
+        phase = Phase.HOLDING if target < 0.0 else Phase.ENVELOPED
+        if phase == Phase.HOLDING:
+            self._clamp_pa = target
+        self._enter(phase, PressureRequest(target, Source.HOLD), now, message)
+
+    def _accept(self, request: GraspRequest, plan: "Plan | str", now: float) -> str:
         if isinstance(plan, str):
             return self._reject(request, plan)
         self.state.command_rejected = False
@@ -312,6 +363,11 @@ class GraspStateMachine:
         self._release_step = plan.release_step
         self._enter(plan.phase, plan.pressure, now, plan.message)
         return ""
+
+    def refuse(self, command_id: str, reason: str) -> str:
+        """Say in the state why a command from elsewhere (a gripper goal) was refused, changing
+        nothing else, as a rejected GraspCommand does; ``reason``."""
+        return self._reject(GraspRequest(GraspMode.STOP, command_id=command_id), reason)
 
     def _reject(self, request: GraspRequest, reason: str) -> str:
         self.state.command_rejected, self.state.message = True, f"rejected: {reason}"

@@ -1,6 +1,8 @@
 """grasp_manager: grasp commands in, pressure commands out, and the gripper's state.
 
-In: grasp_command (GraspCommand), the Grasp action, pressure/estimate, controller/status.
+In: grasp_command (GraspCommand), the actions (softgrip's Grasp on ``grasp``, control_msgs'
+GripperCommand on ``gripper_action`` and ParallelGripperCommand on ``parallel_gripper_action``:
+see nodes.grasp_actions), pressure/estimate, controller/status.
 Out: pressure/command (on every change, and refreshed every ``command_refresh_s`` so that the
 controller's command timeout never trips during a long hold), grasp_state (GripperState) on
 every change and at ``state_rate_hz``, /diagnostics. The state machine is
@@ -12,14 +14,12 @@ import math
 import threading
 
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from rclpy.task import Future
 from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Header
 
-from softgrip_interfaces.action import Grasp
 from softgrip_interfaces.msg import (ControllerStatus, GraspCommand, GraspScene, GripperState,
                                      PressureCommand)
 from softgrip_ros.control.grasp_fsm import (ControllerFeedback, GraspMode, GraspRequest,
@@ -28,6 +28,7 @@ from softgrip_ros.control.reports import grasp_report
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.fidelity import FREE, SceneModel
 from softgrip_ros.nodes import messages
+from softgrip_ros.nodes.grasp_actions import GraspActions
 from softgrip_ros.nodes.common import NodeTimers, notify, publish, run_node
 from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import GRASP_MANAGER_SPECS as SPECS
@@ -78,9 +79,7 @@ class GraspManagerNode(Node):
         self.periodic = NodeTimers(self, in_process)
         self.periodic.every(1.0 / v["state_rate_hz"], self._on_timer)
         self.periodic.every(1.0, self._publish_diagnostics)
-        self.action_server = ActionServer(self, Grasp, "grasp", execute_callback=self._execute,
-                                          goal_callback=lambda _: GoalResponse.ACCEPT,
-                                          cancel_callback=lambda _: CancelResponse.ACCEPT)
+        self.actions = GraspActions(self)
         self.periodic.start()
 
     def close(self) -> None:
@@ -91,7 +90,7 @@ class GraspManagerNode(Node):
             self.submit(GraspRequest(GraspMode.STOP, command_id="shutdown"))
         with self._lock:
             self.closed = True
-        self.action_server.destroy()
+        self.actions.destroy()
 
     # ---- inputs ---------------------------------------------------------------------------------
     def _now(self) -> float:
@@ -185,46 +184,6 @@ class GraspManagerNode(Node):
             self, self.diagnostics_pub,
             messages.diagnostics(report, "softgrip: grasp manager", "gripper",
                                  self.get_clock().now().to_msg()))
-
-    # ---- the Grasp action -----------------------------------------------------------------------
-    async def _execute(self, goal_handle):
-        """A goal runs its command's task (see GraspStateMachine.outcome): a CLAMP that goes on
-        with it, from the topic or another goal, keeps it running to HOLDING; any other command
-        supersedes it; a cancel stops and vents."""
-        request = messages.grasp_request(goal_handle.request.command)
-        with self._lock:  # the task is the one this goal's command started or went on with
-            reason = self.submit(request)
-            task = self.fsm.task
-        if reason:
-            goal_handle.abort()
-            return self._result(False, f"rejected: {reason}")
-        while True:
-            # check and register the waiter in one step, so that no change slips between
-            with self._lock:
-                if goal_handle.is_cancel_requested:
-                    self.submit(GraspRequest(GraspMode.STOP, command_id=request.command_id))
-                    goal_handle.canceled()
-                    return self._result(False, "canceled: venting")
-                outcome = self.fsm.outcome(task, request.mode)
-                if outcome == "superseded":
-                    goal_handle.abort()
-                    return self._result(False,
-                                        f"superseded by command {self.fsm.state.command_id!r}")
-                if outcome:
-                    held = self.fsm.state.phase == Phase.HOLDING
-                    (goal_handle.succeed if outcome == "succeeded" else goal_handle.abort)()
-                    return self._result(held, self.fsm.state.message)
-                feedback = Grasp.Feedback(state=self.state_message())
-                waiter = Future()
-                self.waiters.append(waiter)
-            goal_handle.publish_feedback(feedback)
-            await waiter
-
-    def _result(self, held: bool, message: str) -> Grasp.Result:
-        s = self.fsm.state
-        return Grasp.Result(object_held=held, final_phase=int(s.phase),
-                            final_gauge_pressure_pa=s.estimated_gauge_pa,
-                            clamp_force_n=s.clamp_force_n, message=message)
 
 
 def main(args=None) -> int:

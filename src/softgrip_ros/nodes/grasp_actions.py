@@ -1,0 +1,168 @@
+"""The grasp manager's actions: softgrip's Grasp, and control_msgs' GripperCommand and
+ParallelGripperCommand for arm stacks (MoveIt, behaviour trees). The semantics of the latter are
+in softgrip_ros.control.gripper_command: ``position`` is the tip spacing D2 in m, opening goes
+to it with positive pressure, closing clamps with ``max_effort`` N per finger, a cancel holds
+the present pressure. Every position and effort reported is the model's (there is no finger
+encoder). A goal that cannot be done is aborted at once; the reason is in grasp_state's message
+and the log (control_msgs' results have no text)."""
+from __future__ import annotations
+
+from control_msgs.action import GripperCommand, ParallelGripperCommand
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.task import Future
+from sensor_msgs.msg import JointState
+
+from softgrip_interfaces.action import Grasp
+from softgrip_ros.control.grasp_fsm import GraspMode, GraspRequest, Phase
+from softgrip_ros.control.gripper_command import (gripper_progress, present_progress,
+                                                  start_gripper_goal)
+from softgrip_ros.nodes import messages
+
+
+class GraspActions:
+    """The three action servers of ``manager`` (a GraspManagerNode), each goal followed through
+    the manager's state machine under its lock."""
+
+    def __init__(self, manager):
+        self.manager = manager
+        v = manager.values
+        self.joint = v["prefix"] + messages.TIP_SPACING_JOINT
+        accept = {"goal_callback": lambda _: GoalResponse.ACCEPT,
+                  "cancel_callback": lambda _: CancelResponse.ACCEPT}
+        self.servers = [
+            ActionServer(manager, Grasp, "grasp", execute_callback=self._execute_grasp, **accept),
+            ActionServer(manager, GripperCommand, v["gripper_action"],
+                         execute_callback=self._execute_gripper, **accept),
+            ActionServer(manager, ParallelGripperCommand, v["parallel_gripper_action"],
+                         execute_callback=self._execute_parallel, **accept),
+        ]
+
+    def destroy(self) -> None:
+        for server in self.servers:
+            server.destroy()
+
+    async def _follow(self, goal_handle, outcome_of, feedback_of, cancel) -> str:
+        """Wait, a state change at a time, until ``outcome_of()`` names the goal's end, or a
+        cancel (``cancel()`` runs): "succeeded", "failed", "superseded" or "canceled", with the
+        goal handle ended to match. Each check registers its waiter under the lock, so that no
+        change slips between."""
+        m = self.manager
+        while True:
+            with m._lock:
+                if goal_handle.is_cancel_requested:
+                    cancel()
+                    goal_handle.canceled()
+                    return "canceled"
+                outcome = outcome_of()
+                if outcome:
+                    (goal_handle.succeed if outcome == "succeeded" else goal_handle.abort)()
+                    return outcome
+                feedback = feedback_of()
+                waiter = Future()
+                m.waiters.append(waiter)
+            goal_handle.publish_feedback(feedback)
+            await waiter
+
+    # ---- softgrip_interfaces/action/Grasp ---------------------------------------------------
+    async def _execute_grasp(self, goal_handle):
+        """A goal runs its command's task (see GraspStateMachine.outcome): a CLAMP that goes on
+        with it, from the topic or another goal, keeps it running to HOLDING; any other command
+        supersedes it; a cancel stops and vents."""
+        m = self.manager
+        request = messages.grasp_request(goal_handle.request.command)
+        with m._lock:  # the task is the one this goal's command started or went on with
+            reason = m.submit(request)
+            task = m.fsm.task
+        if reason:
+            goal_handle.abort()
+            return self._grasp_result(False, f"rejected: {reason}")
+        outcome = await self._follow(
+            goal_handle, lambda: m.fsm.outcome(task, request.mode),
+            lambda: Grasp.Feedback(state=m.state_message()),
+            lambda: m.submit(GraspRequest(GraspMode.STOP, command_id=request.command_id)))
+        with m._lock:
+            if outcome == "canceled":
+                return self._grasp_result(False, "canceled: venting")
+            if outcome == "superseded":
+                return self._grasp_result(
+                    False, f"superseded by command {m.fsm.state.command_id!r}")
+            return self._grasp_result(m.fsm.state.phase == Phase.HOLDING, m.fsm.state.message)
+
+    def _grasp_result(self, held: bool, message: str) -> Grasp.Result:
+        s = self.manager.fsm.state
+        return Grasp.Result(object_held=held, final_phase=int(s.phase),
+                            final_gauge_pressure_pa=s.estimated_gauge_pa,
+                            clamp_force_n=s.clamp_force_n, message=message)
+
+    # ---- control_msgs ---------------------------------------------------------------------
+    async def _execute_gripper(self, goal_handle):
+        command = goal_handle.request.command
+        progress = await self._run_gripper_goal(goal_handle, command.position,
+                                                command.max_effort, "gripper_cmd",
+                                                self._gripper_feedback)
+        return GripperCommand.Result(position=progress.position_m, effort=progress.effort_n,
+                                     stalled=progress.stalled,
+                                     reached_goal=progress.reached_goal)
+
+    def _gripper_feedback(self, progress) -> GripperCommand.Feedback:
+        return GripperCommand.Feedback(position=progress.position_m, effort=progress.effort_n,
+                                       stalled=progress.stalled,
+                                       reached_goal=progress.reached_goal)
+
+    async def _execute_parallel(self, goal_handle):
+        """One joint, ``<prefix>tip_spacing`` (a goal naming no joint means it too); its
+        effort, when given, is the closing force; a velocity is not used."""
+        command = goal_handle.request.command
+        names, positions = list(command.name), list(command.position)
+        if names not in ([], [self.joint]) or len(positions) != 1:
+            goal_handle.abort()
+            self.manager.get_logger().warn(
+                f"parallel_gripper_cmd refused: one joint, {self.joint!r}, and one position, "
+                f"got names {names} and positions {positions}")
+            return self._parallel_result(self._present())
+        effort = float(command.effort[0]) if len(command.effort) else 0.0
+        progress = await self._run_gripper_goal(goal_handle, positions[0], effort,
+                                                "parallel_gripper_cmd", self._parallel_feedback)
+        return self._parallel_result(progress)
+
+    def _joint_state(self, progress) -> JointState:
+        return JointState(header=self.manager._header(), name=[self.joint],
+                          position=[progress.position_m], effort=[progress.effort_n])
+
+    def _parallel_feedback(self, progress) -> ParallelGripperCommand.Feedback:
+        return ParallelGripperCommand.Feedback(state=self._joint_state(progress))
+
+    def _parallel_result(self, progress) -> ParallelGripperCommand.Result:
+        return ParallelGripperCommand.Result(state=self._joint_state(progress),
+                                             stalled=progress.stalled,
+                                             reached_goal=progress.reached_goal)
+
+    def _present(self):
+        with self.manager._lock:
+            return present_progress(self.manager.fsm)
+
+    async def _run_gripper_goal(self, goal_handle, position_m, max_effort_n, action, feedback):
+        """Start the goal (refused at once when it cannot be done) and follow it."""
+        m, v = self.manager, self.manager.values
+        with m._lock:
+            now = m._now()
+            goal = start_gripper_goal(m.fsm, float(position_m), float(max_effort_n),
+                                      v["default_effort_n"], v["goal_tolerance_m"], now, action,
+                                      m._controller_fault(now))
+            m._after_change(now)
+        if isinstance(goal, str):
+            m.get_logger().warn(f"{action} goal refused: {goal}")
+            goal_handle.abort()
+            return self._present()
+
+        def cancel():
+            now = m._now()
+            m.fsm.hold_here(now, f"{action} canceled: holding the present pressure")
+            m._after_change(now)
+
+        tolerance = v["goal_tolerance_m"]
+        await self._follow(goal_handle,
+                           lambda: gripper_progress(m.fsm, goal, tolerance).outcome,
+                           lambda: feedback(gripper_progress(m.fsm, goal, tolerance)), cancel)
+        with m._lock:
+            return gripper_progress(m.fsm, goal, tolerance)

@@ -1,0 +1,117 @@
+"""control_msgs' gripper semantics on the grasp state machine, closed around the pressure
+controller and the plant (tests/helpers/grasp_loop), without ROS."""
+import math
+
+import pytest
+
+from softgrip_ros.control.grasp_fsm import GraspConfig, GraspMode, GraspRequest, Phase
+from softgrip_ros.control.gripper_command import gripper_progress, start_gripper_goal
+from softgrip_ros.control.pressure import Source
+from softgrip_ros.model.calibration import build_kinematics
+from softgrip_ros.model.grasp import ClampForceLaw
+from tests.helpers.grasp_loop import GraspLoop
+
+TOLERANCE_M = 0.005
+DEFAULT_EFFORT_N = 2.0
+
+
+@pytest.fixture(scope="module")
+def kinematics():
+    return build_kinematics("l0")
+
+
+def start(loop, position_m, max_effort_n=0.0):
+    goal = start_gripper_goal(loop.fsm, position_m, max_effort_n, DEFAULT_EFFORT_N, TOLERANCE_M,
+                              loop.now)
+    loop._forward()
+    return goal
+
+
+def run_to_end(loop, goal, timeout=5.0):
+    loop.run_until(lambda s: gripper_progress(loop.fsm, goal, TOLERANCE_M).outcome, timeout)
+    return gripper_progress(loop.fsm, goal, TOLERANCE_M)
+
+
+def test_an_opening_goal_opens_to_its_tip_spacing_and_reports_reaching_it(kinematics):
+    loop = GraspLoop(kinematics, GraspConfig())
+    loop.run_for(0.05)
+    goal = start(loop, 0.05)
+    assert not isinstance(goal, str) and not goal.closing
+    assert loop.fsm.request.source == Source.SUPPLY
+    progress = run_to_end(loop, goal)
+    assert progress.outcome == "succeeded" and progress.reached_goal and not progress.stalled
+    assert loop.fsm.state.phase == Phase.ENVELOPED
+    # the modelled D2: the opening aims at the goal's pressure
+    assert progress.position_m == pytest.approx(0.05, abs=TOLERANCE_M)
+    assert loop.fsm.request.target_gauge_pa == pytest.approx(
+        kinematics.pressure_for_tip_spacing(0.05))
+    assert progress.effort_n == 0.0
+
+
+def test_a_closing_goal_squeezes_with_its_effort_and_ends_holding(kinematics):
+    loop = GraspLoop(kinematics, GraspConfig())
+    loop.run_for(0.05)
+    opened = start(loop, 0.06)
+    run_to_end(loop, opened)
+    goal = start(loop, 0.03, max_effort_n=3.0)
+    assert goal.closing and goal.task != opened.task
+    contact = kinematics.pressure_for_tip_spacing(0.03)
+    law = ClampForceLaw()
+    assert loop.fsm.request.target_gauge_pa == pytest.approx(
+        contact - 3.0 / law.stiffness_n_per_pa)
+    progress = run_to_end(loop, goal)
+    assert progress.outcome == "succeeded" and loop.fsm.state.phase == Phase.HOLDING
+    # the modelled force: the clamp force law at the estimate, within the pressure tolerance
+    assert progress.effort_n == pytest.approx(3.0, abs=1.5e3 * law.stiffness_n_per_pa)
+    assert progress.reached_goal and not progress.stalled
+    assert progress.position_m == pytest.approx(0.03, abs=TOLERANCE_M)
+
+
+def test_effort_zero_means_the_default(kinematics):
+    loop = GraspLoop(kinematics, GraspConfig())
+    goal = start(loop, 0.0)
+    assert goal.closing and goal.effort_n == DEFAULT_EFFORT_N
+
+
+@pytest.mark.parametrize("position_m, effort_n, reason", [
+    (math.nan, 1.0, "position must be a finite"),
+    (-0.01, 1.0, "position must be a finite"),
+    (0.5, 1.0, "wider than the gripper opens"),
+    (0.0, -1.0, "max_effort must be"),
+    (0.0, math.inf, "max_effort must be"),
+    (0.0, 50.0, "needs more vacuum than the limit"),
+])
+def test_a_goal_it_cannot_do_is_refused_with_its_reason_and_nothing_moves(
+        kinematics, position_m, effort_n, reason):
+    loop = GraspLoop(kinematics, GraspConfig())
+    loop.run_for(0.05)
+    before = (loop.fsm.request, loop.fsm.state.phase, loop.fsm.task)
+    refused = start(loop, position_m, effort_n)
+    assert isinstance(refused, str) and reason in refused
+    # control_msgs' results carry no text: grasp_state says why, as for a rejected GraspCommand
+    assert loop.fsm.state.command_rejected and reason in loop.fsm.state.message
+    assert (loop.fsm.request, loop.fsm.state.phase, loop.fsm.task) == before
+
+
+def test_a_cancel_holds_the_present_pressure(kinematics):
+    loop = GraspLoop(kinematics, GraspConfig())
+    goal = start(loop, 0.07)
+    loop.run_for(0.15)  # part way up
+    pressure = loop.fsm.state.estimated_gauge_pa
+    assert 0.0 < pressure and loop.fsm.state.phase == Phase.OPENING
+    loop.fsm.hold_here(loop.now, "canceled: holding")
+    loop._forward()
+    assert loop.fsm.request == type(loop.fsm.request)(pressure, Source.HOLD)
+    assert loop.fsm.state.phase == Phase.ENVELOPED
+    assert gripper_progress(loop.fsm, goal, TOLERANCE_M).outcome == "superseded"
+    held = loop.gauge()
+    loop.run_for(0.5)
+    assert loop.gauge() == pytest.approx(held, abs=1.5e3)  # valves closed: it stays
+    assert loop.fsm.state.phase == Phase.ENVELOPED
+
+
+def test_another_command_supersedes_a_goal(kinematics):
+    loop = GraspLoop(kinematics, GraspConfig())
+    goal = start(loop, 0.05)
+    loop.command(GraspRequest(GraspMode.STOP))
+    assert gripper_progress(loop.fsm, goal, TOLERANCE_M).outcome == "superseded"
