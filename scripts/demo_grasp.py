@@ -23,6 +23,7 @@ from rclpy.node import Node
 from sensor_msgs.msg import FluidPressure
 
 from softgrip_interfaces.msg import GraspCommand, GripperState
+from softgrip_ros.client import grasp_command as command
 from softgrip_ros.model.pneumatics import P_ATM_PA
 from softgrip_ros.nodes.common import spinning, stamp_seconds
 from softgrip_ros.devtools.processes import installed_executable, stop_process
@@ -36,14 +37,6 @@ COLOURS = {
     "OPENING": "#cfe8ff", "ENVELOPED": "#e0f5d0", "CLAMPING": "#ffe3c2", "HOLDING": "#ffd0d0",
     "RELEASING": "#eadcff", "FAULT": "#ff8080"
 }
-
-
-def command(mode, command_id, **fields):
-    values = dict(object_diameter_m=math.nan, object_mass_kg=math.nan,
-                  target_tip_spacing_m=math.nan, friction_coefficient=math.nan,
-                  open_pressure_pa=math.nan, clamp_pressure_pa=math.nan)
-    values.update(fields)
-    return GraspCommand(mode=mode, command_id=command_id, **values)
 
 
 def wait_phase(states, phase, timeout):

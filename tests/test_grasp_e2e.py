@@ -8,20 +8,13 @@ import time
 import can
 import pytest
 
+from softgrip_ros.client import grasp_command as grasp
 from softgrip_ros.devtools.processes import installed_executable, stop_process
 
 from tests.helpers.ros import spinning, unique, wait_for
 
 pytestmark = pytest.mark.ros
 NAN = math.nan
-
-
-def grasp(mode, **fields):
-    from softgrip_interfaces.msg import GraspCommand
-    values = dict(object_diameter_m=NAN, object_mass_kg=NAN, target_tip_spacing_m=NAN,
-                  friction_coefficient=NAN, open_pressure_pa=NAN, clamp_pressure_pa=NAN)
-    values.update(fields)
-    return GraspCommand(mode=mode, **values)
 
 
 @pytest.fixture

@@ -1,0 +1,171 @@
+"""softgrip: drive a running gripper from the command line (no ros2 CLI needed).
+
+    softgrip grasp --diameter 0.04 --mass 0.2        # open around it; ENVELOPED, then:
+    softgrip clamp                                    # ... clamp it: HOLDING
+    softgrip release
+    softgrip state --watch
+    softgrip open --spacing 0.05 --namespace /g1
+
+Each task prints the phases as they come and ends with the result; the exit status is 0 when
+the task succeeded, 1 when it was refused, failed or timed out, 3 when no gripper answered.
+``grasp`` ends once the fingers are open around the object (ENVELOPED), unless
+``--clamp-after S`` clamps S seconds later and waits for HOLDING.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+PHASES = ("IDLE", "OPENING", "ENVELOPED", "CLAMPING", "HOLDING", "RELEASING", "FAULT")
+
+
+def _positive(text: str) -> float:
+    value = float(text)
+    if not value > 0.0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    value = float(text)
+    if not value >= 0.0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--namespace", default="", help="the gripper's namespace (e.g. /g1)")
+    common.add_argument("--timeout", type=_positive, default=15.0,
+                        help="seconds to wait for the gripper and for the task (default 15)")
+    top = argparse.ArgumentParser(prog="softgrip", description=__doc__,
+                                  formatter_class=argparse.RawDescriptionHelpFormatter)
+    commands = top.add_subparsers(dest="command", required=True)
+    grasp = commands.add_parser("grasp", parents=[common],
+                                help="envelop an object (ENVELOP_CLAMP), then clamp")
+    grasp.add_argument("--diameter", type=_non_negative, required=True, help="object size, m")
+    grasp.add_argument("--mass", type=_non_negative, required=True, help="object mass, kg")
+    grasp.add_argument("--friction", type=_positive, help="friction coefficient (default: the "
+                       "grasp manager's)")
+    grasp.add_argument("--open-pressure", type=float, help="opening pressure override, Pa")
+    grasp.add_argument("--clamp-pressure", type=float, help="clamp pressure override, Pa")
+    grasp.add_argument("--clamp-after", type=_non_negative, metavar="S",
+                       help="clamp S seconds after ENVELOPED and wait for HOLDING")
+    pinch = commands.add_parser("pinch", parents=[common], help="close the tips on a thin object")
+    pinch.add_argument("--diameter", type=_non_negative, required=True, help="object size, m")
+    pinch.add_argument("--mass", type=_non_negative, required=True, help="object mass, kg")
+    opening = commands.add_parser("open", parents=[common], help="open and hold")
+    opening.add_argument("--spacing", type=_non_negative, help="tip spacing D2, m (default: "
+                         "fully open)")
+    clamp = commands.add_parser("clamp", parents=[common],
+                                help="clamp what the gripper holds open")
+    clamp.add_argument("--diameter", type=_non_negative, help="object size, m (after open)")
+    clamp.add_argument("--mass", type=_non_negative, help="object mass, kg (after open)")
+    clamp.add_argument("--clamp-pressure", type=float, help="clamp pressure override, Pa")
+    commands.add_parser("release", parents=[common], help="vent, then open to let go")
+    commands.add_parser("stop", parents=[common], help="vent now")
+    state = commands.add_parser("state", parents=[common], help="print grasp_state")
+    state.add_argument("--watch", action="store_true", help="keep printing it on every change")
+    return top
+
+
+def describe(state) -> str:
+    phase = PHASES[state.phase] if state.phase < len(PHASES) else str(state.phase)
+    return (f"{phase:9s} {state.estimated_gauge_pressure_pa / 1e3:6.1f} kPa  D2 "
+            f"{state.tip_spacing_m * 1e3:5.1f} mm  force {state.clamp_force_n:5.2f} N  "
+            f"{state.message}")
+
+
+def _overrides(args) -> dict:
+    names = {"friction": "friction_coefficient", "open_pressure": "open_pressure_pa",
+             "clamp_pressure": "clamp_pressure_pa", "diameter": "object_diameter_m",
+             "mass": "object_mass_kg"}
+    return {field: getattr(args, name) for name, field in names.items()
+            if getattr(args, name, None) is not None}
+
+
+def _follow(client, until, timeout_s: float) -> bool:
+    """Print each phase as it comes until ``until(state)`` or the task ends; whether ``until``
+    was met (or, without one, whether the task succeeded)."""
+    from action_msgs.msg import GoalStatus
+    deadline, last = time.monotonic() + timeout_s, None
+    while time.monotonic() < deadline:
+        state = client.feedback() or client.state()
+        if state is not None and (state.phase, state.message) != last:
+            last = (state.phase, state.message)
+            print(describe(state), flush=True)
+        if until is not None and state is not None and until(state):
+            return True
+        if client.is_task_complete():
+            result = client.result()
+            if result is None:
+                print("refused: the grasp manager did not accept the goal", file=sys.stderr)
+                return False
+            phase = PHASES[result.final_phase] if result.final_phase < len(PHASES) else "?"
+            print(f"result: {phase}, {result.final_gauge_pressure_pa / 1e3:.1f} kPa: "
+                  f"{result.message}; object held: {result.object_held}")
+            return until is None and client.status() == GoalStatus.STATUS_SUCCEEDED
+        time.sleep(0.02)
+    print(f"timed out after {timeout_s:g} s", file=sys.stderr)
+    return False
+
+
+def run(args, client) -> int:
+    if args.command == "state":
+        state = client.state()
+        print(describe(state))
+        last = state
+        while args.watch:
+            time.sleep(0.05)
+            state = client.state()
+            if (state.phase, state.message) != (last.phase, last.message):
+                print(describe(state), flush=True)
+                last = state
+        return 0
+    fields = _overrides(args)
+    if args.command == "grasp":
+        client.envelop_clamp(args.diameter, args.mass, **{
+            k: v for k, v in fields.items() if k not in ("object_diameter_m", "object_mass_kg")})
+        if not _follow(client, lambda s: s.phase == s.ENVELOPED, args.timeout):
+            return 1
+        if args.clamp_after is None:
+            print("enveloped: place the object, then `softgrip clamp`")
+            return 0
+        time.sleep(args.clamp_after)
+        client.clamp()
+        return 0 if _follow(client, None, args.timeout) else 1
+    start = {
+        "pinch": lambda: client.pinch(args.diameter, args.mass),
+        "open": lambda: client.open(args.spacing),
+        "clamp": lambda: client.clamp(**fields),
+        "release": client.release,
+        "stop": client.stop,
+    }[args.command]
+    start()
+    return 0 if _follow(client, None, args.timeout) else 1
+
+
+def main(argv=None) -> int:
+    args = parser().parse_args(argv)
+    import rclpy
+
+    from softgrip_ros.client import GripperClient
+    rclpy.init()
+    client = GripperClient(namespace=args.namespace, node_name="softgrip_cli")
+    try:
+        if not client.wait_until_ready(args.timeout):
+            print(f"softgrip: no gripper answered in {args.timeout:g} s on "
+                  f"{client.action_name!r} (is the controller running, in this namespace and "
+                  "ROS_DOMAIN_ID?)", file=sys.stderr)
+            return 3
+        return run(args, client)
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        client.close()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,187 @@
+"""control_msgs' GripperCommand and ParallelGripperCommand, and the GripperClient, through DDS on
+the composed suite with the simulated device; the softgrip command against the installed
+controller."""
+import math
+import subprocess
+
+import pytest
+
+from softgrip_ros.devtools.processes import installed_executable, stop_process
+from tests.helpers.ros import spinning, unique, wait_for
+
+pytestmark = pytest.mark.ros
+TOLERANCE_M = 0.005   # the grasp manager's default goal_tolerance_m
+
+
+@pytest.fixture
+def suite(rclpy_context):
+    """The composed nodes on a private virtual channel; a user node and a GripperClient on it."""
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from softgrip_ros.client import GripperClient
+    from softgrip_ros.nodes.common import close_all
+    from softgrip_ros.nodes.controller import make_nodes
+
+    nodes = make_nodes(rclpy_context, {
+        "pressure_controller": [Parameter("can.channel", value=unique("gripper"))],
+        "grasp_manager": [Parameter("prefix", value="g1_")]})
+    user = Node("gripper_action_user", context=rclpy_context)
+    client = GripperClient(node=user)
+    try:
+        with spinning(rclpy_context, *nodes, user, threads=2):
+            assert client.wait_until_ready(10.0)
+            yield {n.get_name(): n for n in nodes}, user, client
+    finally:
+        client.close()
+        close_all(nodes)
+        user.destroy_node()
+
+
+def send(action_client, goal, feedback=None):
+    future = action_client.send_goal_async(goal, feedback_callback=feedback)
+    handle = wait_for(lambda: future.done() and future.result(), message="goal accepted")
+    result = handle.get_result_async()
+    return handle, result
+
+
+def result_of(future, timeout=8.0):
+    return wait_for(lambda: future.done() and future.result(), timeout=timeout,
+                    message="the goal's result")
+
+
+def gripper_goal(position_m, max_effort_n=0.0):
+    from control_msgs.action import GripperCommand
+    goal = GripperCommand.Goal()
+    goal.command.position, goal.command.max_effort = position_m, max_effort_n
+    return goal
+
+
+def test_gripper_command_opens_then_closes_with_its_effort(suite):
+    from action_msgs.msg import GoalStatus
+    from control_msgs.action import GripperCommand
+    from rclpy.action import ActionClient
+    from softgrip_interfaces.msg import GripperState
+    nodes, user, client = suite
+    action = ActionClient(user, GripperCommand, "gripper_cmd")
+    assert action.wait_for_server(timeout_sec=5.0)
+    feedback = []
+    _, opened = send(action, gripper_goal(0.05), feedback.append)
+    response = result_of(opened)
+    assert response.status == GoalStatus.STATUS_SUCCEEDED
+    assert response.result.reached_goal and not response.result.stalled
+    assert 0.05 - 1e-6 <= response.result.position <= 0.05 + TOLERANCE_M
+    assert feedback and all(f.feedback.position >= 0.0 for f in feedback)
+    assert client.state().phase == GripperState.ENVELOPED
+    _, closed = send(action, gripper_goal(0.03, max_effort_n=3.0))
+    response = result_of(closed)
+    assert response.status == GoalStatus.STATUS_SUCCEEDED, response
+    assert response.result.reached_goal and not response.result.stalled
+    law = nodes["grasp_manager"].fsm.force_law
+    assert response.result.effort == pytest.approx(3.0, abs=2e3 * law.stiffness_n_per_pa)
+    assert client.state().phase == GripperState.HOLDING
+    assert client.stop()
+    wait_for(lambda: client.is_task_complete() and client.state().phase == GripperState.IDLE,
+             message="IDLE after stop")
+
+
+def test_parallel_gripper_command_carries_the_prefixed_tip_spacing_joint(suite):
+    from action_msgs.msg import GoalStatus
+    from control_msgs.action import ParallelGripperCommand
+    from rclpy.action import ActionClient
+    nodes, user, client = suite
+    action = ActionClient(user, ParallelGripperCommand, "parallel_gripper_cmd")
+    assert action.wait_for_server(timeout_sec=5.0)
+    goal = ParallelGripperCommand.Goal()
+    goal.command.name, goal.command.position = ["g1_tip_spacing"], [0.04]
+    _, opened = send(action, goal)
+    response = result_of(opened)
+    assert response.status == GoalStatus.STATUS_SUCCEEDED and response.result.reached_goal
+    assert list(response.result.state.name) == ["g1_tip_spacing"]
+    assert response.result.state.position[0] == pytest.approx(0.04, abs=TOLERANCE_M)
+    wrong = ParallelGripperCommand.Goal()
+    wrong.command.name, wrong.command.position = ["left_finger"], [0.02]
+    _, refused = send(action, wrong)
+    assert result_of(refused).status == GoalStatus.STATUS_ABORTED
+
+
+@pytest.mark.parametrize("position_m, effort_n", [
+    (math.nan, 0.0), (-0.01, 0.0), (0.5, 0.0), (0.0, -1.0), (0.0, 1e3)])
+def test_an_invalid_gripper_goal_is_aborted_at_once_and_nothing_moves(suite, position_m,
+                                                                     effort_n):
+    from action_msgs.msg import GoalStatus
+    from control_msgs.action import GripperCommand
+    from rclpy.action import ActionClient
+    nodes, user, client = suite
+    action = ActionClient(user, GripperCommand, "gripper_cmd")
+    assert action.wait_for_server(timeout_sec=5.0)
+    before = nodes["grasp_manager"].fsm.request
+    _, refused = send(action, gripper_goal(position_m, effort_n))
+    response = result_of(refused, timeout=2.0)
+    assert response.status == GoalStatus.STATUS_ABORTED and not response.result.reached_goal
+    assert nodes["grasp_manager"].fsm.request == before
+    assert client.state().phase == client.state().IDLE
+
+
+def test_a_canceled_gripper_goal_holds_the_present_pressure(suite):
+    from action_msgs.msg import GoalStatus
+    from control_msgs.action import GripperCommand
+    from rclpy.action import ActionClient
+    from softgrip_ros.control.pressure import Source
+    nodes, user, client = suite
+    action = ActionClient(user, GripperCommand, "gripper_cmd")
+    assert action.wait_for_server(timeout_sec=5.0)
+    handle, result = send(action, gripper_goal(0.07))
+    manager = nodes["grasp_manager"]
+    wait_for(lambda: manager.fsm.state.estimated_gauge_pa > 3e3, message="part way open")
+    handle.cancel_goal_async()
+    assert result_of(result).status == GoalStatus.STATUS_CANCELED
+    assert manager.fsm.request.source == Source.HOLD and manager.fsm.request.target_gauge_pa > 0
+    assert "canceled: holding" in client.state().message
+
+
+def test_the_client_drives_a_full_envelop_clamp_release(suite):
+    from action_msgs.msg import GoalStatus
+    from softgrip_interfaces.msg import GripperState as S
+    nodes, user, client = suite
+    assert client.envelop_clamp(0.04, 0.2)
+    wait_for(lambda: client.feedback() is not None and client.feedback().phase == S.ENVELOPED,
+             message="ENVELOPED")
+    assert client.clamp()
+    wait_for(client.is_task_complete, message="the clamp task's end")
+    assert client.result().object_held and client.status() == GoalStatus.STATUS_SUCCEEDED
+    assert client.release()
+    wait_for(client.is_task_complete, message="released")
+    assert client.state().phase == S.IDLE and client.result().final_phase == S.IDLE
+
+
+def test_the_softgrip_command_drives_a_full_grasp_on_the_installed_controller(tmp_path):
+    channel = unique("cli")
+    ros_args = ["--ros-args", "-r", "__ns:=/cli_test", "-p", f"can.channel:={channel}"]
+    log = open(tmp_path / "controller.log", "w+")
+    controller = subprocess.Popen([installed_executable("controller"), *ros_args], stdout=log,
+                                  stderr=subprocess.STDOUT)
+    softgrip = installed_executable("softgrip")
+
+    def run(*args, timeout=60):
+        return subprocess.run([softgrip, *args, "--namespace", "/cli_test", "--timeout", "30"],
+                              capture_output=True, text=True, timeout=timeout)
+
+    try:
+        grasped = run("grasp", "--diameter", "0.04", "--mass", "0.2", "--clamp-after", "0.2")
+        assert grasped.returncode == 0, grasped.stdout + grasped.stderr
+        assert "HOLDING" in grasped.stdout and "object held: True" in grasped.stdout
+        state = run("state")
+        assert state.returncode == 0 and state.stdout.startswith("HOLDING")
+        released = run("release")
+        assert released.returncode == 0 and "IDLE" in released.stdout, released.stdout
+        refused = run("open", "--spacing", "0.5")
+        assert refused.returncode == 1 and "wider than the gripper opens" in refused.stdout
+        usage = subprocess.run([softgrip, "grasp", "--diameter", "-1", "--mass", "0.2"],
+                               capture_output=True, text=True, timeout=30)
+        assert usage.returncode == 2 and "must be >= 0" in usage.stderr
+        nobody = subprocess.run([softgrip, "state", "--namespace", "/nobody", "--timeout", "1"],
+                                capture_output=True, text=True, timeout=30)
+        assert nobody.returncode == 3 and "no gripper answered" in nobody.stderr
+    finally:
+        assert stop_process(controller) == 0, (tmp_path / "controller.log").read_text()
+        log.close()
