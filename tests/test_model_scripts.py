@@ -96,8 +96,12 @@ def test_bench_e2e_quick_json_reports_every_figure():
                 "sensor_to_tip_pose_ms_median", "sensor_to_tip_pose_ms_p99",
                 "sensor_to_tip_pose_received_ms_p99", "controller_cpu_pct_idle",
                 "controller_cpu_pct_grasp", "controller_cpu_pct_device_paused",
-                "controller_rss_mb"):
+                "controller_rss_mb", "sensor_to_joint_states_ms_p99",
+                "sensor_to_tip_pose_arm_ms_p99", "gripper_open_s", "grasp_open_s",
+                "gripper_open_ratio"):
         assert figures[key] > 0, key
+    assert "joint_states_p99_excess_ms" in figures
+    assert figures["details"]["open_goals_s"]["failed"] == 0, figures["details"]["open_goals_s"]
     assert set(
         figures["details"]["runs"]) >= {"cmd_to_valve_frame_ms_p99", "controller_cpu_pct_idle"}
 

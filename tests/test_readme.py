@@ -152,13 +152,14 @@ def test_each_node_alone_has_the_rows_of_the_table(namespaced_context, node_name
 @pytest.mark.ros
 @pytest.mark.slow
 def test_the_python_example_grasps_as_written(rclpy_context):
-    """The README's rclpy example, run as it stands against the composed suite: it prints held:
+    """The README's Python example, run as it stands against the composed suite: it prints held:
     True."""
     from rclpy.parameter import Parameter
     from softgrip_ros.nodes.common import close_all
     from softgrip_ros.nodes.controller import make_nodes
 
-    code = README.split("From Python, with rclpy:\n\n```python\n", 1)[1].split("```", 1)[0]
+    code = README.split("From Python, with `softgrip_ros.client.GripperClient`", 1)[1].split(
+        "```python\n", 1)[1].split("```", 1)[0]
     nodes = make_nodes(rclpy_context,
                        {"pressure_controller": [Parameter("can.channel", value=unique("readme"))]})
     try:
@@ -175,7 +176,7 @@ def test_the_readme_is_a_guide_of_at_most_250_lines():
     headings = [line[3:] for line in README.splitlines() if line.startswith("## ")]
     assert (headings == [
         "Install", "The demo", "Executables and their interfaces", "Sending a grasp",
-        "Real hardware", "Safety", "Further reading"
+        "On a robot arm", "Real hardware", "Safety", "Further reading"
     ])
     assert len(README.splitlines()) <= 250
     for link in re.findall(r"\]\(((?:docs/|CHANGELOG|LICENSE)[^)#]*)", README):
