@@ -69,7 +69,7 @@ def test_gripper_command_opens_then_closes_with_its_effort(suite):
     response = result_of(opened)
     assert response.status == GoalStatus.STATUS_SUCCEEDED
     assert response.result.reached_goal and not response.result.stalled
-    assert 0.05 - 1e-6 <= response.result.position <= 0.05 + TOLERANCE_M
+    assert response.result.position == pytest.approx(0.05, abs=TOLERANCE_M)
     assert feedback and all(f.feedback.position >= 0.0 for f in feedback)
     assert client.state().phase == GripperState.ENVELOPED
     _, closed = send(action, gripper_goal(0.03, max_effort_n=3.0))
