@@ -185,3 +185,38 @@ def test_a_replay_burst_sends_old_frames_with_jumping_counters_and_feeds_an_old_
     assert all((b - a) % 16 == 1 for a, b in zip(counters, counters[1:]))
     # ... and old: the device's own codec saw the old ValveCommand's counter jump and ignored it
     assert device.codec.rejected["counter_jump"] >= 1 and device.valves() == before
+
+
+def test_a_valve_command_takes_effect_when_it_arrived_even_when_the_tick_comes_late(bench):
+    """The tick reads the bus itself and splits its plant step at each frame's arrival. A CLOSED
+    that arrived 10 ms into a 30 ms late tick stops the fill there: applied at the tick (the
+    old reception thread's order when the GIL held it up) the chamber rose on, or applied to the
+    whole step, it stopped too early; either is kPa away."""
+    import time
+    device, clock, peer_bus, codec = bench
+    command(device, codec, Valve.SUPPLY, setpoint_pa=40e3, lifetime_s=0.25)
+    tick_for(device, clock, 0.02)
+    peer_bus.send(codec.encode("ValveCommand", {"Channel0": int(Valve.CLOSED), "Channel1": 0,
+                                                "Channel2": 0, "Channel3": 0,
+                                                "OpenLifetime": 0.2}))
+    sent = time.time()
+    time.sleep(0.02)
+    clock.now += 0.03
+    device._tick()
+    waited = time.time() - sent  # the frame's age at the tick, give or take the clock's reads
+    plant, state = PneumaticPlant(), None
+    state = plant.initial_state()
+    inputs = PlantInputs(40e3, True, (Valve.SUPPLY,))
+    for _ in range(20):
+        state = plant.step(state, inputs, 1e-3)
+    open_until = plant.step(state, inputs, 0.03 - waited)
+    early = plant.step(state, inputs, 0.03 - waited - 2e-3)
+    late = plant.step(state, inputs, 0.03 - waited + 2e-3)
+    assert device.valves() == (Valve.CLOSED,)
+    gauge = device.chamber_gauge_pa()
+    assert early.chamber_pa[0] - P_ATM_PA <= gauge <= late.chamber_pa[0] - P_ATM_PA
+    assert gauge == pytest.approx(open_until.chamber_pa[0] - P_ATM_PA, abs=1.5e3)
+    # and far from either wrong order
+    closed_at_start = state.chamber_pa[0] - P_ATM_PA
+    closed_at_end = plant.step(state, inputs, 0.03).chamber_pa[0] - P_ATM_PA
+    assert gauge - closed_at_start > 2e3 and closed_at_end - gauge > 2e3

@@ -14,7 +14,11 @@ holds even when a valve is stuck open.
 
 The plant runs on real elapsed time: each tick integrates exactly the time since the last one
 (a tick late by a few ms integrates those; the quick catch-up ticks after it integrate
-almost nothing), so that the simulated chamber keeps real time.
+almost nothing), so that the simulated chamber keeps real time. The tick reads the frames
+that have arrived itself, and splits its step at each one's arrival: a command takes effect
+when it reached the device, however late the thread ran. (A separate reception thread, held up
+for tens of ms by the GIL on a loaded host, once let the plant integrate past a ValveCommand
+CLOSED with the valve still open: the chamber rose kPa "with the valve closed".)
 
 :meth:`SimulatedDevice.true_extremes` gives the lowest and highest true chamber pressure since
 the last :meth:`SimulatedDevice.reset_true_extremes`, over every plant step: what a fault test
@@ -144,7 +148,6 @@ class SimulatedDevice:
         self._next_replay = math.inf
         self._true_low = self._true_high = 0.0
         self._loop = PeriodicThread(self._tick, self.config.plant_rate_hz, "softgrip-sim-device")
-        self._notifier = None
         self._started_at = 0.0
         self.frames_sent = 0
         self.frames_received = 0
@@ -157,14 +160,10 @@ class SimulatedDevice:
         self._last_valve_command = self._started_at
         self._next_sensor = {s.name: 0.0 for s in self.config.sensors}
         self._next_status = self._next_heartbeat = 0.0
-        self._notifier = can.Notifier(self.bus, [self._on_frame], timeout=0.05)
         self._loop.start()
 
     def stop(self) -> None:
         self._loop.stop()
-        if self._notifier is not None:
-            self._notifier.stop(timeout=1.0)
-            self._notifier = None
 
     # ---- faults and observation -----------------------------------------------------------------
     def set_fault(self, name: str, value) -> None:
@@ -227,7 +226,24 @@ class SimulatedDevice:
             gauge = self._state.chamber_pa - P_ATM_PA
             self._true_low, self._true_high = float(gauge.min()), float(gauge.max())
 
-    # ---- reception (Notifier thread) -----------------------------------------------------------
+    # ---- reception (in the tick) ----------------------------------------------------------------
+    def _receive(self, now: float) -> None:
+        """Every frame that has arrived, in order: the plant advanced to each one's arrival, then
+        the frame taken (see the module docstring)."""
+        while True:
+            try:
+                frame = self.bus.recv(timeout=0.0)
+            except can.CanError as error:
+                LOG.warning("sim device: CAN receive failed: %s", error)
+                return
+            if frame is None:
+                return
+            arrived = min(max(now - frame_age_s(frame), self._last_tick), now)
+            if arrived > self._last_tick:
+                self._advance(arrived - self._last_tick, arrived)
+                self._last_tick = arrived
+            self._on_frame(frame)
+
     def _on_frame(self, frame: can.Message) -> None:
         if self.codec.frame_ids.get("ValveCommand") == frame.arbitration_id:
             with self._lock:
@@ -263,10 +279,12 @@ class SimulatedDevice:
         """One plant step of exactly the real time elapsed since the last tick (bounded after a
         stall), then the frames due."""
         now = self.clock()
-        elapsed = min(now - self._last_tick, 0.05)
-        self._last_tick = now
+        self._last_tick = max(self._last_tick, now - 0.05)  # bounded after a stall
         sim_time = now - self._started_at
         try:
+            self._receive(now)
+            elapsed = now - self._last_tick
+            self._last_tick = now
             if elapsed > 0.0:
                 self._advance(elapsed, now)
             if now >= self._next_replay:
