@@ -241,3 +241,75 @@ def test_a_fast_clamp_opens_the_pump_at_once_and_a_slow_ramp_when_its_setpoint_i
         valves.append(controller.step(0.002 * tick).valves[0])
     assert valves.index(Valve.VACUUM) == first_vacuum_tick, valves
     assert set(valves[:first_vacuum_tick]) <= {Valve.SUPPLY}
+
+
+def _identifying(pressure=0.0):
+    controller = active(pressure=pressure)
+    controller.identification = True
+    return controller
+
+
+def test_identification_mode_opens_the_commanded_valve_with_the_regulator_at_the_target():
+    controller = _identifying()
+    controller.command(30e3, Source.SUPPLY, math.nan, 0.0)
+    out = controller.step(0.001)
+    # no boost, no trim: the regulator at the target, the valve open to it
+    assert out.mode == PressureMode.IDENTIFY and out.valves == (Valve.SUPPLY,)
+    assert out.regulator_setpoint_gauge_pa == 30e3 and out.regulator_enabled
+    # the regulator alone, valves closed (HOLD with a target)
+    controller.update_sensor("s", 0.0, 0.002)
+    controller.command(-40e3, Source.HOLD, math.nan, 0.002)
+    out = controller.step(0.003)
+    assert out.valves == (Valve.CLOSED,) and out.regulator_setpoint_gauge_pa == -40e3
+    assert out.mode == PressureMode.IDENTIFY
+
+
+def test_identification_mode_evacuates_to_the_target_and_closes_there():
+    controller = _identifying()
+    controller.command(-30e3, Source.VACUUM, math.nan, 0.0)
+    assert controller.step(0.001).valves == (Valve.VACUUM,)
+    controller.update_sensor("s", -20e3, 0.002)
+    assert controller.step(0.003).valves == (Valve.VACUUM,)
+    controller.update_sensor("s", -30.1e3, 0.004)
+    out = controller.step(0.005)
+    assert out.valves == (Valve.CLOSED,) and "evacuated" in out.message
+    controller.update_sensor("s", -30.1e3, 0.006)
+    assert controller.step(0.007).valves == (Valve.CLOSED,)
+
+
+def test_identification_mode_keeps_the_limits_and_clamps_targets():
+    controller = _identifying()
+    note = controller.command(90e3, Source.SUPPLY, math.nan, 0.0)
+    out = controller.step(0.001)
+    assert "clamped" in note and out.regulator_setpoint_gauge_pa == 50e3
+    assert Fault.SETPOINT_CLAMPED in Fault(out.fault_flags)
+    # a reading past the limit plus margin: the safe state, as always
+    controller.update_sensor("s", 56e3, 0.002)
+    out = controller.step(0.003)
+    assert out.mode == PressureMode.FAULT and out.valves == (Valve.VENT,)
+    assert not out.regulator_enabled and Fault.OVERPRESSURE in Fault(out.fault_flags)
+
+
+def test_identification_mode_suspends_only_the_checks_against_the_plant_model():
+    """A chamber twice as fast as the model (what identification is for) steps further between
+    two readings than the model allows: outside identification a sensor jump, not in it; the
+    sensors' disagreement still counts in it."""
+    for identifying, expected in ((False, Fault.SENSOR_IMPLAUSIBLE), (True, Fault.NONE)):
+        controller = active()
+        controller.identification = identifying
+        controller.command(0.0, Source.HOLD, math.nan, 0.0)
+        for k in range(1, 40):
+            now = 0.002 * k
+            jump = 0.0 if k < 20 else 30e3  # 30 kPa in one 2 ms sample, both sensors
+            controller.update_sensor("a", jump, now)
+            controller.update_sensor("b", jump, now + 1e-4)
+            out = controller.step(now + 2e-4)
+        assert Fault(out.fault_flags) & Fault.SENSOR_IMPLAUSIBLE == expected, identifying
+    controller = _identifying()
+    controller.command(0.0, Source.HOLD, math.nan, 0.0)
+    for k in range(1, 60):
+        now = 0.002 * k
+        controller.update_sensor("a", 0.0, now)
+        controller.update_sensor("b", 20e3, now + 1e-4)
+        out = controller.step(now + 2e-4)
+    assert Fault.SENSOR_DISAGREE in Fault(out.fault_flags) and out.mode == PressureMode.FAULT

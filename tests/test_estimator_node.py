@@ -164,7 +164,9 @@ def test_silent_sensors_give_predictions_with_growing_variance_and_a_warning(wir
 @pytest.mark.parametrize("argument, message", [
     ("filter_type:=particle", "must be one of ['kf', 'ekf', 'ukf']"),
     ("process_noise_covariance:=[1.0,2.0,3.0]", "process noise needs 2 values"),
-    ("sensors.noise_std_pa:=[300.0]", "one entry per sensor"),
+    ("sensors.rejection_threshold:=[16.0]", "one entry per sensor"),
+    ("plant_file:=/nonexistent/plant.yaml", "cannot read the plant file"),
+    ("sensors.names:=[chamber_a,chamber_c]", "sensor 'chamber_c' is not in the plant file"),
     ("rest_frequency:=500.0", "rest_frequency (500 Hz) must not exceed frequency (200 Hz)"),
     ("fusion_window:=0.05", "fusion_window"),
 ])

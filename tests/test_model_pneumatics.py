@@ -176,7 +176,8 @@ def test_explicit_euler_leaves_the_physical_range_at_large_steps():
 
 @pytest.mark.parametrize("changes, message",
                          [({"chamber_volume_m3": 0.0}, "chamber_volume_m3"),
-                          ({"critical_ratio": 1.2}, "critical_ratio"),
+                          ({"vent_critical_ratio": 1.2}, "vent_critical_ratio"),
+                          ({"vacuum_compliance_m3_per_pa": -1.0}, "vacuum_compliance"),
                           ({"channels": 5}, "channels"),
                           ({"vacuum_source_gauge_pa": 10e3}, "vacuum_source_gauge_pa"),
                           ({"supply_conductance": float("nan")}, "supply_conductance")])

@@ -314,6 +314,48 @@ def test_lifecycle_deactivate_vents_and_activate_resumes(nodes):
     wait_for(lambda: device.device.chamber_gauge_pa() > 8e3, message="pressure after activate")
 
 
+def test_identification_mode_is_set_only_while_inactive_and_takes_its_own_topic(nodes):
+    """Explicit and lifecycle-guarded: refused while active; once set (inactive, then active) the
+    controller obeys ~/identification_command open loop and ignores pressure/command, which the
+    grasp manager keeps sending; off again, the reverse."""
+    from rclpy.parameter import Parameter
+    from softgrip_interfaces.msg import ControllerStatus, PressureCommand
+    from softgrip_ros.model.pneumatics import Valve
+
+    controller, device, client = nodes
+    refused = controller.set_parameters([Parameter("identification_mode", value=True)])[0]
+    assert not refused.successful and "inactive" in refused.reason
+    statuses = []
+    client.create_subscription(ControllerStatus, "controller/status", statuses.append, 10)
+    normal = client.create_publisher(PressureCommand, "pressure/command", 10)
+    open_loop = client.create_publisher(PressureCommand,
+                                        "/pressure_controller/identification_command", 10)
+    wait_for(lambda: normal.get_subscription_count() and open_loop.get_subscription_count(),
+             message="the controller's subscriptions")
+    controller.trigger_deactivate()
+    assert controller.set_parameters([Parameter("identification_mode", value=True)])[0].successful
+    controller.trigger_activate()
+    normal.publish(PressureCommand(target_gauge_pressure_pa=20e3, max_rate_pa_per_s=math.nan,
+                                   source=PressureCommand.SUPPLY))
+    time.sleep(0.3)
+    assert device.device.valves() != (Valve.SUPPLY,)  # pressure/command ignored
+    open_loop.publish(PressureCommand(target_gauge_pressure_pa=15e3, max_rate_pa_per_s=math.nan,
+                                      source=PressureCommand.SUPPLY))
+    wait_for(lambda: device.device.valves() == (Valve.SUPPLY,), message="the supply valve open")
+    wait_for(lambda: abs(device.device.chamber_gauge_pa() - 15e3) < 1e3,
+             message="the chamber at the regulator's 15 kPa")
+    assert statuses[-1].mode == ControllerStatus.MODE_IDENTIFY
+    assert statuses[-1].regulator_command_gauge_pressure_pa == 15e3
+    assert 0.0 <= statuses[-1].regulator_report_age_s < 0.1
+    controller.trigger_deactivate()
+    assert controller.set_parameters([Parameter("identification_mode", value=False)])[0].successful
+    controller.trigger_activate()
+    open_loop.publish(PressureCommand(target_gauge_pressure_pa=0.0, max_rate_pa_per_s=math.nan,
+                                      source=PressureCommand.VACUUM))
+    time.sleep(0.3)
+    assert device.device.valves() != (Valve.VACUUM,)  # the identification topic is ignored now
+
+
 def test_sigterm_vents_and_exits_cleanly(tmp_path):
     """Both executables on the inter-process bus; SIGTERM to the controller: vent frames, exit
     0."""
@@ -475,3 +517,47 @@ def test_the_vent_service_vents_a_blind_controller_and_says_it_cannot_confirm_it
         assert "unconfirmed" in controller.last_output.message
     finally:
         device.device.set_fault("bus_silent", False)
+
+
+@pytest.mark.parametrize("controller_knows_the_bias", [False, True])
+def test_the_plant_file_is_the_devices_truth_and_the_controllers_model(rclpy_context, tmp_path,
+                                                                         controller_knows_the_bias):
+    """The simulated device takes its truth from its own plant_file (a user's hardware: chamber_b
+    reads 3 kPa high); the controller, from its plant_file, takes a known bias off every
+    reading."""
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import FluidPressure
+    from softgrip_ros.model import plant_file
+    from softgrip_ros.nodes.pressure_controller import PressureControllerNode
+    from softgrip_ros.nodes.sim_device import SimDeviceNode
+
+    shipped = plant_file.load(plant_file_path())
+    biased = dict(shipped.sensors, chamber_b=plant_file.SensorModel(150.0, 3e3))
+    truth = plant_file.save(plant_file.PlantDescription(shipped.parameters, biased),
+                            tmp_path / "truth.yaml")
+    channel = unique("plant")
+    device = SimDeviceNode(context=rclpy_context, parameter_overrides=[
+        Parameter("can.channel", value=channel), Parameter("plant_file", value=str(truth))])
+    controller = PressureControllerNode(context=rclpy_context, parameter_overrides=[
+        Parameter("can.channel", value=channel),
+        Parameter("plant_file", value=str(truth) if controller_knows_the_bias else "")])
+    client = Node("plant_file_client", context=rclpy_context)
+    readings = []
+    client.create_subscription(FluidPressure, "pressure/sensor/chamber_b", readings.append, 100)
+    try:
+        with spinning(rclpy_context, device, controller, client):
+            wait_for(lambda: len(readings) > 200, message="chamber_b readings")
+            mean_gauge = sum(m.fluid_pressure for m in readings[-200:]) / 200 - 101_325.0
+    finally:
+        for node in (controller, device):
+            node.close()
+            node.destroy_node()
+        client.destroy_node()
+    expected = 0.0 if controller_knows_the_bias else 3e3
+    assert mean_gauge == pytest.approx(expected, abs=100.0)  # 200 readings of 150 Pa noise
+
+
+def plant_file_path():
+    from softgrip_ros.config_paths import config_file
+    return config_file("plant.yaml")

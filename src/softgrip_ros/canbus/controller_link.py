@@ -38,6 +38,8 @@ HEARTBEAT_PERIOD_S = 0.1
 CONTROLLER_STATE = {PressureMode.INACTIVE: 0, PressureMode.FAULT: 2}
 # FRAMES_REJECTED is reported this long after the last rejected frame
 FRAMES_REJECTED_HOLD_S = 1.0
+# the modes that act on every reading at once (the others rest: see make_control_loop)
+ACTIVE_MODES = (PressureMode.REGULATE, PressureMode.IDENTIFY)
 
 
 def _same(value: float):
@@ -47,10 +49,12 @@ def _same(value: float):
 
 @dataclasses.dataclass(frozen=True)
 class SensorBinding:
-    """A pressure sensor: its name (topic pressure/sensor/<name>) and its DBC message."""
+    """A pressure sensor: its name (topic pressure/sensor/<name>), its DBC message and its bias
+    (Pa, taken off every reading: the plant file's, identified at rest)."""
 
     name: str
     message: str
+    bias_pa: float = 0.0
 
 
 class ControllerLink:
@@ -67,6 +71,7 @@ class ControllerLink:
         self.controller = controller
         self.codec = codec or FrameCodec()
         self.sensors = {binding.message: binding.name for binding in sensors}
+        self._bias_pa = {binding.message: binding.bias_pa for binding in sensors}
         unknown = set(self.sensors) - set(self.codec.message_names)
         if unknown:
             raise ValueError(f"sensor messages {sorted(unknown)} are not in the DBC")
@@ -81,6 +86,7 @@ class ControllerLink:
         self.listener_errors = 0
         self.last_listener_error = ""
         self.regulator_actual_gauge_pa = math.nan
+        self.regulator_report_time = -math.inf  # when the device sent it, on ``clock``
         self.last_frame_time = -math.inf
         self._last_heartbeat = -math.inf
         # recent commands applied, to know their copies
@@ -136,11 +142,12 @@ class ControllerLink:
                 if decoded.name in self.sensors:
                     if signals["SensorStatus"] == 0:
                         name = self.sensors[decoded.name]
-                        urgent = self.controller.update_sensor(name, signals["GaugePressure"],
-                                                               sent_at) or urgent
-                        readings.append((name, signals["GaugePressure"], sent_at))
+                        gauge_pa = signals["GaugePressure"] - self._bias_pa[decoded.name]
+                        urgent = self.controller.update_sensor(name, gauge_pa, sent_at) or urgent
+                        readings.append((name, gauge_pa, sent_at))
                 elif decoded.name == "RegulatorStatus":
                     self.regulator_actual_gauge_pa = signals["ActualGaugePressure"]
+                    self.regulator_report_time = sent_at
                     self.controller.update_regulator_status(signals["ActualGaugePressure"],
                                                             int(signals["FaultBits"]), sent_at)
         if urgent and self.wake is not None:
@@ -206,7 +213,7 @@ class ControllerLink:
             now = self.clock()
             with self._lock:
                 output = self.controller.step(now)
-            resting = output.mode != PressureMode.REGULATE
+            resting = output.mode not in ACTIVE_MODES
             if self.resting and not resting:
                 self._reader.wake()  # regulating: the readings matter at once from here on
             self.resting = resting
@@ -306,7 +313,7 @@ def make_control_loop(link: ControllerLink, rate_hz: float, status_rate_hz: floa
     on_output = None if on_status is None else StatusOnChange(on_status, 1.0 / status_rate_hz)
     loop = PeriodicThread(link.step, rate_hz, "softgrip-control-loop", on_output=on_output,
                           rest_rate_hz=rest_rate_hz,
-                          resting=lambda output: output.mode != PressureMode.REGULATE)
+                          resting=lambda output: output.mode not in ACTIVE_MODES)
     link.wake = loop.wake
     return loop
 

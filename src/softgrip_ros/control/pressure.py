@@ -37,6 +37,14 @@ Safety (design.md), independent of the grasp manager:
   and said to be unconfirmed;
 - no command for ``command_timeout_s`` while regulating: the configured safe action
   (``hold`` or ``vent``).
+- **identification mode** (:attr:`PressureController.identification`, for
+  ``softgrip_identify``): no control law. A SUPPLY command's target is the regulator setpoint,
+  with the valve open to it; a VACUUM command opens the valve to the pump until the chamber
+  reaches its target, then closes it; a HOLD command with a finite target sets the regulator
+  there with the valves closed (its own response, alone); VENT as always. Targets are clamped
+  to the limits, and the limit trip, the sensor cross-checks and the safe state stay: it is
+  open-loop access, not a way around them. The monitor's checks against the plant model are
+  suspended, since that model is what is being measured;
 - at a steady target, ``hold_cycles`` boosts or evacuations within ``hold_cycle_window_s``
   (the first one, which reaches the target, not counted): the regulated line cannot hold the
   chamber where the sensors say (biased sensors, a leak, a regulator offset), and the valves
@@ -72,6 +80,7 @@ class PressureMode(enum.IntEnum):
     HOLD = 2
     VENT = 3
     FAULT = 4
+    IDENTIFY = 5
 
 
 ERROR_FAULTS = SAFETY_FAULTS | Fault.SENSOR_TIMEOUT | Fault.BUS_SILENT
@@ -207,8 +216,20 @@ class PressureController:
         self._regulator_faults = 0
         # boosts and evacuations since the target last changed
         self._corrections = collections.deque()
+        self._hold_regulator = False
         self.active = False
         self.last_output: ControlOutput | None = None
+
+    @property
+    def identification(self) -> bool:
+        """Open loop for identification (see the module docstring); the monitor's checks against
+        the plant model are suspended meanwhile, since that model is what is being measured. The
+        node changes it only while inactive."""
+        return not self.monitor.trust_model
+
+    @identification.setter
+    def identification(self, on: bool) -> None:
+        self.monitor.trust_model = not on
 
     @property
     def config(self) -> PressureControlConfig:
@@ -233,7 +254,10 @@ class PressureController:
                 f"target pressure must be finite for {source.name}, got {target_gauge_pa}")
         note = ""
         self._latched &= ~(Fault.SETPOINT_CLAMPED | Fault.COMMAND_TIMEOUT | Fault.COMMAND_REJECTED)
-        if source in (Source.SUPPLY, Source.VACUUM):
+        # identification: a HOLD may set the regulator, with the valves closed
+        self._hold_regulator = (self.identification and source == Source.HOLD and
+                                math.isfinite(target_gauge_pa))
+        if source in (Source.SUPPLY, Source.VACUUM) or self._hold_regulator:
             clamped = min(max(target_gauge_pa, self.config.min_gauge_pa), self.config.max_gauge_pa)
             if clamped != target_gauge_pa:
                 self._latched |= Fault.SETPOINT_CLAMPED
@@ -384,9 +408,16 @@ class PressureController:
             self._setpoint = 0.0
             return self._output(0.0, True, Source.VENT, Valve.VENT, PressureMode.VENT, faults,
                                 feedback, "venting")
+        if self._source == Source.HOLD and self._hold_regulator:
+            self._setpoint = self._target
+            return self._output(self._target, True, self._regulator_source(), Valve.CLOSED,
+                                PressureMode.IDENTIFY, faults, feedback,
+                                "identification: valves closed, the regulator set")
         if self._source == Source.HOLD or not regulating:
             return self._output(self._setpoint, True, Source.HOLD, Valve.CLOSED, PressureMode.HOLD,
                                 faults, feedback, "holding: valves closed")
+        if self.identification:
+            return self._open_loop(faults, feedback)
 
         # slew the setpoint towards the target
         step_limit = self._rate * dt if dt > 0 else math.inf
@@ -401,6 +432,23 @@ class PressureController:
         return self._output(regulator, True, self._regulator_source(), valve,
                             PressureMode.REGULATE, faults, feedback,
                             self._phase if self._phase != "track" else "")
+
+    def _open_loop(self, faults: Fault, feedback: float) -> ControlOutput:
+        """Identification: the regulator at the target with the valve open to it (SUPPLY), or
+        the valve open to the pump until the chamber reaches the target (VACUUM; then HOLD)."""
+        if self._source == Source.VACUUM and feedback <= self._target:
+            self._source = Source.HOLD
+            return self._output(self._setpoint, True, Source.HOLD, Valve.CLOSED,
+                                PressureMode.IDENTIFY, faults, feedback,
+                                f"identification: evacuated to {self._target:.0f} Pa, held")
+        if self._source == Source.SUPPLY:
+            self._setpoint = self._target
+            return self._output(self._target, True, self._regulator_source(), Valve.SUPPLY,
+                                PressureMode.IDENTIFY, faults, feedback,
+                                "identification: valve open to the regulator")
+        return self._output(self._setpoint, True, self._regulator_source(), Valve.VACUUM,
+                            PressureMode.IDENTIFY, faults, feedback,
+                            f"identification: evacuating to {self._target:.0f} Pa")
 
     def _safe_state(self, now: float, faults: Fault, feedback: float) -> ControlOutput:
         """Valves VENT and the regulator disabled at 0 (the device cuts both sources), until a new

@@ -42,6 +42,12 @@ The checks, each with the fault flag it raises:
   above ``nis_ratio`` times the estimator's consistency bound for ``nis_time_s``
   (:meth:`SafetyMonitor.update_consistency`).
 
+While the plant model is being measured (``trust_model`` false: the pressure controller's
+identification mode) the checks against it are suspended: the jump bound, the plant's part of
+the frozen-sensor evidence, the regulator's model, the response and the estimator's NIS. The
+limits (on the measured rates, never slower than the model's), the sensors against each other,
+a frozen sensor against another, and the noise stay.
+
 A latched fault clears on a new command once none of its evidence has been seen for
 ``clear_time_s``. The plant model must resemble the hardware within a factor of about two in
 its rates (``response_tolerance``); ``softgrip_identify`` fits it.
@@ -157,6 +163,11 @@ NOISE_SAMPLES = 64  # second differences in the noise median
 _MAD_TO_SIGMA = 1.0 / (0.6745 * math.sqrt(6.0))  # |second difference| median -> sigma (Gaussian)
 
 
+def _UNBOUNDED(gauge_pa: float, rising: bool) -> float:
+    """No rate bound: the jump check's bound while the model is being measured."""
+    return math.inf
+
+
 class _Sensor:
     """One sensor's recent behaviour."""
 
@@ -267,6 +278,8 @@ class SafetyMonitor:
         self.plant = plant or PneumaticPlant()
         self._rated = dict(sensors or {})
         self.sensors: dict[str, _Sensor] = {}
+        # False while the model is being measured: the checks against it are suspended
+        self.trust_model = True
         par = self.plant.parameters
         # The jump check's physical bound: the fastest the chamber can move from a pressure, each
         # way (up: through the supply path from the regulator at its highest; down: to the vacuum
@@ -276,12 +289,12 @@ class SafetyMonitor:
         self._rate_grid_pa = np.arange(par.vacuum_source_gauge_pa - 1e3, par.supply_gauge_pa + 2e3,
                                        1e3)
         self._max_rise = (2.0 * np.array([
-            self.plant.rate_and_slopes(P_ATM_PA + p, highest, par.supply_conductance)[0]
+            self.plant.rate_and_slopes(P_ATM_PA + p, highest, *par.path(Valve.SUPPLY))[0]
             for p in self._rate_grid_pa
         ]))
         self._max_fall = (2.0 * np.array([
-            max(-self.plant.rate_and_slopes(P_ATM_PA + p, lowest, par.vacuum_conductance)[0],
-                -self.plant.rate_and_slopes(P_ATM_PA + p, P_ATM_PA, par.vent_conductance)[0])
+            max(-self.plant.rate_and_slopes(P_ATM_PA + p, lowest, *par.path(Valve.VACUUM))[0],
+                -self.plant.rate_and_slopes(P_ATM_PA + p, P_ATM_PA, *par.path(Valve.VENT))[0])
             for p in self._rate_grid_pa
         ]))
         self._max_rise, self._max_fall = np.maximum(self._max_rise,
@@ -312,7 +325,8 @@ class SafetyMonitor:
         sensor = self.sensors.get(name)
         if sensor is None:
             sensor = self.sensors[name] = _Sensor(name, float(self._rated.get(name, 300.0)))
-        sensor.add(float(gauge_pa), float(stamp_s), self.max_rate, self.config.jump_sigmas)
+        sensor.add(float(gauge_pa), float(stamp_s),
+                   self.max_rate if self.trust_model else _UNBOUNDED, self.config.jump_sigmas)
 
     def max_rate(self, gauge_pa: float, rising: bool) -> float:
         """The fastest the plant can move the chamber from ``gauge_pa``, up or down (Pa/s, with 2x
@@ -440,10 +454,11 @@ class SafetyMonitor:
         self.supply_equalised = (regulating_in_track and valve == Valve.SUPPLY and
                                  now - self._valve_since[1]
                                  >= self.config.response_settle_s + self.config.response_window_s)
+        modelled = (self._regulator_finding(now, timeout_s), self._response_finding(
+            now, timeout_s), self._consistency_finding(now)) if self.trust_model else ()
         findings = [
             f for f in (self.trip(now, timeout_s), *self._sensor_findings(now, timeout_s),
-                        self._regulator_finding(now, timeout_s),
-                        self._response_finding(now, timeout_s), self._consistency_finding(now))
+                        *modelled)
             if f is not None
         ]
         for finding in findings:
@@ -505,7 +520,7 @@ class SafetyMonitor:
                      if other is not sensor and math.isfinite(other.lowpass_at(since))]
             predicted = abs(
                 self.plant.chamber_rate(P_ATM_PA + sensor.value, valve, regulator,
-                                        enabled)) * frozen_for
+                                        enabled)) * frozen_for if self.trust_model else 0.0
             evidence = [
                 f"{name} moved {change / 1e3:.1f} kPa" for name, change in moved
                 if change >= c.stuck_motion_pa

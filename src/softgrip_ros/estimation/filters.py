@@ -149,24 +149,24 @@ class LinearFilter(PressureFilter):
         else:
             a, c = 0.0, self.plant.source(valve, 0.0, inputs.regulator_enabled)[0] - P_ATM_PA
         source_gauge = a * regulator_gauge + c
-        conductance = self.plant.source(valve, 0.0)[1]
+        conductance, critical_ratio = self.plant.parameters.path(valve)
         decay = 1.0
         if conductance > 0.0:
-            half = self._decay(chamber_gauge, source_gauge, conductance, 0.5 * dt)
+            half = self._decay(chamber_gauge, source_gauge, conductance, critical_ratio, 0.5 * dt)
             midpoint = source_gauge + (chamber_gauge - source_gauge) * half
-            decay = self._decay(midpoint, source_gauge, conductance, dt)
+            decay = self._decay(midpoint, source_gauge, conductance, critical_ratio, dt)
         F = np.array([[decay, (1.0 - decay) * a], [0.0, decay_regulator]])
         B = np.array([[(1.0 - decay) * c], [regulator_input]])
         return F, B
 
     def _decay(self, chamber_gauge: float, source_gauge: float, conductance: float,
-               dt: float) -> float:
+               critical_ratio: float, dt: float) -> float:
         gap = source_gauge - chamber_gauge
         if abs(gap) <= 1e-6:
             return math.exp(-_MAX_SECANT_RATE_PER_S * dt)
         rate = self.plant.rate_and_slopes(max(chamber_gauge + P_ATM_PA, _MIN_ABSOLUTE_PA),
                                           max(source_gauge + P_ATM_PA, _MIN_ABSOLUTE_PA),
-                                          conductance)[0]
+                                          conductance, critical_ratio)[0]
         return math.exp(-min(max(rate / gap, 0.0), _MAX_SECANT_RATE_PER_S) * dt)
 
     def predict(self, dt: float, inputs: PlantInputs) -> None:

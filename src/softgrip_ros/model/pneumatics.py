@@ -10,7 +10,8 @@ r = p_down / p_up::
     m_dot = C rho0 p_up sqrt(T0/T) sqrt(1 - ((r - b)/(1 - b))^2)    r >  b (subsonic)
 
 Chamber (ideal gas, isothermal: the paper's Assumption 2), with a volume that swells
-with pressure, V(p) = V0 + k (p - p_atm)::
+with pressure, V(p) = V0 + k (p - p_atm), k the positive-pressure compliance above p_atm and the
+vacuum compliance below (a chamber that balloons out need not collapse alike)::
 
     dp/dt = R T m_dot / (V + p dV/dp)
 
@@ -63,11 +64,13 @@ class PneumaticParameters:
 
     chamber_volume_m3: V0, the air in one channel at 0 Pa gauge (five chambers of two
         fingers plus tubing).
-    chamber_compliance_m3_per_pa: k = dV/dp, the chambers' swelling (+5 mL at 50 kPa).
+    chamber_compliance_m3_per_pa: k = dV/dp above 0 Pa gauge, the chambers' swelling (+5 mL
+        at 50 kPa).
+    vacuum_compliance_m3_per_pa: dV/dp below 0 Pa gauge (the chambers drawn in).
     min_chamber_volume_m3: the volume cannot shrink below this under vacuum.
     supply_conductance, vacuum_conductance, vent_conductance: C of each valve path,
         m^3/(s Pa).
-    critical_ratio: b of every path.
+    supply_critical_ratio, vacuum_critical_ratio, vent_critical_ratio: b of each path.
     temperature_k: the gas temperature (isothermal).
     supply_gauge_pa: the regulator's inlet; its output cannot exceed it.
     vacuum_source_gauge_pa: the vacuum pump's level.
@@ -77,11 +80,14 @@ class PneumaticParameters:
     channels: int = 1
     chamber_volume_m3: float = 20e-6
     chamber_compliance_m3_per_pa: float = 1e-10
+    vacuum_compliance_m3_per_pa: float = 1e-10
     min_chamber_volume_m3: float = 2e-6
     supply_conductance: float = 1.0e-9
     vacuum_conductance: float = 1.0e-9
     vent_conductance: float = 1.5e-9
-    critical_ratio: float = 0.3
+    supply_critical_ratio: float = 0.3
+    vacuum_critical_ratio: float = 0.3
+    vent_critical_ratio: float = 0.3
     temperature_k: float = 293.15
     supply_gauge_pa: float = 150e3
     vacuum_source_gauge_pa: float = -80e3
@@ -95,17 +101,33 @@ class PneumaticParameters:
         if not 1 <= self.channels <= 4:
             raise ValueError(
                 f"channels must lie in 1..4 (the ValveCommand frame has 4), got {self.channels}")
-        if not 0.0 < self.critical_ratio < 1.0:
-            raise ValueError(f"critical_ratio b must lie in (0, 1), got {self.critical_ratio}")
-        if not (math.isfinite(self.chamber_compliance_m3_per_pa) and
-                self.chamber_compliance_m3_per_pa >= 0.0):
-            raise ValueError("chamber_compliance_m3_per_pa must be >= 0 and finite")
+        for name in ("supply_critical_ratio", "vacuum_critical_ratio", "vent_critical_ratio"):
+            if not 0.0 < getattr(self, name) < 1.0:
+                raise ValueError(f"{name} b must lie in (0, 1), got {getattr(self, name)}")
+        for name in ("chamber_compliance_m3_per_pa", "vacuum_compliance_m3_per_pa"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0.0):
+                raise ValueError(f"{name} must be >= 0 and finite")
         if not -P_ATM_PA < self.vacuum_source_gauge_pa < 0.0 < self.supply_gauge_pa:
             raise ValueError("need -101325 < vacuum_source_gauge_pa < 0 < supply_gauge_pa")
 
     @property
     def gas_constant_times_temperature(self) -> float:
         return R_AIR_J_PER_KG_K * self.temperature_k
+
+    def compliance_at(self, chamber_pa: float) -> float:
+        """dV/dp at an absolute chamber pressure: the positive or the vacuum compliance."""
+        return (self.chamber_compliance_m3_per_pa if chamber_pa >= P_ATM_PA else
+                self.vacuum_compliance_m3_per_pa)
+
+    def path(self, valve: "Valve") -> tuple[float, float]:
+        """(C, b) of the valve path ``valve`` opens; (0, b of the vent) for CLOSED."""
+        if valve == Valve.SUPPLY:
+            return self.supply_conductance, self.supply_critical_ratio
+        if valve == Valve.VACUUM:
+            return self.vacuum_conductance, self.vacuum_critical_ratio
+        if valve == Valve.VENT:
+            return self.vent_conductance, self.vent_critical_ratio
+        return 0.0, self.vent_critical_ratio
 
 
 def orifice_mass_flow(p_from_pa, p_to_pa, conductance: float, critical_ratio: float,
@@ -157,10 +179,15 @@ class PneumaticPlant:
         return PlantState(0.0, np.full(self.parameters.channels, P_ATM_PA + chamber_gauge_pa))
 
     # ---- the model ----------------------------------------------------------------------------
+    def _compliance(self, chamber_pa):
+        par = self.parameters
+        return np.where(np.asarray(chamber_pa) >= P_ATM_PA, par.chamber_compliance_m3_per_pa,
+                        par.vacuum_compliance_m3_per_pa)
+
     def volume_m3(self, chamber_pa):
         par = self.parameters
         return np.maximum(
-            par.chamber_volume_m3 + par.chamber_compliance_m3_per_pa *
+            par.chamber_volume_m3 + self._compliance(chamber_pa) *
             (np.asarray(chamber_pa) - P_ATM_PA), par.min_chamber_volume_m3)
 
     def capacitance(self, chamber_pa):
@@ -168,23 +195,21 @@ class PneumaticPlant:
         par = self.parameters
         swelling = np.where(
             self.volume_m3(chamber_pa) > par.min_chamber_volume_m3,
-            par.chamber_compliance_m3_per_pa, 0.0)
+            self._compliance(chamber_pa), 0.0)
         return self.volume_m3(chamber_pa) + np.asarray(chamber_pa) * swelling
 
     def source(self, valve: Valve, regulator_gauge_pa: float,
                sources_live: bool = True) -> tuple[float, float]:
         """(absolute pressure, conductance) a valve state connects the chamber to; conductance 0 =
         closed. ``sources_live`` false (the regulator disabled): the vacuum line is isolated and
-        vented."""
+        vented. The path's critical ratio: ``parameters.path(valve)``."""
         par = self.parameters
+        conductance = par.path(valve)[0]
         if valve == Valve.SUPPLY:
-            return P_ATM_PA + regulator_gauge_pa, par.supply_conductance
+            return P_ATM_PA + regulator_gauge_pa, conductance
         if valve == Valve.VACUUM:
-            return P_ATM_PA + (par.vacuum_source_gauge_pa
-                               if sources_live else 0.0), par.vacuum_conductance
-        if valve == Valve.VENT:
-            return P_ATM_PA, par.vent_conductance
-        return P_ATM_PA, 0.0
+            return P_ATM_PA + (par.vacuum_source_gauge_pa if sources_live else 0.0), conductance
+        return P_ATM_PA, conductance
 
     def chamber_mass_flow(self, chamber_pa: float, valve: Valve,
                           regulator_gauge_pa: float) -> float:
@@ -193,19 +218,20 @@ class PneumaticPlant:
         if conductance == 0.0:
             return 0.0
         return orifice_mass_flow(source_pa, chamber_pa, conductance,
-                                 self.parameters.critical_ratio, self.parameters.temperature_k)
+                                 self.parameters.path(valve)[1], self.parameters.temperature_k)
 
     def chamber_rate(self, chamber_pa: float, valve: Valve, regulator_gauge_pa: float,
                      sources_live: bool = True) -> float:
         """dp/dt of one chamber (Pa/s)."""
         source_pa, conductance = self.source(valve, regulator_gauge_pa, sources_live)
-        return self.rate_and_slopes(float(chamber_pa), source_pa, conductance)[0]
+        return self.rate_and_slopes(float(chamber_pa), source_pa, conductance,
+                                    self.parameters.path(valve)[1])[0]
 
-    def rate_and_slopes(self, chamber_pa: float, source_pa: float,
-                        conductance: float) -> tuple[float, float, float]:
+    def rate_and_slopes(self, chamber_pa: float, source_pa: float, conductance: float,
+                        critical_ratio: float | None = None) -> tuple[float, float, float]:
         """(dp/dt, its partial derivative by the chamber pressure, by the source pressure) of one
-        chamber joined to a source through ``conductance``; scalar, plain floats (the filters' hot
-        path).
+        chamber joined to a source through ``conductance`` with ``critical_ratio`` (None: the
+        supply path's); scalar, plain floats (the filters' hot path).
 
         At r -> 1 the subsonic branch's slope is infinite; it is capped at a finite large value
         so that the implicit-step Jacobian stays defined (it then tends to the exact limit)."""
@@ -215,7 +241,7 @@ class PneumaticPlant:
         inflow = source_pa >= chamber_pa
         upstream, downstream = (source_pa, chamber_pa) if inflow else (chamber_pa, source_pa)
         ratio = downstream / upstream
-        b = par.critical_ratio
+        b = par.supply_critical_ratio if critical_ratio is None else critical_ratio
         if ratio <= b:
             phi, dphi = 1.0, 0.0
         else:
@@ -229,8 +255,10 @@ class PneumaticPlant:
         else:
             flow, dflow_dp, dflow_ds = -gain * upstream * phi, -gain * (phi -
                                                                         ratio * dphi), -gain * dphi
-        volume = par.chamber_volume_m3 + par.chamber_compliance_m3_per_pa * (chamber_pa - P_ATM_PA)
-        swelling = par.chamber_compliance_m3_per_pa if volume > par.min_chamber_volume_m3 else 0.0
+        compliance = (par.chamber_compliance_m3_per_pa if chamber_pa >= P_ATM_PA else
+                      par.vacuum_compliance_m3_per_pa)
+        volume = par.chamber_volume_m3 + compliance * (chamber_pa - P_ATM_PA)
+        swelling = compliance if volume > par.min_chamber_volume_m3 else 0.0
         capacitance = max(volume, par.min_chamber_volume_m3) + chamber_pa * swelling
         rt = par.gas_constant_times_temperature
         rate = rt * flow / capacitance
@@ -271,13 +299,14 @@ class PneumaticPlant:
         The derivatives follow from the implicit function theorem: 1/(1 - dt f_p) and
         dt f_s/(1 - dt f_p), with f_s = 0 unless the valve joins the regulator."""
         source_pa, conductance = self.source(valve, regulator_gauge_pa, sources_live)
+        b = self.parameters.path(valve)[1]
         p_n = float(chamber_pa)
         if conductance == 0.0 or source_pa == p_n:
             return p_n, 1.0, 0.0
         low, high = (p_n, source_pa) if source_pa > p_n else (source_pa, p_n)
-        p = self._first_guess(p_n, source_pa, conductance, dt)
+        p = self._first_guess(p_n, source_pa, conductance, dt, b)
         for _ in range(100):
-            rate, slope_p, _ = self.rate_and_slopes(p, source_pa, conductance)
+            rate, slope_p, _ = self.rate_and_slopes(p, source_pa, conductance, b)
             residual = p - p_n - dt * rate
             step = residual / (1.0 - dt * slope_p)
             if abs(step) <= 1e-9 + 4e-16 * abs(p):
@@ -290,11 +319,12 @@ class PneumaticPlant:
             p = p - step if low < p - step < high else 0.5 * (low + high)
             if high - low <= 1e-9:
                 break
-        rate, slope_p, slope_s = self.rate_and_slopes(p, source_pa, conductance)
+        rate, slope_p, slope_s = self.rate_and_slopes(p, source_pa, conductance, b)
         denominator = 1.0 - dt * slope_p
         return p, 1.0 / denominator, (dt * slope_s / denominator if valve == Valve.SUPPLY else 0.0)
 
-    def _first_guess(self, p_n: float, source_pa: float, conductance: float, dt: float) -> float:
+    def _first_guess(self, p_n: float, source_pa: float, conductance: float, dt: float,
+                     critical_ratio: float) -> float:
         """Newton's start for :meth:`chamber_step`: the step that a flow growing as the square root
         of the gap to the source (the subsonic law near r = 1, fitted at p_n) would make.
 
@@ -302,7 +332,8 @@ class PneumaticPlant:
         (a chamber resting at its source took 11-20 flow evaluations a step; now 2-4). With
         rate = k sqrt(gap), backward Euler's gap g solves g + dt k sqrt(g) = gap_n."""
         gap_n = abs(source_pa - p_n)
-        k_dt = dt * abs(self.rate_and_slopes(p_n, source_pa, conductance)[0]) / math.sqrt(gap_n)
+        k_dt = dt * abs(self.rate_and_slopes(p_n, source_pa, conductance,
+                                             critical_ratio)[0]) / math.sqrt(gap_n)
         root_gap = 0.5 * (math.sqrt(k_dt * k_dt + 4.0 * gap_n) - k_dt)
         return source_pa - math.copysign(root_gap * root_gap, source_pa - p_n)
 
@@ -364,7 +395,7 @@ class PneumaticPlant:
         p0))] / (R T m).
         """
         par = self.parameters
-        if to_pa > par.critical_ratio * source_pa:
+        if to_pa > par.supply_critical_ratio * source_pa:
             raise ValueError(
                 "the flow is not choked all the way: to_pa must stay below b * source_pa")
         flow = conductance * RHO0_KG_PER_M3 * source_pa * math.sqrt(T0_K / par.temperature_k)

@@ -23,13 +23,13 @@ from sensor_msgs.msg import FluidPressure
 from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 from softgrip_ros.estimation.estimator import PressureEstimator
 from softgrip_ros.health import Health
-from softgrip_ros.model.pneumatics import Valve
+from softgrip_ros.model.pneumatics import PneumaticPlant, Valve
 from softgrip_ros.nodes import messages
 from softgrip_ros.nodes.common import (NodeTimers, future_stamp_reason, listened, notify, publish,
                                        run_node, stamp_seconds)
 from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import ESTIMATOR_SPECS as SPECS
-from softgrip_ros.nodes.specs import estimator_config
+from softgrip_ros.nodes.specs import estimator_config, load_plant
 
 # its /diagnostics status (the pressure controller reads its NIS)
 ESTIMATOR_STATUS = "softgrip: estimator"
@@ -60,7 +60,9 @@ class EstimatorNode(Node):
         self.closed = False
         specs = {s.name: s for s in SPECS}
         self.values = declare(self, SPECS)
-        self.estimator = PressureEstimator(estimator_config(self.values))
+        plant = load_plant(self.values)
+        self.estimator = PressureEstimator(estimator_config(self.values, plant),
+                                           PneumaticPlant(plant.parameters))
         self.add_on_set_parameters_callback(lambda params: check_all(
             specs, params, lambda _: "estimator parameters apply at start-up: restart the node"))
         self.period_s = 1.0 / self.values["frequency"]

@@ -66,6 +66,7 @@ def controller_status(output, link, header: Header, note: str) -> ControllerStat
         measured_gauge_pressure_pa=link.controller.measured(now),
         estimated_gauge_pressure_pa=link.controller.estimate_gauge_pa(now),
         regulator_actual_gauge_pressure_pa=link.regulator_actual_gauge_pa,
+        regulator_report_age_s=now - link.regulator_report_time,
         regulator_command_gauge_pressure_pa=output.regulator_setpoint_gauge_pa,
         regulator_enabled=output.regulator_enabled, valve_states=[int(v) for v in output.valves],
         frames_rx=link.frames_rx, frames_tx=link.frames_tx, frames_bad=link.frames_bad,

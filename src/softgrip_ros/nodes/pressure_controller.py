@@ -4,6 +4,8 @@ configure opens the bus, activate starts the control loop, deactivate and shutdo
 It activates itself unless ``autostart`` is false. Topics: pressure/command in;
 pressure/sensor/<name> (FluidPressure, absolute Pa), controller/status and /diagnostics out;
 service ~/vent. The control law and safety rules are in softgrip_ros.control.pressure.
+With ``identification_mode`` (set while inactive) it runs open loop for softgrip_identify:
+commands come on ~/identification_command only, and pressure/command is ignored.
 """
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 from softgrip_ros.canbus.codec import FrameCodec
 from softgrip_ros.canbus.controller_link import ControllerLink, SensorBinding, make_control_loop
 from softgrip_ros.control.pressure import PressureController
+from softgrip_ros.model.pneumatics import PneumaticPlant
 from softgrip_ros.control.reports import pressure_controller_report
 from softgrip_ros.nodes import messages
 from softgrip_ros.nodes.common import (future_stamp_reason, listened, notify, open_bus, publish,
@@ -26,8 +29,8 @@ from softgrip_ros.nodes.common import (future_stamp_reason, listened, notify, op
 from softgrip_ros.nodes.estimator import ESTIMATOR_STATUS
 from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import (PRESSURE_CONFIGURE_PREFIXES, check_rest_rate,
-                                      frame_id_overrides, frame_id_specs, pressure_control_config,
-                                      sensor_settings)
+                                      frame_id_overrides, frame_id_specs, load_plant,
+                                      pressure_control_config, sensor_settings)
 from softgrip_ros.nodes.specs import PRESSURE_CONTROLLER_SPECS as SPECS
 
 
@@ -44,9 +47,11 @@ class PressureControllerNode(LifecycleNode):
         self.specs.update({s.name: s for s in frame_specs})
         self.values.update(declare(self, frame_specs))
         check_rest_rate(self.values)  # at start-up: exit 1 with the reason
+        self.plant = load_plant(self.values)
+        self.sensors = sensor_settings(self.values, self.plant)
         self.controller = PressureController(
-            pressure_control_config(self.values), sensor_noise_pa=dict(
-                zip(self.values["sensors.names"], self.values["sensors.noise_std_pa"])))
+            pressure_control_config(self.values), PneumaticPlant(self.plant.parameters),
+            {name: model.noise_std_pa for name, _, model in self.sensors})
         self.add_on_set_parameters_callback(self._on_set)
         self.status_pub = self.create_publisher(ControllerStatus, "controller/status", 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -56,6 +61,8 @@ class PressureControllerNode(LifecycleNode):
         # in-process consumers of each controller/status: f(ControllerStatus)
         self.status_listeners = []
         self.create_subscription(PressureCommand, "pressure/command", self.on_command, 10)
+        self.create_subscription(PressureCommand, "~/identification_command",
+                                 self._on_identification_command, 10)
         if not in_process:
             self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
         self.estimate_subscription = None
@@ -74,6 +81,11 @@ class PressureControllerNode(LifecycleNode):
 
         def extra(params):
             changed = {p.name: p.value for p in params}
+            if "plant_file" in changed:
+                return "plant_file is read at start-up: restart the node"
+            if "identification_mode" in changed and self.controller.active:
+                return ("identification_mode changes only while the controller is inactive: "
+                        "deactivate it first (it vents), then activate it again")
             if self.link is not None and any(
                     n.startswith(PRESSURE_CONFIGURE_PREFIXES) for n in changed):
                 return ("CAN, sensor and rate parameters apply at configure: deactivate and clean "
@@ -109,12 +121,13 @@ class PressureControllerNode(LifecycleNode):
     def on_configure(self, state) -> TransitionCallbackReturn:
         v = self.values
         try:
-            sensors = sensor_settings(v)
+            sensors = sensor_settings(v, self.plant)
             check_rest_rate(v)
             self.codec = FrameCodec(frame_ids=frame_id_overrides(v, self.codec.message_names))
             self.bus = open_bus(v["can.interface"], v["can.channel"], v["can.bitrate"])
             self.link = ControllerLink(self.bus, self.controller,
-                                       [SensorBinding(n, m) for n, m, _ in sensors],
+                                       [SensorBinding(n, m, model.bias_pa)
+                                        for n, m, model in sensors],
                                        codec=self.codec, on_readings=self._publish_readings,
                                        rest_receive_period_s=v["rest_receive_period"],
                                        command_frame_period_s=v["command_frame_period"],
@@ -124,7 +137,7 @@ class PressureControllerNode(LifecycleNode):
             self.get_logger().error(f"configure failed: {error}")
             self._close_bus()
             return TransitionCallbackReturn.FAILURE
-        self.noise_variance = {n: noise**2 for n, _, noise in sensors}
+        self.noise_variance = {n: model.noise_std_pa**2 for n, _, model in sensors}
         self.sensor_pubs = {
             n: self.create_publisher(FluidPressure, f"pressure/sensor/{n}", 10)
             for n, _, _ in sensors
@@ -133,6 +146,11 @@ class PressureControllerNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state) -> TransitionCallbackReturn:
+        self.controller.identification = self.values["identification_mode"]
+        if self.controller.identification:
+            self.get_logger().warn(
+                "identification mode: open loop, commands on ~/identification_command only; "
+                "every limit and safety check stays")
         self.controller.active = True
         self.loop = make_control_loop(self.link, self.values["control_rate_hz"],
                                       self.values["status_rate_hz"],
@@ -179,11 +197,25 @@ class PressureControllerNode(LifecycleNode):
         self.last_output = output
         self._publish_status()
 
+    def _on_identification_command(self, msg: PressureCommand):
+        if not self.controller.identification:
+            self.get_logger().warn("identification command ignored: identification_mode is off",
+                                   throttle_duration_sec=1.0)
+            return
+        self._apply(msg)
+
     def on_command(self, msg: PressureCommand):
         """A pressure command, from the topic or (composed) by a direct call from the grasp
         manager, which saves a trip through DDS and the executor; its later DDS copy is recognised
         and ignored (see :meth:`ControllerLink.command`). A command stamped further ahead than
         ``stamp_tolerance`` is refused, with its reason in the status."""
+        if self.controller.identification:
+            self.get_logger().warn("pressure command ignored: identification mode",
+                                   throttle_duration_sec=5.0)
+            return
+        self._apply(msg)
+
+    def _apply(self, msg: PressureCommand):
         if self.link is None:
             self.get_logger().warn("pressure command ignored: the controller is not configured")
             return

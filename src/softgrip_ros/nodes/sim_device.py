@@ -6,6 +6,8 @@ softgrip_ros.canbus.sim_device.SimulatedDevice.
 """
 from __future__ import annotations
 
+import dataclasses
+
 import can
 from rclpy.node import Node
 
@@ -13,6 +15,7 @@ from softgrip_ros.canbus.sim_device import (DEFAULT_SENSORS, FAULT_CHOICES, FAUL
                                             STUCK_READINGS_PA, SimDeviceConfig, SimulatedDevice)
 from softgrip_ros.nodes.common import open_bus, run_node
 from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, check_all, declare
+from softgrip_ros.nodes.specs import load_plant
 
 FAULT_SPECS = [
     ParamSpec("fault.sensor_dropout", "", "silence a sensor (its name, or 'all'); '' = none",
@@ -43,7 +46,10 @@ FAULT_SPECS = [
 ]
 SPECS = CAN_SPECS + [
     ParamSpec("plant_rate_hz", 1000.0, "plant integration rate", "Hz", 50.0, 5000.0),
-    ParamSpec("seed", -1, "noise seed; -1 = random", "", -1, 2**31 - 1)
+    ParamSpec("seed", -1, "noise seed; -1 = random", "", -1, 2**31 - 1),
+    ParamSpec("plant_file", "", "the device's truth: the pneumatics and each sensor's noise and "
+              "bias (config/plant.yaml when empty; another file plays a user's hardware)",
+              allow_empty=True),
 ] + FAULT_SPECS
 assert {s.name[len("fault."):] for s in FAULT_SPECS} == set(FAULTS)
 
@@ -57,7 +63,12 @@ class SimDeviceNode(Node):
         self._own_bus = bus is None
         self.bus = bus or open_bus(values["can.interface"], values["can.channel"],
                                    values["can.bitrate"])
-        config = SimDeviceConfig(sensors=DEFAULT_SENSORS, plant_rate_hz=values["plant_rate_hz"],
+        truth = load_plant(values)
+        sensors = tuple(dataclasses.replace(s, noise_std_pa=truth.sensor(s.name).noise_std_pa,
+                                            bias_pa=truth.sensor(s.name).bias_pa)
+                        for s in DEFAULT_SENSORS)
+        config = SimDeviceConfig(plant=truth.parameters, sensors=sensors,
+                                 plant_rate_hz=values["plant_rate_hz"],
                                  seed=None if values["seed"] < 0 else values["seed"])
         self.device = SimulatedDevice(self.bus, config)
         for name in FAULTS:

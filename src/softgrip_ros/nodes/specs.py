@@ -5,14 +5,31 @@ from __future__ import annotations
 
 from softgrip_ros.canbus.sim_device import FAULT_CHOICES, FAULTS, STUCK_READINGS_PA
 from softgrip_ros.control.grasp_fsm import GraspConfig
+from softgrip_ros.config_paths import config_file
 from softgrip_ros.control.pressure import PressureControlConfig
 from softgrip_ros.estimation.estimator import EstimatorConfig, SensorConfig
 from softgrip_ros.model.fidelity import CHOICES as FIDELITY_CHOICES
+from softgrip_ros.model import plant_file
 from softgrip_ros.model.grasp import ClampForceLaw
 from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, replace_fields
 from softgrip_ros.runtime.rod_solver import SOLVER_PROCESS_NICE_INCREMENT
 
 CAVITY_TYPES = ("type_I", "type_II", "type_III")
+
+
+def plant_file_spec(uses: str) -> ParamSpec:
+    return ParamSpec("plant_file", "", f"the plant description ({uses}); empty: the installed "
+                     "config/plant.yaml", allow_empty=True)
+
+
+def load_plant(values: dict) -> plant_file.PlantDescription:
+    """The plant file the ``plant_file`` parameter names (the installed one when empty);
+    ValueError naming what is wrong with it."""
+    try:
+        path = values["plant_file"] or config_file("plant.yaml")
+    except FileNotFoundError as error:
+        raise ValueError(str(error)) from None
+    return plant_file.load(path)
 
 
 def _stamp_tolerance(what: str) -> ParamSpec:
@@ -93,6 +110,11 @@ PRESSURE_CONTROL_SPECS = [  # the control law and safety rules (settable while r
 ]
 PRESSURE_CONTROLLER_SPECS = (CAN_SPECS + [
     ParamSpec("autostart", True, "configure and activate on start-up"),
+    ParamSpec(
+        "identification_mode", False, "open loop for softgrip_identify: commands come on "
+        "~/identification_command only, their source is the valve and their target the "
+        "regulator setpoint (SUPPLY) or where an evacuation stops (VACUUM); every limit and "
+        "safety check stays; changes only while the node is inactive"),
     ParamSpec("control_rate_hz", 500.0, "control loop rate", "Hz", 10.0, 1000.0),
     ParamSpec(
         "rest_rate_hz", 50.0, "control loop rate while venting, holding or faulted (a "
@@ -119,8 +141,9 @@ PRESSURE_CONTROLLER_SPECS = (CAN_SPECS + [
               "pressure/sensor/<name>"),
     ParamSpec("sensors.messages", ["PressureSensor1", "PressureSensor2"], "the DBC message of "
               "each sensor"),
-    ParamSpec("sensors.noise_std_pa", [300.0, 150.0], "1-sigma noise of each sensor, for "
-              "FluidPressure.variance and the noise check", "Pa"),
+    plant_file_spec("its feed-forward, boost ceiling and safety checks; each sensor's noise, "
+                    "for FluidPressure.variance and the noise check, and its bias, taken off "
+                    "every reading"),
     _stamp_tolerance("a command"),
     *PRESSURE_CONTROL_SPECS,
 ])
@@ -142,15 +165,14 @@ def frame_id_overrides(values: dict, message_names) -> dict:
     return {n: values[f"can.frame_ids.{n}"] for n in message_names if values[f"can.frame_ids.{n}"]}
 
 
-def sensor_settings(values: dict) -> list:
-    """[(name, DBC message, noise std Pa)] of the pressure controller's sensors; ValueError
-    unless the three lists are equally long and not empty."""
+def sensor_settings(values: dict, plant: plant_file.PlantDescription) -> list:
+    """[(name, DBC message, SensorModel from the plant file)] of the pressure controller's
+    sensors; ValueError unless the two lists are equally long and not empty, and the plant file
+    describes every sensor."""
     names, dbc_messages = values["sensors.names"], values["sensors.messages"]
-    noise = values["sensors.noise_std_pa"]
-    if not (len(names) == len(dbc_messages) == len(noise)) or not names:
-        raise ValueError("sensors.names, sensors.messages and sensors.noise_std_pa need equal, "
-                         "non-zero lengths")
-    return [(n, m, float(v)) for n, m, v in zip(names, dbc_messages, noise)]
+    if len(names) != len(dbc_messages) or not names:
+        raise ValueError("sensors.names and sensors.messages need equal, non-zero lengths")
+    return [(n, m, plant.sensor(n)) for n, m in zip(names, dbc_messages)]
 
 
 def pressure_control_config(values: dict) -> PressureControlConfig:
@@ -196,8 +218,7 @@ ESTIMATOR_SPECS = [
     *ESTIMATOR_FILTER_SPECS,
     ParamSpec("sensors.names", ["chamber_a", "chamber_b"], "sensors fused: topics "
               "pressure/sensor/<name>"),
-    ParamSpec("sensors.noise_std_pa", [300.0, 150.0], "1-sigma noise of each sensor "
-              "(R = noise^2)", "Pa"),
+    plant_file_spec("the process model, and each sensor's noise: R = noise^2"),
     ParamSpec("sensors.rejection_threshold", [16.0, 16.0], "Mahalanobis gate of each sensor, "
               "chi-square with 1 dof (16 = 4 sigma)"),
     ParamSpec(
@@ -212,15 +233,15 @@ ESTIMATOR_SPECS = [
 ]
 
 
-def estimator_config(values: dict) -> EstimatorConfig:
-    """The estimator's configuration from the parameter values; ValueError names a bad one."""
-    names, noise = values["sensors.names"], values["sensors.noise_std_pa"]
-    gates = values["sensors.rejection_threshold"]
-    if not (len(names) == len(noise) == len(gates)):
-        raise ValueError(f"sensors.names, sensors.noise_std_pa and sensors.rejection_threshold "
-                         f"need one entry per sensor; got {len(names)}, {len(noise)} and "
-                         f"{len(gates)}")
-    sensors = tuple(SensorConfig(n, float(s), float(g)) for n, s, g in zip(names, noise, gates))
+def estimator_config(values: dict, plant: plant_file.PlantDescription) -> EstimatorConfig:
+    """The estimator's configuration from the parameter values and the plant file (each sensor's
+    noise); ValueError names a bad one."""
+    names, gates = values["sensors.names"], values["sensors.rejection_threshold"]
+    if len(names) != len(gates):
+        raise ValueError(f"sensors.names and sensors.rejection_threshold need one entry per "
+                         f"sensor; got {len(names)} and {len(gates)}")
+    sensors = tuple(SensorConfig(n, plant.sensor(n).noise_std_pa, float(g))
+                    for n, g in zip(names, gates))
     base = EstimatorConfig(
         sensors=sensors, nis_window=values["nis_window"],
         process_noise_pa2_per_s=tuple(float(v) for v in values["process_noise_covariance"]),
