@@ -1,0 +1,68 @@
+"""An excitation run without ROS or CAN (tests and the identification benchmark): the control
+core in its identification mode on a truth plant, with the simulated device's sensors (rates,
+noise, quantisation, bias) and regulator reports, recorded as softgrip_identify records them."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from softgrip_ros.canbus.sim_device import DEFAULT_SENSORS
+from softgrip_ros.control.pressure import PressureController, Source
+from softgrip_ros.estimation.identification import InputChange, Recording
+from softgrip_ros.model import plant_file
+from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
+
+PLANT_DT_S = 1e-3
+CONTROL_PERIOD_TICKS = 2  # 500 Hz
+REPORT_PERIOD_TICKS = 10  # the regulator's report, 100 Hz
+
+
+def record(truth: plant_file.PlantDescription, steps: list, held_out_s: float = math.inf,
+           seed: int = 0, model: plant_file.PlantDescription | None = None) -> Recording:
+    """Run ``steps`` (identification.Step) on ``truth``; the controller's model is ``model``
+    (default: the shipped assumptions), which identification mode does not judge by."""
+    rng = np.random.default_rng(seed)
+    plant = PneumaticPlant(truth.parameters)
+    model = model or plant_file.default_description()
+    controller = PressureController(plant=PneumaticPlant(model.parameters), sensor_noise_pa={
+        s.name: model.sensor(s.name).noise_std_pa for s in DEFAULT_SENSORS})
+    controller.identification = True
+    controller.active = True
+    state = plant.initial_state()
+    inputs = PlantInputs(valves=(Valve.CLOSED,))
+    sensors = {s.name: ([], []) for s in DEFAULT_SENSORS}
+    periods = {s.name: int(round(1.0 / (s.rate_hz * PLANT_DT_S))) for s in DEFAULT_SENSORS}
+    reports, changes, last = ([], []), [], None
+    tick = 0
+    for step in steps:
+        controller.command(step.target_pa, Source[step.source], math.nan, tick * PLANT_DT_S)
+        for _ in range(int(round(step.duration_s / PLANT_DT_S))):
+            tick += 1
+            now = tick * PLANT_DT_S
+            gauge = float(state.chamber_pa[0] - P_ATM_PA)
+            for spec in DEFAULT_SENSORS:
+                if tick % periods[spec.name] == 0:
+                    model_sensor = truth.sensor(spec.name)
+                    value = gauge + model_sensor.bias_pa + rng.normal(0.0,
+                                                                      model_sensor.noise_std_pa)
+                    value = round(value / spec.quantisation_pa) * spec.quantisation_pa
+                    controller.update_sensor(spec.name, value, now)
+                    sensors[spec.name][0].append(now)
+                    sensors[spec.name][1].append(value)
+            if tick % REPORT_PERIOD_TICKS == 0:
+                controller.update_regulator_status(state.regulator_gauge_pa, 0, now)
+                reports[0].append(now)
+                reports[1].append(state.regulator_gauge_pa)
+            if tick % CONTROL_PERIOD_TICKS == 0:
+                out = controller.step(now)
+                inputs = PlantInputs(out.regulator_setpoint_gauge_pa, out.regulator_enabled,
+                                     out.valves)
+                key = (int(out.valves[0]), out.regulator_setpoint_gauge_pa, out.regulator_enabled)
+                if key != last:
+                    changes.append(InputChange(now, *key))
+                    last = key
+                if out.mode.name == "FAULT":
+                    raise RuntimeError(f"the excitation faulted the controller: {out.message}")
+            state = plant.step(state, inputs, PLANT_DT_S)
+    return Recording(sensors, reports, changes, held_out_from_s=held_out_s)

@@ -1,0 +1,658 @@
+"""Pneumatic identification (no ROS): the plant file's values fitted to a recorded excitation.
+
+**The data** (:class:`Recording`): each sensor's readings (gauge Pa, at the times they were
+measured), the regulator's reports (at the times it sent them) and the controller's outputs as it
+changed them (valve, regulator setpoint, enable): what ``softgrip_identify`` records over DDS while
+the pressure controller runs open loop (its identification mode), or reads back from its log.
+
+**The model** is the suite's own (:mod:`softgrip_ros.model.pneumatics`): the regulator's
+first-order lag and rate limit, integrated exactly, and the chamber by backward Euler with the
+ISO 6358 flow of each valve path and a two-sided compliance. :func:`simulate_chambers` steps it
+with numpy for many episodes and parameter sets at once; it is the same step as
+:meth:`PneumaticPlant.chamber_step` (tests compare them).
+
+**What pressure data can determine.** dp/dt = R T m / (V + p dV/dp), and the mass flow m is
+proportional to the path's conductance C. Scaling every volume (V0, both compliances, the floor)
+and every conductance by one factor leaves every pressure exactly as it was: the data fix C/V0
+and (dV/dp)/V0, never V0 itself. V0 must come from a measurement (the channel's air volume, by
+water displacement or from CAD) or be inherited from the base file; the result says which, and
+the conductances and compliances are only as right as that volume.
+
+**The fit**, in three stages:
+
+1. each sensor's bias and noise, from the vented rests (the true gauge pressure is 0 there, to
+   well within the noise, once the chamber has vented for ``REST_S``);
+2. the regulator's time constant and rate limit, by least squares over its reports;
+3. the chamber: C and b of each path, both compliances and the vacuum source's level, by
+   least squares (scipy's trust-region reflective) over every sensor reading, weighted by its
+   noise. The chamber rests wherever its valves stay closed or vented a while; each segment,
+   from one rest to the next, is simulated from the measured pressure at its rest, all
+   segments at once.
+
+Confidence intervals come from the Jacobian at the optimum (the Gauss-Newton covariance, scaled by
+the residual variance). A value is flagged, and never written silently, when its 95 % interval
+is wider than +-25 %, when the data do not excite it (the interval is then wide, or its column of
+the Jacobian vanishes), or when a sensor's normalised residuals are clearly not white (lag-one
+autocorrelation above ``WHITENESS_LIMIT``).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from softgrip_ros.model.pneumatics import (P_ATM_PA, RHO0_KG_PER_M3, T0_K, PneumaticParameters,
+                                           Valve)
+
+DT_S = 1e-3  # the simulation step (the simulated device's plant runs at 1 kHz too)
+REST_S = 0.5  # a vent this long ends an episode: the chamber is at 0 Pa gauge
+HOLD_S = 0.2  # valves closed this long: the chamber rests where it is (a segment may start)
+REST_TAIL_S = 0.1  # the last part of a rest: the readings averaged for the bias and the start
+WHITENESS_LIMIT = 0.5  # |lag-one autocorrelation| of a sensor's normalised residuals
+RELATIVE_CI_LIMIT = 0.25  # a 95 % interval wider than +-25 % of the value is flagged
+NEWTON_ITERATIONS = 40
+STAGE3 = ("supply_conductance", "vacuum_conductance", "vent_conductance", "supply_critical_ratio",
+          "vacuum_critical_ratio", "vent_critical_ratio", "chamber_compliance_m3_per_pa",
+          "vacuum_compliance_m3_per_pa", "vacuum_source_gauge_pa")
+STAGE2 = ("regulator_time_constant_s", "regulator_rate_limit_pa_per_s")
+VOLUME_SCALED = ("chamber_volume_m3", "min_chamber_volume_m3", "chamber_compliance_m3_per_pa",
+                 "vacuum_compliance_m3_per_pa", "supply_conductance", "vacuum_conductance",
+                 "vent_conductance")
+
+
+@dataclasses.dataclass(frozen=True)
+class InputChange:
+    """The controller's output from ``time_s`` on: the valve of channel 0, the regulator setpoint
+    it sent (gauge Pa) and whether the regulator is enabled."""
+
+    time_s: float
+    valve: int
+    regulator_setpoint_pa: float
+    regulator_enabled: bool
+
+
+@dataclasses.dataclass
+class Recording:
+    """``sensors`` {name: (times s, gauge Pa)}, ``regulator`` (times s, gauge Pa),
+    ``inputs`` [InputChange] in time order; ``held_out_from_s``: readings from then on are kept
+    for validation, not fitted."""
+
+    sensors: dict
+    regulator: tuple
+    inputs: list
+    held_out_from_s: float = math.inf
+
+    def __post_init__(self):
+        self.sensors = {name: (np.asarray(t, float), np.asarray(p, float))
+                        for name, (t, p) in self.sensors.items()}
+        self.regulator = tuple(np.asarray(a, float) for a in self.regulator)
+        self.inputs = sorted(self.inputs, key=lambda change: change.time_s)
+
+    @property
+    def start_s(self) -> float:
+        return self.inputs[0].time_s
+
+    @property
+    def end_s(self) -> float:
+        return max(float(t[-1]) for t, _ in self.sensors.values() if len(t))
+
+    def check(self) -> None:
+        """ValueError naming what the fit cannot do without."""
+        if not self.inputs:
+            raise ValueError("the recording holds no controller output (controller/status)")
+        empty = [name for name, (t, _) in self.sensors.items() if len(t) < 50]
+        if not self.sensors or empty:
+            raise ValueError(f"too few readings from the sensors {empty or 'at all'}")
+        if len(self.regulator[0]) < 20:
+            raise ValueError("too few regulator reports to fit the regulator")
+
+
+@dataclasses.dataclass
+class Estimate:
+    value: float
+    ci95: tuple  # (low, high)
+    source: str  # identified | measured | inherited
+    flag: str = ""  # why it should not be trusted ('' when fine)
+
+
+@dataclasses.dataclass
+class Identification:
+    """What the fit found: ``estimates`` {name: Estimate} (the plant file's names; sensors as
+    ``<sensor>.noise_std_pa`` and ``<sensor>.bias_pa``), the fitted ``parameters``, per-sensor
+    residual statistics, the validation RMSE over the held-out readings (NaN without), the
+    seconds each stage took, and ``flags`` (every value's flag, and the residuals')."""
+
+    parameters: PneumaticParameters
+    estimates: dict
+    sensor_noise_pa: dict
+    sensor_bias_pa: dict
+    residual_rms_pa: dict
+    whiteness: dict  # sensor: lag-one autocorrelation of its normalised residuals
+    validation_rmse_pa: float
+    validation_rmse_over_noise: float
+    fit_s: float
+    flags: list
+    trace: dict  # times, measured and fitted pressures per sensor, for the report's plot
+
+
+# ---- the model, vectorised ----------------------------------------------------------------------
+def _rates(p, source, conductance, critical_ratio, par: dict):
+    """(dp/dt, d(dp/dt)/dp) of chambers at absolute ``p`` joined to ``source`` (arrays that
+    broadcast); ``par`` holds the volume and temperature terms as arrays too. The same law as
+    PneumaticPlant.rate_and_slopes."""
+    inflow = source >= p
+    upstream = np.where(inflow, source, p)
+    downstream = np.where(inflow, p, source)
+    ratio = downstream / upstream
+    b = critical_ratio
+    subsonic = ratio > b
+    s = np.where(subsonic, (ratio - b) / (1.0 - b), 0.0)
+    phi = np.where(subsonic, np.sqrt(np.maximum(1.0 - s * s, 0.0)), 1.0)
+    dphi = np.where(subsonic, -s / (np.maximum(phi, 1e-9) * (1.0 - b)), 0.0)
+    gain = conductance * RHO0_KG_PER_M3 * np.sqrt(T0_K / par["temperature_k"])
+    flow = np.where(inflow, gain * upstream * phi, -gain * upstream * phi)
+    dflow_dp = np.where(inflow, gain * dphi, -gain * (phi - ratio * dphi))
+    compliance = np.where(p >= P_ATM_PA, par["kpos"], par["kneg"])
+    volume = par["v0"] + compliance * (p - P_ATM_PA)
+    swelling = np.where(volume > par["vmin"], compliance, 0.0)
+    capacitance = np.maximum(volume, par["vmin"]) + p * swelling
+    rt = par["rt"]
+    return rt * flow / capacitance, rt * (dflow_dp - flow * 2.0 * swelling / capacitance) / \
+        capacitance
+
+
+def chamber_steps(p_n, source, conductance, critical_ratio, par: dict, dt: float,
+                  tolerance_pa: float = 1e-9):
+    """One backward-Euler step of every chamber (arrays that broadcast): the root of
+    p - p_n - dt f(p) between p_n and the source, by Newton kept inside that bracket (bisection
+    when it leaves), from the square-root first guess of PneumaticPlant._first_guess; to
+    ``tolerance_pa`` (the plant's own: 1e-9 Pa)."""
+    p_n, source = np.broadcast_arrays(p_n, source)
+    moving = (conductance > 0.0) & (source != p_n)
+    rate_n, _ = _rates(p_n, source, np.where(moving, conductance, 1.0), critical_ratio, par)
+    gap = np.abs(source - p_n)
+    safe_gap = np.where(moving, gap, 1.0)
+    k_dt = dt * np.abs(rate_n) / np.sqrt(safe_gap)
+    root_gap = 0.5 * (np.sqrt(k_dt * k_dt + 4.0 * safe_gap) - k_dt)
+    p = np.where(moving, source - np.sign(source - p_n) * root_gap * root_gap, p_n)
+    low, high = np.minimum(p_n, source), np.maximum(p_n, source)
+    active = moving.copy()
+    for _ in range(NEWTON_ITERATIONS):
+        rate, slope = _rates(p, source, np.where(moving, conductance, 1.0), critical_ratio, par)
+        residual = p - p_n - dt * rate
+        step = residual / (1.0 - dt * slope)
+        done = np.abs(step) <= tolerance_pa + 4e-16 * np.abs(p)
+        high = np.where(active & (residual > 0.0), p, high)
+        low = np.where(active & (residual <= 0.0), p, low)
+        candidate = p - step
+        inside = (candidate > low) & (candidate < high)
+        update = np.where(done | inside, candidate, 0.5 * (low + high))
+        p = np.where(active, update, p)
+        active = active & ~done & (high - low > 1e-9)
+        if not active.any():
+            break
+    return np.where(moving, p, p_n)
+
+
+def regulator_trajectory(times, inputs, tau_s, rate_pa_per_s, vacuum_gauge_pa, supply_gauge_pa,
+                         start_pa: float = 0.0):
+    """The regulator's output (gauge Pa) at ``times`` (sorted), exactly: its lag and rate limit
+    between the input changes (PlantInputs' meaning: a disabled regulator goes to 0)."""
+    out = np.empty(len(times))
+    value, now = float(start_pa), float(times[0]) if len(times) else 0.0
+    change_times = [c.time_s for c in inputs]
+    index = int(np.searchsorted(change_times, now, side="right")) - 1
+    for i, t in enumerate(times):
+        while True:
+            next_change = change_times[index + 1] if index + 1 < len(inputs) else math.inf
+            until = min(t, next_change)
+            if until > now:
+                change = inputs[index] if index >= 0 else None
+                target = 0.0
+                if change is not None and change.regulator_enabled:
+                    target = min(max(change.regulator_setpoint_pa, vacuum_gauge_pa),
+                                 supply_gauge_pa)
+                dt = until - now
+                step = (target - value) * (1.0 - math.exp(-dt / tau_s))
+                limit = rate_pa_per_s * dt
+                value += max(-limit, min(limit, step))
+                now = until
+            if next_change <= t:
+                index += 1
+                continue
+            break
+        out[i] = value
+    return out
+
+
+# ---- segments -----------------------------------------------------------------------------------
+@dataclasses.dataclass
+class Episode:
+    """From the last REST_TAIL_S of a rest (vented, or valves closed) to the end of the next one,
+    simulated from the pressure measured at its rest (biases taken off)."""
+
+    start_s: float
+    end_s: float
+    start_gauge_pa: float
+
+
+def _rests(recording: Recording, valve: int, shortest_s: float) -> list:
+    rests, changes = [], recording.inputs
+    for i, change in enumerate(changes):
+        end = changes[i + 1].time_s if i + 1 < len(changes) else recording.end_s
+        if change.valve == valve and end - change.time_s >= shortest_s:
+            rests.append((change.time_s, end))
+    return rests
+
+
+def vented_rests(recording: Recording) -> list:
+    """[(start, end)] of every VENT that lasted REST_S or more (the last one up to the end)."""
+    return _rests(recording, Valve.VENT, REST_S)
+
+
+def _readings_between(times, values, start, end):
+    mask = (times >= start) & (times < end)
+    return values[mask]
+
+
+def _tail(start: float, end: float) -> float:
+    return min(REST_TAIL_S, 0.5 * (end - start))
+
+
+def sensor_biases(recording: Recording, rests: list) -> tuple[dict, dict]:
+    """({sensor: bias Pa}, {sensor: noise Pa}) from the vented rests' second halves: the chamber
+    at 0 Pa gauge there, so a reading's mean is its bias and its spread its noise."""
+    biases, noises = {}, {}
+    for name, (times, values) in recording.sensors.items():
+        pieces = [_readings_between(times, values, 0.5 * (start + end), end)
+                  for start, end in rests]
+        pieces = [piece for piece in pieces if len(piece) >= 5]
+        if not pieces:
+            raise ValueError(f"no vented rest of {REST_S} s with readings of {name}: the "
+                             "recording cannot tell its bias")
+        biases[name] = float(np.mean(np.concatenate(pieces)))
+        # each rest's own mean taken off: a rest not yet quite at 0 does not count as noise
+        squares = sum(float(((piece - piece.mean())**2).sum()) for piece in pieces)
+        dof = sum(len(piece) - 1 for piece in pieces)
+        noises[name] = math.sqrt(squares / max(dof, 1))
+    return biases, noises
+
+
+def episodes_of(recording: Recording, biases: dict, rests: list | None = None) -> list:
+    """The segments between rests (``rests``: the vented ones; holds with the valves closed for
+    HOLD_S count too), each started from the mean reading over its rest's tail; segments in which
+    no valve opens are left out (they tell nothing of the paths)."""
+    if rests is None:
+        rests = vented_rests(recording)
+    if len(rests) < 2:
+        raise ValueError("the recording needs two vented rests of 0.5 s or more, one before and "
+                         "one after the excitation")
+    every = sorted(rests + _rests(recording, Valve.CLOSED, HOLD_S))
+    change_times = np.array([c.time_s for c in recording.inputs])
+    episodes = []
+    for (rest_start, rest_end), (_, next_end) in zip(every[:-1], every[1:]):
+        start = rest_end - _tail(rest_start, rest_end)
+        inside = recording.inputs[int(np.searchsorted(change_times, rest_end)):
+                                  int(np.searchsorted(change_times, next_end))]
+        if not any(c.valve in (Valve.SUPPLY, Valve.VACUUM, Valve.VENT) for c in inside):
+            continue
+        values = [_readings_between(t, v - biases[n], start, rest_end)
+                  for n, (t, v) in recording.sensors.items()]
+        values = [v for v in values if len(v)]
+        start_gauge = float(np.mean(np.concatenate(values))) if values else 0.0
+        episodes.append(Episode(start, next_end, start_gauge))
+    if not episodes:
+        raise ValueError("no valve opened between two rests: nothing to fit the paths to")
+    return episodes
+
+
+class _Grid:
+    """Every episode on one 1 ms grid: the valve, the source's pressure and which path, per step;
+    each sensor reading's place on it."""
+
+    def __init__(self, recording: Recording, episodes: list, regulator_at, biases: dict,
+                 weights: dict, since_s: float = -math.inf, until_s: float = math.inf):
+        self.episodes = episodes
+        steps = max(int(math.ceil((e.end_s - e.start_s) / DT_S)) for e in episodes) + 1
+        self.steps = steps
+        count = len(episodes)
+        self.valve = np.full((count, steps), int(Valve.CLOSED))
+        self.regulator = np.zeros((count, steps))
+        self.enabled = np.ones((count, steps), bool)
+        change_times = np.array([c.time_s for c in recording.inputs])
+        for e, episode in enumerate(episodes):
+            grid_times = episode.start_s + DT_S * (np.arange(steps) + 0.5)  # each step's middle
+            index = np.searchsorted(change_times, grid_times, side="right") - 1
+            index = np.clip(index, 0, len(change_times) - 1)
+            self.valve[e] = [recording.inputs[i].valve for i in index]
+            self.enabled[e] = [recording.inputs[i].regulator_enabled for i in index]
+            # the chamber's step sees the regulator at the step's end, as PneumaticPlant.step
+            # advances the regulator first
+            self.regulator[e] = regulator_at(grid_times + 0.5 * DT_S)
+        self.start = np.array([P_ATM_PA + e.start_gauge_pa for e in episodes])
+        # readings: (episode, the step before and the fraction after), measured gauge, weight
+        rows = []
+        for name, (times, values) in recording.sensors.items():
+            for e, episode in enumerate(episodes):
+                mask = ((times >= max(episode.start_s, since_s)) &
+                        (times < min(episode.end_s, until_s)))
+                position = (times[mask] - episode.start_s) / DT_S
+                rows.append((name, np.full(mask.sum(), e), position, values[mask] - biases[name],
+                             np.full(mask.sum(), weights[name]), times[mask]))
+        self.names = np.concatenate([np.full(len(r[1]), r[0]) for r in rows])
+        self.episode = np.concatenate([r[1] for r in rows]).astype(int)
+        position = np.concatenate([r[2] for r in rows])
+        self.before = np.clip(np.floor(position).astype(int), 0, steps - 2)
+        self.fraction = np.clip(position - self.before, 0.0, 1.0)
+        self.measured = np.concatenate([r[3] for r in rows])
+        self.weight = np.concatenate([r[4] for r in rows])
+        self.times = np.concatenate([r[5] for r in rows])
+
+    def simulate(self, parameter_sets: list) -> np.ndarray:
+        """Every reading's predicted gauge pressure under each parameter set: [sets, readings]."""
+        sets = len(parameter_sets)
+        column = lambda name: np.array([getattr(p, name) for p in parameter_sets])[:, None]  # noqa
+        par = {"temperature_k": column("temperature_k"), "kpos":
+               column("chamber_compliance_m3_per_pa"),
+               "kneg": column("vacuum_compliance_m3_per_pa"), "v0": column("chamber_volume_m3"),
+               "vmin": column("min_chamber_volume_m3")}
+        par["rt"] = 287.05 * par["temperature_k"]
+        # per valve code (CLOSED, SUPPLY, VACUUM, VENT): each set's conductance and ratio
+        zeros = np.zeros((sets, 1))
+        conductance = np.hstack([zeros, column("supply_conductance"),
+                                 column("vacuum_conductance"), column("vent_conductance")])
+        ratio = np.hstack([column("vent_critical_ratio"), column("supply_critical_ratio"),
+                           column("vacuum_critical_ratio"), column("vent_critical_ratio")])
+        vacuum = P_ATM_PA + column("vacuum_source_gauge_pa")
+        # [sets, episodes, steps] inputs, taken whole before the loop
+        c_all = conductance[:, self.valve]
+        b_all = ratio[:, self.valve]
+        supply = (self.valve == Valve.SUPPLY)[None]
+        pumped = ((self.valve == Valve.VACUUM) & self.enabled)[None]
+        source_all = np.where(supply, P_ATM_PA + self.regulator[None],
+                              np.where(pumped, vacuum[:, :, None], P_ATM_PA))
+        trajectory = np.empty((sets, len(self.episodes), self.steps))
+        p = np.broadcast_to(self.start, (sets, len(self.episodes))).copy()
+        trajectory[:, :, 0] = p
+        for k in range(1, self.steps):
+            p = chamber_steps(p, source_all[:, :, k - 1], c_all[:, :, k - 1],
+                              b_all[:, :, k - 1], par, DT_S, tolerance_pa=1e-6)
+            trajectory[:, :, k] = p
+        before = trajectory[:, self.episode, self.before]
+        after = trajectory[:, self.episode, self.before + 1]
+        return before + (after - before) * self.fraction - P_ATM_PA
+
+
+# ---- the fit ------------------------------------------------------------------------------------
+def _stage3_vector(parameters: PneumaticParameters) -> np.ndarray:
+    p = parameters
+    return np.array([
+        math.log(p.supply_conductance), math.log(p.vacuum_conductance),
+        math.log(p.vent_conductance), p.supply_critical_ratio, p.vacuum_critical_ratio,
+        p.vent_critical_ratio, p.chamber_compliance_m3_per_pa * 1e10,
+        p.vacuum_compliance_m3_per_pa * 1e10, p.vacuum_source_gauge_pa / 1e3
+    ])
+
+
+def _stage3_parameters(x, base: PneumaticParameters) -> PneumaticParameters:
+    return dataclasses.replace(
+        base, supply_conductance=math.exp(x[0]), vacuum_conductance=math.exp(x[1]),
+        vent_conductance=math.exp(x[2]), supply_critical_ratio=float(x[3]),
+        vacuum_critical_ratio=float(x[4]), vent_critical_ratio=float(x[5]),
+        chamber_compliance_m3_per_pa=float(x[6]) * 1e-10,
+        vacuum_compliance_m3_per_pa=float(x[7]) * 1e-10,
+        vacuum_source_gauge_pa=float(x[8]) * 1e3)
+
+
+STAGE3_BOUNDS = (np.array([math.log(1e-12)] * 3 + [0.02] * 3 + [0.0, 0.0, -100.0]),
+                 np.array([math.log(1e-6)] * 3 + [0.95] * 3 + [100.0, 100.0, -2.0]))
+# the finite-difference step of each coordinate of the stage-3 vector
+STAGE3_STEPS = np.array([1e-3] * 3 + [1e-3] * 3 + [1e-3, 1e-3, 1e-2])
+
+
+def _covariance(jacobian: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+    dof = max(len(residuals) - jacobian.shape[1], 1)
+    variance = float(residuals @ residuals) / dof
+    information = jacobian.T @ jacobian
+    return np.linalg.pinv(information) * variance
+
+
+def _whiteness(residuals: np.ndarray) -> float:
+    if len(residuals) < 10:
+        return 0.0
+    centred = residuals - residuals.mean()
+    denominator = float(centred @ centred)
+    return float(centred[1:] @ centred[:-1] / denominator) if denominator > 0 else 0.0
+
+
+def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None = None,
+        progress=lambda text: None, max_seconds: float = math.inf) -> Identification:
+    """Fit ``recording`` (see the module docstring); ``base`` gives what the data cannot
+    (the temperature, the supply's inlet, and V0 unless ``volume_m3`` is given).
+    ``progress(text)`` is told each stage. ValueError when the recording cannot be fitted."""
+    started = time.perf_counter()
+    recording.check()
+    flags = []
+    if volume_m3 is not None:
+        scale = volume_m3 / base.chamber_volume_m3
+        base = dataclasses.replace(base, **{n: getattr(base, n) * scale for n in VOLUME_SCALED})
+    rests = vented_rests(recording)
+    progress(f"stage 1: sensor biases and noise from {len(rests)} vented rests")
+    biases, noises = sensor_biases(recording, rests)
+
+    progress("stage 2: the regulator's lag and rate limit from its reports")
+    report_t, report_p = recording.regulator
+    fitted_until = recording.held_out_from_s
+    in_fit = report_t < fitted_until
+
+    def regulator_residuals(x):
+        model = regulator_trajectory(report_t[in_fit], recording.inputs, math.exp(x[0]),
+                                     math.exp(x[1]), base.vacuum_source_gauge_pa,
+                                     base.supply_gauge_pa, float(report_p[0]))
+        return (model - report_p[in_fit]) / 100.0
+
+    x2 = np.log([base.regulator_time_constant_s, base.regulator_rate_limit_pa_per_s])
+    stage2 = least_squares(regulator_residuals, x2, method="trf", x_scale=1.0,
+                           bounds=(np.log([1e-4, 1e3]), np.log([10.0, 1e9])))
+    regulator_cov = _covariance(stage2.jac, stage2.fun)  # of the logarithms
+    tau, rate_limit = math.exp(stage2.x[0]), math.exp(stage2.x[1])
+    base = dataclasses.replace(base, regulator_time_constant_s=tau,
+                               regulator_rate_limit_pa_per_s=rate_limit)
+    # the regulator's output over the whole recording, once, on the simulation's grid
+    fine = np.arange(report_t[0], recording.end_s + DT_S, DT_S)
+    fine_output = regulator_trajectory(fine, recording.inputs, tau, rate_limit,
+                                       base.vacuum_source_gauge_pa, base.supply_gauge_pa,
+                                       float(report_p[0]))
+
+    def regulator_at(times):
+        return np.interp(times, fine, fine_output)
+
+    episodes = episodes_of(recording, biases, rests)
+    weights = {name: 1.0 / max(noise, 1.0) for name, noise in noises.items()}
+    grid = _Grid(recording, episodes, regulator_at, biases, weights, until_s=fitted_until)
+    progress(f"stage 3: the chamber's paths over {len(episodes)} episodes, "
+             f"{len(grid.measured)} readings")
+    cache = {}
+
+    def batch(x):
+        key = x.tobytes()
+        if key not in cache:
+            sets = [_stage3_parameters(x, base)]
+            for i, step in enumerate(STAGE3_STEPS):
+                shifted = x.copy()
+                shifted[i] += step
+                sets.append(_stage3_parameters(shifted, base))
+            cache.clear()
+            cache[key] = grid.simulate(sets)
+        return cache[key]
+
+    def residuals(x):
+        return (batch(x)[0] - grid.measured) * grid.weight
+
+    def jacobian(x):
+        predictions = batch(x)
+        return ((predictions[1:] - predictions[0]) * grid.weight / STAGE3_STEPS[:, None]).T
+
+    x3 = np.clip(_stage3_vector(base), STAGE3_BOUNDS[0] + 1e-6, STAGE3_BOUNDS[1] - 1e-6)
+    evaluations = []
+
+    def counted(x):
+        evaluations.append(time.perf_counter())
+        if evaluations[-1] - started > max_seconds:
+            raise TimeoutError(f"the fit ran over its {max_seconds:g} s budget")
+        progress(f"  iteration {len(evaluations)}")
+        return residuals(x)
+
+    stage3 = least_squares(counted, x3, jac=jacobian, method="trf", bounds=STAGE3_BOUNDS,
+                           x_scale="jac", ftol=1e-8, xtol=1e-8, max_nfev=40)
+    fitted = _stage3_parameters(stage3.x, base)
+    covariance = _covariance(stage3.jac, stage3.fun)
+    residual_pa = stage3.fun / grid.weight
+
+    estimates = {}
+    names_x = {"supply_conductance": (0, "log"), "vacuum_conductance": (1, "log"),
+               "vent_conductance": (2, "log"), "supply_critical_ratio": (3, ""),
+               "vacuum_critical_ratio": (4, ""), "vent_critical_ratio": (5, ""),
+               "chamber_compliance_m3_per_pa": (6, 1e-10),
+               "vacuum_compliance_m3_per_pa": (7, 1e-10), "vacuum_source_gauge_pa": (8, 1e3)}
+    for name, (i, kind) in names_x.items():
+        half = 1.96 * math.sqrt(max(covariance[i, i], 0.0))
+        value = getattr(fitted, name)
+        if kind == "log":
+            interval = (value * math.exp(-half), value * math.exp(half))
+        else:
+            scale = 1.0 if kind == "" else kind
+            interval = (value - half * scale, value + half * scale)
+        estimates[name] = Estimate(value, interval, "identified")
+    regulator_norms = np.linalg.norm(stage2.jac, axis=0)
+    for i, name in enumerate(STAGE2):
+        half = 1.96 * math.sqrt(max(regulator_cov[i, i], 0.0))
+        value = getattr(fitted, name)
+        estimates[name] = Estimate(value, (value * math.exp(-half), value * math.exp(half)),
+                                   "identified")
+        if regulator_norms[i] < 1e-6 * max(regulator_norms.max(), 1e-30):
+            estimates[name] = Estimate(value, (0.0, math.inf), "identified",
+                                       "not excited: the fit does not depend on it (the base "
+                                       "file's value is kept)")
+            flags.append(f"{name}: not excited by this recording")
+    for name in ("chamber_volume_m3", "min_chamber_volume_m3"):
+        value = getattr(fitted, name)
+        estimates[name] = Estimate(value, (value, value),
+                                   "measured" if volume_m3 is not None else "inherited")
+    for name in ("temperature_k", "supply_gauge_pa"):
+        estimates[name] = Estimate(getattr(fitted, name), (getattr(fitted, name),) * 2,
+                                   "inherited")
+    # sensors: bias and noise from the rests; the fit's residuals beside them (model error too)
+    residual_rms, whiteness = {}, {}
+    for name, (times, _) in recording.sensors.items():
+        mine = grid.names == name
+        residual_rms[name] = float(np.sqrt(np.mean(residual_pa[mine]**2)))
+        whiteness[name] = _whiteness(residual_pa[mine] / max(noises[name], 1.0))
+        count = sum(int(((times >= 0.5 * (start + end)) & (times < end)).sum())
+                    for start, end in rests)
+        noise = noises[name]
+        # the standard deviation's own 95 % interval (chi-square, large samples)
+        spread = 1.96 / math.sqrt(2.0 * max(count, 1))
+        estimates[f"{name}.noise_std_pa"] = Estimate(noise, (noise * (1 - spread),
+                                                             noise * (1 + spread)), "identified")
+        half = 1.96 * noise / math.sqrt(max(count, 1))
+        estimates[f"{name}.bias_pa"] = Estimate(biases[name], (biases[name] - half,
+                                                               biases[name] + half), "identified")
+        if residual_rms[name] > 1.5 * noise:
+            flags.append(f"{name}: the fit's residuals ({residual_rms[name]:.0f} Pa rms) exceed "
+                         f"1.5x the sensor's noise ({noise:.0f} Pa): the model misses part of "
+                         "the response")
+        if abs(whiteness[name]) > WHITENESS_LIMIT:
+            flags.append(f"{name}: the residuals are not white (lag-one autocorrelation "
+                         f"{whiteness[name]:.2f}): the model misses part of the response")
+    for name, estimate in estimates.items():
+        if estimate.source != "identified" or name.endswith(".bias_pa") or estimate.flag:
+            continue
+        low, high = estimate.ci95
+        width = max(estimate.value - low, high - estimate.value)
+        if estimate.value != 0.0 and width > RELATIVE_CI_LIMIT * abs(estimate.value):
+            estimate.flag = (f"its 95 % interval is +-{100 * width / abs(estimate.value):.0f} %: "
+                             "the data do not excite it enough")
+            flags.append(f"{name}: {estimate.flag}")
+    column_norms = np.linalg.norm(stage3.jac, axis=0)
+    for name, (i, _) in names_x.items():
+        if column_norms[i] < 1e-6 * max(column_norms.max(), 1e-30):
+            estimates[name].ci95 = (-math.inf, math.inf)
+            estimates[name].flag = "not excited: the fit does not depend on it"
+            flags.append(f"{name}: not excited by this recording")
+
+    validation = math.nan
+    trace = {}
+    if math.isfinite(recording.held_out_from_s):
+        progress("validation: the held-out excitation, predicted")
+        held = _Grid(recording, episodes, regulator_at, biases, weights,
+                     since_s=recording.held_out_from_s)
+        if len(held.measured):
+            predicted = held.simulate([fitted])[0]
+            validation = float(np.sqrt(np.mean((predicted - held.measured)**2)))
+    rms_noise = float(np.sqrt(np.mean([n**2 for n in noises.values()])))
+    predicted = stage3.fun / grid.weight + grid.measured
+    for name in recording.sensors:
+        mine = grid.names == name
+        order = np.argsort(grid.times[mine])
+        trace[name] = (grid.times[mine][order], grid.measured[mine][order],
+                       predicted[mine][order])
+    return Identification(fitted, estimates, dict(noises), biases, residual_rms,
+                          whiteness, validation, validation / rms_noise,
+                          time.perf_counter() - started, flags, trace)
+
+
+# ---- the excitation -----------------------------------------------------------------------------
+@dataclasses.dataclass(frozen=True)
+class Step:
+    """One command of the excitation, held ``duration_s``: ``source`` SUPPLY (the valve open to
+    the regulator at ``target_pa``), VACUUM (the valve open to the pump until ``target_pa``, then
+    closed), VENT, or HOLD (valves closed; the regulator at ``target_pa`` when finite)."""
+
+    source: str
+    target_pa: float
+    duration_s: float
+
+
+def excitation(max_pa: float = 45e3, min_pa: float = -55e3, seed: int = 0,
+               quick: bool = False) -> tuple[list, float]:
+    """(steps, when the held-out part begins, s from the start). Vented rests between episodes;
+    the regulator alone (valves closed) for its lag and rate limit; a fill and vent; then the
+    chamber swung across the whole range, so that each path's flow spans as many pressure ratios
+    as the limits allow (the ratio, not the level, is what tells a path's critical ratio from its
+    conductance): filled, evacuated from the top, refilled from the bottom, vented from the
+    bottom; evacuations to two depths; a PRBS of the regulator with the valve open. Then a
+    held-out part (other levels, an evacuation, a PRBS) for validation. About 35 s (``quick``:
+    about 22 s). Levels stay inside [min_pa, max_pa]."""
+    rng = np.random.default_rng(seed)
+    rest = Step("VENT", 0.0, 0.7)
+    hold = Step("HOLD", math.nan, 0.3)
+    steps = [Step("VENT", 0.0, 1.0)]
+    steps += [Step("HOLD", max_pa, 0.35), Step("HOLD", min_pa, 0.35),
+              Step("HOLD", 0.2 * max_pa, 0.3), Step("HOLD", 0.0, 0.3), rest]
+
+    def prbs(low, high, seconds):
+        out, elapsed, level = [], 0.0, high
+        while elapsed < seconds:
+            dwell = float(rng.uniform(0.06, 0.2))
+            out.append(Step("SUPPLY", level, dwell))
+            elapsed += dwell
+            level = low if level == high else high
+        return out
+
+    top, bottom = 0.95 * max_pa, 0.95 * min_pa
+    steps += [Step("SUPPLY", 0.35 * max_pa, 0.6), hold, rest]
+    steps += [Step("SUPPLY", top, 0.6), hold, Step("VACUUM", bottom, 0.9), hold,
+              Step("SUPPLY", top, 0.6), hold, rest]
+    steps += [Step("VACUUM", bottom, 0.9), hold, Step("VENT", 0.0, 0.9)]
+    if not quick:
+        steps += [Step("VACUUM", 0.5 * min_pa, 0.8), hold, rest]
+    steps += prbs(0.3 * max_pa, 0.75 * max_pa, 1.2 if quick else 2.0) + [rest]
+    held_out = sum(step.duration_s for step in steps)
+    steps += [Step("SUPPLY", 0.6 * max_pa, 0.6), hold, Step("VACUUM", 0.7 * min_pa, 0.8), hold,
+              Step("VENT", 0.0, 0.9)]
+    steps += prbs(0.2 * max_pa, 0.6 * max_pa, 1.0 if quick else 1.5) + [Step("VENT", 0.0, 1.0)]
+    return steps, held_out

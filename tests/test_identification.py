@@ -1,0 +1,123 @@
+"""Pneumatic identification without ROS: the vectorised plant against the suite's, what pressure
+data can and cannot determine, and the fit recovering perturbed truths from an excitation run
+on them (softgrip_ros.devtools.identification_sim)."""
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from softgrip_ros.devtools import identification_sim
+from softgrip_ros.estimation import identification
+from softgrip_ros.model import plant_file
+from softgrip_ros.model.pneumatics import P_ATM_PA, PneumaticParameters, PneumaticPlant, Valve
+
+
+def _par(parameters: PneumaticParameters) -> dict:
+    par = {"temperature_k": np.array(parameters.temperature_k),
+           "kpos": np.array(parameters.chamber_compliance_m3_per_pa),
+           "kneg": np.array(parameters.vacuum_compliance_m3_per_pa),
+           "v0": np.array(parameters.chamber_volume_m3),
+           "vmin": np.array(parameters.min_chamber_volume_m3)}
+    par["rt"] = 287.05 * par["temperature_k"]
+    return par
+
+
+@pytest.mark.parametrize("valve", [Valve.SUPPLY, Valve.VACUUM, Valve.VENT])
+def test_the_vectorised_step_is_the_plants_backward_euler_step(valve):
+    parameters = dataclasses.replace(PneumaticParameters(), vent_critical_ratio=0.4,
+                                     vacuum_compliance_m3_per_pa=0.5e-10)
+    plant = PneumaticPlant(parameters)
+    rng = np.random.default_rng(1)
+    chambers = P_ATM_PA + rng.uniform(-55e3, 45e3, 200)
+    regulator = rng.uniform(-30e3, 45e3, 200)
+    conductance, b = parameters.path(valve)
+    sources = np.array([plant.source(valve, r)[0] for r in regulator])
+    ours = identification.chamber_steps(chambers, sources, np.full(200, conductance),
+                                        np.full(200, b), _par(parameters), 1e-3)
+    theirs = np.array([plant.chamber_step(p, valve, r, 1e-3)[0]
+                       for p, r in zip(chambers, regulator)])
+    assert np.max(np.abs(ours - theirs)) < 1e-6
+
+
+def test_volume_and_conductances_cannot_be_told_apart_by_pressure_alone():
+    """Every volume term and every conductance scaled by one factor: the same pressures to
+    1e-9 relative. Hence V0 is measured or inherited, never fitted."""
+    truth = plant_file.default_description()
+    steps, _ = identification.excitation(quick=True)
+    recording = identification_sim.record(truth, steps[:12], seed=0)
+    scaled = dataclasses.replace(truth.parameters, **{
+        name: getattr(truth.parameters, name) * 1.7 for name in identification.VOLUME_SCALED})
+    rests = identification.vented_rests(recording)
+    biases = {name: 0.0 for name in recording.sensors}
+    episodes = identification.episodes_of(recording, biases, rests)
+    grid = identification._Grid(recording, episodes, lambda t: np.zeros(len(t)), biases,
+                                {name: 1.0 for name in recording.sensors})
+    both = grid.simulate([truth.parameters, scaled])
+    assert np.max(np.abs(both[0] - both[1])) <= 1e-9 * P_ATM_PA
+
+
+def scaled_truth(factors: dict, sensors=None) -> plant_file.PlantDescription:
+    base = plant_file.default_description()
+    parameters = dataclasses.replace(base.parameters, **{
+        name: getattr(base.parameters, name) * factor for name, factor in factors.items()})
+    return plant_file.PlantDescription(parameters, sensors or base.sensors)
+
+
+SLOW_LARGE = {"chamber_volume_m3": 1.6, "min_chamber_volume_m3": 1.6, "supply_conductance": 0.6,
+              "vent_conductance": 1.3, "vacuum_conductance": 0.8, "regulator_time_constant_s": 1.5,
+              "chamber_compliance_m3_per_pa": 1.4, "vacuum_compliance_m3_per_pa": 0.7,
+              "supply_critical_ratio": 1.2, "vent_critical_ratio": 0.8}
+
+
+# what the pressure limits leave unexcited: within [-60, 50] kPa the vacuum path's flow is
+# choked nearly all the way, and where it is not, its critical ratio and the source's level
+# trade off; the fit must then say so (a flag and an interval that holds the truth)
+MAY_BE_FLAGGED = ("vacuum_critical_ratio", "vacuum_source_gauge_pa")
+TOLERANCES = {"supply_conductance": 0.05, "vacuum_conductance": 0.05, "vent_conductance": 0.05,
+              "supply_critical_ratio": 0.10, "vacuum_critical_ratio": 0.10,
+              "vent_critical_ratio": 0.10, "regulator_time_constant_s": 0.10,
+              "chamber_compliance_m3_per_pa": 0.10, "vacuum_compliance_m3_per_pa": 0.10,
+              "vacuum_source_gauge_pa": 0.10}
+
+
+@pytest.mark.slow
+def test_the_fit_recovers_a_slower_larger_plant_within_the_targets():
+    """The issue's case: a slower supply path and a larger chamber (its volume measured, as the
+    tool's --volume-m3 takes it). Conductances within 5 %, critical ratios and the regulator's lag
+    within 10 %, noise within 20 %, or flagged where the limits leave a value unexcited; the
+    held-out excitation predicted within 1.5x the noise."""
+    sensors = {"chamber_a": plant_file.SensorModel(300.0, 800.0),
+               "chamber_b": plant_file.SensorModel(150.0, -400.0)}
+    truth = scaled_truth(SLOW_LARGE, sensors)
+    steps, held_out = identification.excitation()
+    recording = identification_sim.record(truth, steps, held_out, seed=3)
+    result = identification.fit(recording, plant_file.default_description().parameters,
+                                volume_m3=truth.parameters.chamber_volume_m3)
+    t = truth.parameters
+    for name, tolerance in TOLERANCES.items():
+        estimate, true = result.estimates[name], getattr(t, name)
+        if estimate.flag:  # then its interval must say how little is known: it holds the truth
+            assert name in MAY_BE_FLAGGED, (name, estimate.flag)
+            assert any(f.startswith(name) for f in result.flags)
+            assert estimate.ci95[0] <= true <= estimate.ci95[1], (name, estimate, true)
+        else:
+            assert estimate.value == pytest.approx(true, rel=tolerance), name
+    for name, model in sensors.items():
+        assert result.sensor_noise_pa[name] == pytest.approx(model.noise_std_pa, rel=0.2)
+        assert result.sensor_bias_pa[name] == pytest.approx(model.bias_pa, abs=60.0)
+    assert result.validation_rmse_over_noise <= 1.5
+    assert result.estimates["chamber_volume_m3"].source == "measured"
+    # the residuals are white at the right model
+    assert all(abs(w) < identification.WHITENESS_LIMIT for w in result.whiteness.values())
+
+
+def test_a_recording_without_rests_or_readings_is_refused_with_the_reason():
+    truth = plant_file.default_description()
+    steps = [identification.Step("SUPPLY", 20e3, 0.5), identification.Step("HOLD", math.nan, 0.2)]
+    recording = identification_sim.record(truth, steps, seed=0)
+    with pytest.raises(ValueError, match="vented rest"):
+        identification.fit(recording, truth.parameters)
+    recording.sensors["chamber_b"] = (np.array([]), np.array([]))
+    with pytest.raises(ValueError, match="too few readings"):
+        identification.fit(recording, truth.parameters)
