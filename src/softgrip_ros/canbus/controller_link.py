@@ -27,6 +27,7 @@ import time
 import can
 
 from softgrip_ros.canbus.codec import FrameCodec, frame_age_s
+from softgrip_ros.checks import future_stamp_reason
 from softgrip_ros.canbus.reader import BatchReader
 from softgrip_ros.control.pressure import (ControlOutput, Fault, PressureMode, PressureController,
                                            Source)
@@ -38,8 +39,16 @@ HEARTBEAT_PERIOD_S = 0.1
 CONTROLLER_STATE = {PressureMode.INACTIVE: 0, PressureMode.FAULT: 2}
 # FRAMES_REJECTED is reported this long after the last rejected frame
 FRAMES_REJECTED_HOLD_S = 1.0
-# the modes that act on every reading at once (the others rest: see make_control_loop)
-ACTIVE_MODES = (PressureMode.REGULATE, PressureMode.IDENTIFY)
+
+
+def acting(output) -> bool:
+    """Whether ``output`` needs every reading at once and its frames at the control rate (the
+    rest batch the readings and step at the rest rate: see make_control_loop): regulating, or a
+    valve open to a source in identification (its OpenLifetime needs the frames; an evacuation
+    stops at its target)."""
+    return output.mode == PressureMode.REGULATE or (
+        output.mode == PressureMode.IDENTIFY and
+        any(v in (Valve.SUPPLY, Valve.VACUUM) for v in output.valves))
 
 
 def _same(value: float):
@@ -106,6 +115,8 @@ class ControllerLink:
                 f"got {valve_lifetime_s:g}")
         self.valve_lifetime_s = valve_lifetime_s
         self._last_command_frames = {}  # message -> (signals, time sent)
+        # when the valves or the regulator's command last changed (their frames went out then)
+        self.output_changed_time = -math.inf
         # the control loop's wake(): a command or a reading beyond a limit
         self.wake = None
         # the last step left the valves as they are (not regulating)
@@ -190,6 +201,30 @@ class ControllerLink:
             self.wake()
         return note
 
+    def take(self, target_gauge_pa: float, source: Source, max_rate_pa_per_s: float,
+             stamp_s: float, now_s: float, tolerance_s: float, identification_topic: bool = False,
+             on_applied=None) -> str:
+        """A command as it arrives (a topic's, or the composed grasp manager's by direct call):
+        what to tell the user ('' for nothing). ``identification_topic``: it came on
+        ~/identification_command, which alone applies in identification mode, and only there.
+        One stamped more than ``tolerance_s`` ahead of ``now_s`` is refused, and the status
+        carries why until a command applies; an invalid one is refused with its reason."""
+        if identification_topic != self.controller.identification:
+            return ("identification command ignored: identification_mode is off"
+                    if identification_topic else "pressure command ignored: identification mode")
+        refused = future_stamp_reason(stamp_s, now_s, tolerance_s)
+        if refused:
+            self.reject_command(f"pressure command {refused}")
+            return f"pressure command {refused}"
+        try:
+            return self.command(target_gauge_pa, source, max_rate_pa_per_s, stamp_s,
+                                on_applied=on_applied) or ""
+        except ValueError as error:
+            note = f"command rejected: {error}"
+            if on_applied is not None:
+                on_applied(note)
+            return note
+
     def reject_command(self, reason: str) -> None:
         """A command the caller refused: flagged in the next outputs, with ``reason``, until one
         applies."""
@@ -213,7 +248,7 @@ class ControllerLink:
             now = self.clock()
             with self._lock:
                 output = self.controller.step(now)
-            resting = output.mode not in ACTIVE_MODES
+            resting = not acting(output)
             if self.resting and not resting:
                 self._reader.wake()  # regulating: the readings matter at once from here on
             self.resting = resting
@@ -266,6 +301,8 @@ class ControllerLink:
                 "Enable": int(output.regulator_enabled), "Source": int(output.regulator_source)
         }), ("ValveCommand", self._valve_signals(valves))):
             last = self._last_command_frames.get(message)
+            if last is None or last[0] != signals:
+                self.output_changed_time = now
             if last is None or last[
                     0] != signals or now - last[1] >= self.command_frame_period_s - 1e-9:
                 self._last_command_frames[message] = (signals, now)
@@ -313,7 +350,7 @@ def make_control_loop(link: ControllerLink, rate_hz: float, status_rate_hz: floa
     on_output = None if on_status is None else StatusOnChange(on_status, 1.0 / status_rate_hz)
     loop = PeriodicThread(link.step, rate_hz, "softgrip-control-loop", on_output=on_output,
                           rest_rate_hz=rest_rate_hz,
-                          resting=lambda output: output.mode not in ACTIVE_MODES)
+                          resting=lambda output: not acting(output))
     link.wake = loop.wake
     return loop
 

@@ -27,16 +27,6 @@ def stamp_seconds(stamp) -> float:
     return stamp.sec + 1e-9 * stamp.nanosec
 
 
-def future_stamp_reason(stamp_s: float, now_s: float, tolerance_s: float) -> str:
-    """'' for a stamp no further ahead of ``now_s`` than ``tolerance_s`` (or unstamped: 0), else
-    why it is refused. A stamp far ahead would make a receiver that orders or predicts by stamps
-    wait for it, or step the filter that far: no message may do that."""
-    if stamp_s and stamp_s - now_s > tolerance_s:
-        return (f"stamped {stamp_s - now_s:.3g} s in the future (tolerance {tolerance_s:g} s): "
-                "refused")
-    return ""
-
-
 def stamp_msg(seconds: float):
     """A builtin_interfaces Time for ``seconds`` of ROS time, to the nearest nanosecond (so that a
     stamp read back as sec + 1e-9 nanosec and written again is unchanged)."""

@@ -24,8 +24,9 @@ from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 from softgrip_ros.estimation.estimator import PressureEstimator
 from softgrip_ros.health import Health
 from softgrip_ros.model.pneumatics import PneumaticPlant, Valve
+from softgrip_ros.checks import future_stamp_reason
 from softgrip_ros.nodes import messages
-from softgrip_ros.nodes.common import (NodeTimers, future_stamp_reason, listened, notify, publish,
+from softgrip_ros.nodes.common import (NodeTimers, listened, notify, publish,
                                        run_node, stamp_seconds)
 from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import ESTIMATOR_SPECS as SPECS

@@ -34,8 +34,9 @@ from visualization_msgs.msg import MarkerArray
 from softgrip_interfaces.msg import GraspScene
 from softgrip_ros.health import Health, Report
 from softgrip_ros.model.fidelity import FREE, ROD_CONTINUATION_STEPS, Scene, SceneModel
+from softgrip_ros.checks import future_stamp_reason
 from softgrip_ros.nodes import messages
-from softgrip_ros.nodes.common import (NodeTimers, future_stamp_reason, listened, publish,
+from softgrip_ros.nodes.common import (NodeTimers, listened, publish,
                                        run_node, stamp_msg, stamp_seconds)
 from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import KINEMATICS_SPECS as SPECS

@@ -24,7 +24,7 @@ from softgrip_ros.control.pressure import PressureController
 from softgrip_ros.model.pneumatics import PneumaticPlant
 from softgrip_ros.control.reports import pressure_controller_report
 from softgrip_ros.nodes import messages
-from softgrip_ros.nodes.common import (future_stamp_reason, listened, notify, open_bus, publish,
+from softgrip_ros.nodes.common import (listened, notify, open_bus, publish,
                                        run_node, stamp_seconds)
 from softgrip_ros.nodes.estimator import ESTIMATOR_STATUS
 from softgrip_ros.nodes.parameters import check_all, declare
@@ -139,7 +139,7 @@ class PressureControllerNode(LifecycleNode):
             return TransitionCallbackReturn.FAILURE
         self.noise_variance = {n: model.noise_std_pa**2 for n, _, model in sensors}
         self.sensor_pubs = {
-            n: self.create_publisher(FluidPressure, f"pressure/sensor/{n}", 10)
+            n: self.create_publisher(FluidPressure, f"pressure/sensor/{n}", 100)
             for n, _, _ in sensors
         }
         self.get_logger().info(f"bus {v['can.interface']}:{v['can.channel']} open")
@@ -198,40 +198,23 @@ class PressureControllerNode(LifecycleNode):
         self._publish_status()
 
     def _on_identification_command(self, msg: PressureCommand):
-        if not self.controller.identification:
-            self.get_logger().warn("identification command ignored: identification_mode is off",
-                                   throttle_duration_sec=1.0)
-            return
-        self._apply(msg)
+        self._take(msg, identification_topic=True)
 
     def on_command(self, msg: PressureCommand):
         """A pressure command, from the topic or (composed) by a direct call from the grasp
         manager, which saves a trip through DDS and the executor; its later DDS copy is recognised
-        and ignored (see :meth:`ControllerLink.command`). A command stamped further ahead than
-        ``stamp_tolerance`` is refused, with its reason in the status."""
-        if self.controller.identification:
-            self.get_logger().warn("pressure command ignored: identification mode",
-                                   throttle_duration_sec=5.0)
-            return
-        self._apply(msg)
+        and ignored (see :meth:`ControllerLink.command`; refusals: :meth:`ControllerLink.take`)."""
+        self._take(msg)
 
-    def _apply(self, msg: PressureCommand):
+    def _take(self, msg: PressureCommand, identification_topic: bool = False):
         if self.link is None:
             self.get_logger().warn("pressure command ignored: the controller is not configured")
             return
-        stamp_s = stamp_seconds(msg.header.stamp)
-        refused = future_stamp_reason(stamp_s,
-                                      self.get_clock().now().nanoseconds * 1e-9,
-                                      self.values["stamp_tolerance"])
-        if refused:
-            note = f"pressure command {refused}"
-            self.link.reject_command(note)  # the status carries it until a command applies
-        else:
-            try:
-                note = self.link.command(msg.target_gauge_pressure_pa, msg.source,
-                                         msg.max_rate_pa_per_s, stamp_s, on_applied=self._set_note)
-            except ValueError as error:
-                note = self.last_note = f"command rejected: {error}"
+        note = self.link.take(msg.target_gauge_pressure_pa, msg.source, msg.max_rate_pa_per_s,
+                              stamp_seconds(msg.header.stamp),
+                              self.get_clock().now().nanoseconds * 1e-9,
+                              self.values["stamp_tolerance"], identification_topic,
+                              on_applied=self._set_note)
         if note:
             self.get_logger().warn(note, throttle_duration_sec=1.0)
 
