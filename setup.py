@@ -38,6 +38,7 @@ setup(
             "grasp_manager = softgrip_ros.nodes.grasp_manager:main",
             "controller = softgrip_ros.nodes.controller:main",
             "softgrip = softgrip_ros.cli:main",
+            "softgrip_identify = softgrip_ros.tools.identify:main",
         ],
         # python-can finds this interface by name: can.Bus(interface="softgrip_ipc", channel=...)
         "can.interface": [

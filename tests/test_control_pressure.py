@@ -7,7 +7,7 @@ import pytest
 from softgrip_ros.control.pressure import (Fault, PressureMode, PressureControlConfig,
                                            PressureController, Source)
 from softgrip_ros.model.pneumatics import Valve
-from tests.helpers.closed_loop import rise_time_s, step_response
+from softgrip_ros.devtools.closed_loop import rise_time_s, step_response
 
 
 @pytest.mark.parametrize("seed", range(3))

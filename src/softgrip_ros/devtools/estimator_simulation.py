@@ -182,18 +182,20 @@ def run(trajectory: Trajectory, config: EstimatorConfig, plant: PneumaticPlant |
 
 
 def anees(filter_type: str, runs: int = 50, grid=np.linspace(0.25, 2.15, 120),
+          truth: PneumaticPlant | None = None, model: PneumaticPlant | None = None,
           **changes) -> tuple[np.ndarray, tuple]:
     """Average NEES over ``runs`` Monte Carlo runs at the times ``grid`` (truth with the filter's
     own process noise), and the two-sided 95 % interval chi2(2 runs)/runs for 2 states.
-    ``changes``: EstimatorConfig fields to set (``fusion_window_s``).
+    ``truth``: the plant the trajectories run on, ``model``: the filter's (both default to the
+    shipped assumptions). ``changes``: EstimatorConfig fields to set (``fusion_window_s``).
 
     The grid starts at 0.25 s: before the first fill the regulator is behind a closed valve,
     unobservable, and its prior (20 kPa) rightly exceeds its error."""
     q = process_noise_matrix(EstimatorConfig().process_noise_pa2_per_s)
     values = []
     for seed in range(runs):
-        trajectory = simulate(seed=1000 + seed, process_noise_pa2_per_s=q)
-        result = run(trajectory, config_for(trajectory, filter_type, **changes))
+        trajectory = simulate(seed=1000 + seed, process_noise_pa2_per_s=q, plant=truth)
+        result = run(trajectory, config_for(trajectory, filter_type, **changes), model)
         values.append(result.nees[np.minimum(np.searchsorted(result.t, grid), len(result.t) - 1)])
     return np.mean(values,
                    axis=0), (chi2.ppf(0.025, 2 * runs) / runs, chi2.ppf(0.975, 2 * runs) / runs)

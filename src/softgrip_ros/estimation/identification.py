@@ -302,7 +302,13 @@ def episodes_of(recording: Recording, biases: dict, rests: list | None = None) -
         values = [_readings_between(t, v - biases[n], start, rest_end)
                   for n, (t, v) in recording.sensors.items()]
         values = [v for v in values if len(v)]
-        start_gauge = float(np.mean(np.concatenate(values))) if values else 0.0
+        if not values:  # readings lost there (a log over DDS may lose some): the whole rest
+            values = [_readings_between(t, v - biases[n], rest_start, rest_end)
+                      for n, (t, v) in recording.sensors.items()]
+            values = [v for v in values if len(v)]
+        if not values:
+            continue  # no reading of where it starts: left out
+        start_gauge = float(np.mean(np.concatenate(values)))
         episodes.append(Episode(start, next_end, start_gauge))
     if not episodes:
         raise ValueError("no valve opened between two rests: nothing to fit the paths to")

@@ -69,6 +69,7 @@ def controller_status(output, link, header: Header, note: str) -> ControllerStat
         regulator_report_age_s=now - link.regulator_report_time,
         regulator_command_gauge_pressure_pa=output.regulator_setpoint_gauge_pa,
         regulator_enabled=output.regulator_enabled, valve_states=[int(v) for v in output.valves],
+        output_change_age_s=now - link.output_changed_time,
         frames_rx=link.frames_rx, frames_tx=link.frames_tx, frames_bad=link.frames_bad,
         last_sensor_frame_age_s=link.last_sensor_age_s(), fault_flags=int(output.fault_flags),
         message="; ".join(m for m in (output.message, note) if m))

@@ -1,0 +1,1 @@
+"""Installed user tools: softgrip_identify (and their log format)."""

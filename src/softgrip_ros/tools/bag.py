@@ -1,0 +1,79 @@
+"""rosbag2 logs (a directory: metadata.yaml and MCAP storage, each topic's message definition
+embedded), written and read with ``rosbags``, which needs no ROS install: ``ros2 bag info``,
+Foxglove and Python all read them. Messages go in as rclpy serialises them (CDR), and come out
+as rosbags' own objects (the same field names)."""
+from __future__ import annotations
+
+import pathlib
+
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+from softgrip_ros.config_paths import config_dir
+
+CUSTOM_PACKAGES = ("softgrip_interfaces",)
+
+
+def _message_files(package: str) -> list:
+    """The package's .msg files: its installed share, else the source tree's msg_defs/."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        share = pathlib.Path(get_package_share_directory(package)) / "msg"
+        if share.is_dir():
+            return sorted(share.glob("*.msg"))
+    except (ImportError, LookupError, ValueError):
+        pass
+    return sorted((config_dir().parent / "msg_defs" / "msg").glob("*.msg"))
+
+
+def typestore():
+    """ROS 2 Jazzy's standard types, and the suite's own from their .msg files."""
+    store = get_typestore(Stores.ROS2_JAZZY)
+    types = {}
+    for package in CUSTOM_PACKAGES:
+        for path in _message_files(package):
+            types.update(get_types_from_msg(path.read_text(), f"{package}/msg/{path.stem}"))
+    store.register(types)
+    return store
+
+
+class BagWriter:
+    """``with BagWriter(path) as bag: bag.write(topic, msgtype, stamp_ns, cdr_bytes)``; a
+    topic's connection is made at its first message. ``path`` must not exist yet."""
+
+    def __init__(self, path):
+        self.path = pathlib.Path(path)
+        self.store = typestore()
+        self._writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._connections = {}
+
+    def __enter__(self) -> "BagWriter":
+        self._writer.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._writer.close()
+
+    def write(self, topic: str, msgtype: str, stamp_ns: int, data: bytes) -> None:
+        connection = self._connections.get(topic)
+        if connection is None:
+            connection = self._connections[topic] = self._writer.add_connection(
+                topic, msgtype, typestore=self.store)
+        self._writer.write(connection, int(stamp_ns), data)
+
+
+def read(path):
+    """Every message of the log at ``path``, in time order: (topic, msgtype, stamp_ns, message);
+    ValueError when it is not a readable rosbag2 directory."""
+    store = typestore()
+    try:
+        with Reader(pathlib.Path(path)) as reader:
+            for connection, stamp_ns, data in reader.messages():
+                yield (connection.topic, connection.msgtype, stamp_ns,
+                       store.deserialize_cdr(data, connection.msgtype))
+    except (FileNotFoundError, NotADirectoryError) as error:
+        raise ValueError(f"{path} is not a rosbag2 directory: {error}") from None
+    except Exception as error:  # rosbags' own errors: a damaged or foreign log
+        if type(error).__module__.startswith("rosbags"):
+            raise ValueError(f"cannot read the log {path}: {error}") from None
+        raise

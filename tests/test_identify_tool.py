@@ -1,0 +1,154 @@
+"""softgrip_identify as a user runs it: its arguments, its log (rosbag2, MCAP) read back and
+fitted, and a live run on the installed controller that a sensor dropout stops, writing nothing
+and restoring the controller."""
+import subprocess
+import time
+
+import pytest
+
+from softgrip_ros.devtools import identification_sim
+from softgrip_ros.devtools.processes import installed_executable, stop_process
+from softgrip_ros.estimation import identification
+from softgrip_ros.model import plant_file
+from softgrip_ros.tools import bag, identify
+from tests.helpers.ros import spinning, unique, wait_for
+
+pytestmark = pytest.mark.ros
+
+
+def _run(*args, timeout=120):
+    return subprocess.run([installed_executable("softgrip_identify"), *args],
+                          capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--volume-m3", "5"], "--volume-m3 must lie in"),
+    (["--from-log", "/nonexistent"], "no rosbag2 log there"),
+    (["--timeout", "0"], "--timeout must be > 0"),
+])
+def test_bad_arguments_exit_2_with_the_reason(args, message):
+    result = _run(*args)
+    assert result.returncode == 2 and message in result.stderr
+
+
+def _log_of(recording: identification.Recording, base: plant_file.PlantDescription, path):
+    """A log as softgrip_identify writes it, from a recording made without ROS."""
+    import yaml
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import FluidPressure
+    from softgrip_interfaces.msg import ControllerStatus
+    from softgrip_ros.nodes.common import stamp_msg
+    from std_msgs.msg import String
+    rows = []
+    for name, (times, values) in recording.sensors.items():
+        for t, v in zip(times, values):
+            message = FluidPressure(fluid_pressure=float(v) + 101_325.0, variance=9e4)
+            message.header.stamp = stamp_msg(float(t))
+            rows.append((float(t), f"/pressure/sensor/{name}", "sensor_msgs/msg/FluidPressure",
+                         message))
+    report_times, report_values = recording.regulator
+    changes = iter(recording.inputs)
+    change, upcoming = next(changes), next(changes, None)
+    for t, value in zip(report_times, report_values):
+        while upcoming is not None and upcoming.time_s <= t:
+            change, upcoming = upcoming, next(changes, None)
+        status = ControllerStatus(
+            mode=ControllerStatus.MODE_IDENTIFY, regulator_actual_gauge_pressure_pa=float(value),
+            regulator_report_age_s=0.0, regulator_command_gauge_pressure_pa=float(
+                change.regulator_setpoint_pa), regulator_enabled=change.regulator_enabled,
+            valve_states=[change.valve], output_change_age_s=float(t) - change.time_s)
+        status.header.stamp = stamp_msg(float(t))
+        rows.append((float(t), "/controller/status", "softgrip_interfaces/msg/ControllerStatus",
+                     status))
+    rows.sort(key=lambda row: row[0])
+    info = {"format": "softgrip_identify/1", "held_out_from_s": recording.held_out_from_s,
+            "base_plant": plant_file.document(base), "base_plant_file": "shipped"}
+    with bag.BagWriter(path) as log:
+        log.write(identify.INFO_TOPIC, "std_msgs/msg/String", int(rows[0][0] * 1e9),
+                  serialize_message(String(data=yaml.safe_dump(info))))
+        for t, topic, msgtype, message in rows:
+            log.write(topic, msgtype, int(t * 1e9), serialize_message(message))
+    return path
+
+
+@pytest.mark.slow
+def test_a_log_reads_back_and_is_fitted_into_a_plant_file_with_its_report(tmp_path):
+    """The log format round trip (rosbags, MCAP), then the tool fits it: a plant file that
+    loads, with provenance, intervals and the measured volume, and its report and figure."""
+    truth = plant_file.default_description()
+    steps, held_out = identification.excitation(quick=True)
+    recording = identification_sim.record(truth, steps, held_out, seed=2)
+    start = 1_796_000_000.0  # ROS time, as a live log's stamps
+    recording.sensors = {n: (t + start, v) for n, (t, v) in recording.sensors.items()}
+    recording.regulator = (recording.regulator[0] + start, recording.regulator[1])
+    recording.inputs = [identification.InputChange(c.time_s + start, c.valve,
+                                                   c.regulator_setpoint_pa, c.regulator_enabled)
+                        for c in recording.inputs]
+    recording.held_out_from_s = held_out + start
+    log = _log_of(recording, truth, tmp_path / "recording")
+    assert (log / "metadata.yaml").is_file() and list(log.glob("*.mcap"))
+    back, info = identify.recording_from_log(log)
+    assert len(back.sensors["chamber_a"][0]) == len(recording.sensors["chamber_a"][0])
+    assert [c.valve for c in back.inputs] == [c.valve for c in recording.inputs]
+    assert back.held_out_from_s == pytest.approx(recording.held_out_from_s)
+    result = _run("--from-log", str(log), "--output", str(tmp_path / "out"), "--volume-m3",
+                  "2e-5", timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+    written = plant_file.load(tmp_path / "out" / "plant.yaml")
+    assert written.provenance["source"] == "identified"
+    assert written.details["chamber_volume_m3"]["source"] == "measured"
+    assert "ci95" in written.details["supply_conductance"]
+    assert written.parameters.supply_conductance == pytest.approx(1e-9, rel=0.05)
+    report = (tmp_path / "out" / "identification.md").read_text()
+    assert "| `supply_conductance` |" in report and "identification.png" in report
+    assert (tmp_path / "out" / "identification.png").stat().st_size > 10_000
+    again = _run("--from-log", str(log), "--output", str(tmp_path / "out"))
+    assert again.returncode == 2 and "exists" in again.stderr
+
+
+@pytest.mark.slow
+def test_a_sensor_dropout_stops_a_live_run_which_vents_restores_and_writes_nothing(tmp_path):
+    """The installed controller and device on an inter-process bus; chamber_a silenced mid-run."""
+    import rclpy
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import GetParameters, SetParameters
+
+    channel = unique("identify")
+    ros_args = ["--ros-args", "-p", "can.interface:=softgrip_ipc", "-p",
+                f"can.channel:={channel}"]
+    logs = open(tmp_path / "processes.log", "w+")
+    device = subprocess.Popen([installed_executable("sim_device"), *ros_args], stdout=logs,
+                              stderr=subprocess.STDOUT)
+    controller = subprocess.Popen([installed_executable("controller"), *ros_args], stdout=logs,
+                                  stderr=subprocess.STDOUT)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("identify_test", context=context)
+    try:
+        with spinning(context, node, threads=1):
+            time.sleep(2.0)
+            run = subprocess.Popen([installed_executable("softgrip_identify"), "--output",
+                                    str(tmp_path / "out"), "--quick", "--timeout", "30"],
+                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            setter = node.create_client(SetParameters, "/sim_device/set_parameters")
+            assert setter.wait_for_service(timeout_sec=20.0)
+            time.sleep(5.0)  # into the excitation
+            future = setter.call_async(SetParameters.Request(parameters=[Parameter(
+                name="fault.sensor_dropout", value=ParameterValue(
+                    type=ParameterType.PARAMETER_STRING, string_value="chamber_a"))]))
+            wait_for(future.done, message="the fault set")
+            out, err = run.communicate(timeout=120)
+            assert run.returncode == 1, out + err
+            assert "stopped: sensor chamber_a silent" in err and "nothing written" in err
+            assert not (tmp_path / "out").exists()
+            getter = node.create_client(GetParameters, "/pressure_controller/get_parameters")
+            assert getter.wait_for_service(timeout_sec=10.0)
+            future = getter.call_async(GetParameters.Request(names=["identification_mode"]))
+            wait_for(future.done, message="identification_mode read")
+            assert future.result().values[0].bool_value is False  # restored
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)
+        codes = [stop_process(p, timeout_s=15.0) for p in (controller, device)]
+        logs.close()
+    assert codes == [0, 0], (tmp_path / "processes.log").read_text()[-3000:]
