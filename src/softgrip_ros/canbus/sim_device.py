@@ -324,27 +324,18 @@ class SimulatedDevice:
             expires = open_for < dt and not stuck
             if expires and any(v in SOURCE_VALVES for v in inputs.valves):
                 if open_for > 0.0:
-                    self._state = self._integrate(self._state, inputs, open_for)
+                    self._state = self.plant.step(self._state, inputs, open_for)
                     dt -= open_for
                 valves = tuple(Valve.CLOSED if v in SOURCE_VALVES else v for v in inputs.valves)
                 inputs = dataclasses.replace(inputs, valves=valves)
                 self._inputs = dataclasses.replace(self._inputs, valves=valves)
-            self._state = self._integrate(self._state, inputs, dt)
+            self._state = self.plant.step(self._state, inputs, dt)
             if stuck:
                 # what the valves really do
                 self._inputs = dataclasses.replace(self._inputs, valves=inputs.valves)
             gauge = self._state.chamber_pa - P_ATM_PA
             self._true_low, self._true_high = min(self._true_low, float(gauge.min())), max(
                 self._true_high, float(gauge.max()))
-
-    def _integrate(self, state, inputs, dt: float):
-        """The plant over ``dt`` in steps of at most one plant period: a late tick integrates the
-        time it missed as the punctual ones would have (one long backward-Euler step damps a fast
-        vent: a simulated chamber that then differs from a real one, which has no step at all)."""
-        steps = max(1, math.ceil(dt * self.config.plant_rate_hz - 1e-9))
-        for _ in range(steps):
-            state = self.plant.step(state, inputs, dt / steps)
-        return state
 
     def _send_sensor(self, sensor: SensorSpec) -> None:
         with self._lock:
