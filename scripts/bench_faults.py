@@ -108,18 +108,31 @@ def main(argv=None) -> int:
     parser.add_argument("--phases", nargs="+", choices=PHASES, help="only these phases")
     parser.add_argument("--grasps", type=int, default=None,
                         help="fault-free grasps (default 20; --quick 2)")
+    parser.add_argument(
+        "--retries", type=int, default=0,
+        help="run a failed case again this many times when the true pressure stayed within the "
+        "limits (a limit violation is never run again); each retry is reported (default 0)")
     args = parser.parse_args(argv)
     grasps = args.grasps if args.grasps is not None else (2 if args.quick else 20)
-    if grasps < 0:
-        parser.error("--grasps must be >= 0")
+    if grasps < 0 or args.retries < 0:
+        parser.error("--grasps and --retries must be >= 0")
     todo = cases(args)
     started = time.monotonic()
-    results = []
+    results, retried = [], []
     rclpy.init()
     try:
         with Rig() as rig:
             for index, (fault, phase) in enumerate(todo, 1):
                 result = run_case(rig, fault, phase)
+                for _ in range(args.retries):
+                    if result.passed or not result.within_limits:
+                        break
+                    retried.append({"fault": fault.name, "phase": phase,
+                                    "problem": result.problem or result.end_state})
+                    print(f"[{index}/{len(todo)}] {fault.name} {phase}: failed "
+                          f"({result.problem or result.end_state}); once more",
+                          file=sys.stderr, flush=True)
+                    result = run_case(rig, fault, phase)
                 results.append(result)
                 print(
                     f"[{index}/{len(todo)}] {fault.name:24s} {phase:9s} "
@@ -136,7 +149,8 @@ def main(argv=None) -> int:
     figures = {
         **summary, "case_list": [[r.fault, r.phase] for r in results],
         "false_alarms_fault_free": false_count, "fault_free_grasps": grasps,
-        "fault_free_warnings": warnings[:20], "seconds": round(seconds, 1), "failures": [{
+        "fault_free_warnings": warnings[:20], "seconds": round(seconds, 1), "retried": retried,
+        "failures": [{
             "fault": r.fault, "phase": r.phase, "problem": r.problem or r.end_state,
             "within_limits": r.within_limits, "detected": r.detected,
             "end_state_ok": r.end_state_ok, "recovered": r.recovered
