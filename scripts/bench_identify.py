@@ -131,6 +131,7 @@ def evaluate(truth: plant_file.PlantDescription, identified_path: pathlib.Path,
             identified.sensors[name].noise_std_pa / model.noise_std_pa - 1.0)
         figures[f"{name}_bias_error_pa"] = identified.sensors[name].bias_pa - model.bias_pa
     provenance = identified.provenance
+    figures["fit_flags"] = len(provenance.get("flags", []))
     figures["validation_rmse_over_noise"] = float(provenance["validation_rmse_over_noise"])
     figures["fit_s"] = float(provenance["fit_s"])
     for label, model in (("default", shipped), ("identified", identified)):
@@ -174,6 +175,7 @@ def markdown(rows: list, command: str, seconds: float) -> str:
                         "(<= 0.2)"),
                        ("nees_default", "ANEES, default file"),
                        ("nees_identified", "ANEES, identified"),
+                       ("fit_flags", "flags the fit raised (values and residuals)"),
                        ("excitation_s", "excitation (gripper s, <= 60)"),
                        ("fit_s", "fit (s, <= 60)")):
         cells = []

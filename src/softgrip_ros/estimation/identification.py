@@ -32,8 +32,9 @@ the conductances and compliances are only as right as that volume.
 Confidence intervals come from the Jacobian at the optimum (the Gauss-Newton covariance, scaled by
 the residual variance). A value is flagged, and never written silently, when its 95 % interval
 is wider than +-25 %, when the data do not excite it (the interval is then wide, or its column of
-the Jacobian vanishes), or when a sensor's normalised residuals are clearly not white (lag-one
-autocorrelation above ``WHITENESS_LIMIT``).
+the Jacobian vanishes); the whole fit, when a sensor's normalised residuals are clearly not white
+(lag-one autocorrelation above ``WHITENESS_LIMIT``), its residuals exceed 1.5x the noise, or the
+held-out excitation is predicted worse than ``VALIDATION_LIMIT`` times the noise.
 """
 from __future__ import annotations
 
@@ -53,6 +54,7 @@ HOLD_S = 0.2  # valves closed this long: the chamber rests where it is (a segmen
 REST_TAIL_S = 0.1  # the last part of a rest: the readings averaged for the bias and the start
 WHITENESS_LIMIT = 0.5  # |lag-one autocorrelation| of a sensor's normalised residuals
 RELATIVE_CI_LIMIT = 0.25  # a 95 % interval wider than +-25 % of the value is flagged
+VALIDATION_LIMIT = 1.5  # the held-out excitation's RMSE over the noise above this is flagged
 NEWTON_ITERATIONS = 40
 STAGE3 = ("supply_conductance", "vacuum_conductance", "vent_conductance", "supply_critical_ratio",
           "vacuum_critical_ratio", "vent_critical_ratio", "chamber_compliance_m3_per_pa",
@@ -600,6 +602,10 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
             predicted = held.simulate([fitted])[0]
             validation = float(np.sqrt(np.mean((predicted - held.measured)**2)))
     rms_noise = float(np.sqrt(np.mean([n**2 for n in noises.values()])))
+    if validation / rms_noise > VALIDATION_LIMIT:
+        flags.append(f"the held-out excitation is predicted at {validation / rms_noise:.1f}x the "
+                     f"sensors' noise (at most {VALIDATION_LIMIT:g}): the fitted model does not "
+                     "generalise; do not use it as it stands")
     predicted = stage3.fun / grid.weight + grid.measured
     for name in recording.sensors:
         mine = grid.names == name

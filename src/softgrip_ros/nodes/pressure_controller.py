@@ -53,7 +53,7 @@ class PressureControllerNode(LifecycleNode):
             pressure_control_config(self.values), PneumaticPlant(self.plant.parameters),
             {name: model.noise_std_pa for name, _, model in self.sensors})
         self.add_on_set_parameters_callback(self._on_set)
-        self.status_pub = self.create_publisher(ControllerStatus, "controller/status", 10)
+        self.status_pub = self.create_publisher(ControllerStatus, "controller/status", 100)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.sensor_pubs = {}
         # in-process consumers of the readings: f([(name, gauge_pa, stamp_s)]) per batch
