@@ -332,26 +332,30 @@ def test_identification_mode_is_set_only_while_inactive_and_takes_its_own_topic(
                                         "/pressure_controller/identification_command", 10)
     wait_for(lambda: normal.get_subscription_count() and open_loop.get_subscription_count(),
              message="the controller's subscriptions")
-    controller.trigger_deactivate()
-    assert controller.set_parameters([Parameter("identification_mode", value=True)])[0].successful
-    controller.trigger_activate()
-    normal.publish(PressureCommand(target_gauge_pressure_pa=20e3, max_rate_pa_per_s=math.nan,
-                                   source=PressureCommand.SUPPLY))
+
+    def switch(on: bool) -> None:  # the mode changes only while inactive
+        controller.trigger_deactivate()
+        result = controller.set_parameters([Parameter("identification_mode", value=on)])[0]
+        assert result.successful
+        controller.trigger_activate()
+
+    def command(publisher, target_pa: float, source: int) -> None:
+        publisher.publish(PressureCommand(target_gauge_pressure_pa=target_pa,
+                                          max_rate_pa_per_s=math.nan, source=source))
+
+    switch(True)
+    command(normal, 20e3, PressureCommand.SUPPLY)
     time.sleep(0.3)
     assert device.device.valves() != (Valve.SUPPLY,)  # pressure/command ignored
-    open_loop.publish(PressureCommand(target_gauge_pressure_pa=15e3, max_rate_pa_per_s=math.nan,
-                                      source=PressureCommand.SUPPLY))
+    command(open_loop, 15e3, PressureCommand.SUPPLY)
     wait_for(lambda: device.device.valves() == (Valve.SUPPLY,), message="the supply valve open")
     wait_for(lambda: abs(device.device.chamber_gauge_pa() - 15e3) < 1e3,
              message="the chamber at the regulator's 15 kPa")
     assert statuses[-1].mode == ControllerStatus.MODE_IDENTIFY
     assert statuses[-1].regulator_command_gauge_pressure_pa == 15e3
     assert 0.0 <= statuses[-1].regulator_report_age_s < 0.1
-    controller.trigger_deactivate()
-    assert controller.set_parameters([Parameter("identification_mode", value=False)])[0].successful
-    controller.trigger_activate()
-    open_loop.publish(PressureCommand(target_gauge_pressure_pa=0.0, max_rate_pa_per_s=math.nan,
-                                      source=PressureCommand.VACUUM))
+    switch(False)
+    command(open_loop, 0.0, PressureCommand.VACUUM)
     time.sleep(0.3)
     assert device.device.valves() != (Valve.VACUUM,)  # the identification topic is ignored now
 
