@@ -55,6 +55,8 @@ def markdown(results, summary, false_count, warnings, grasps, seconds, command) 
         f"| `limit_violations` | {summary['limit_violations']} of {summary['cases']} | 0 |",
         f"| `false_alarms_fault_free` | {false_count} over {grasps} grasps | 0 |",
         f"| `undetected` | {summary['undetected']} | 0 |",
+        f"| `not_run` (the grasp could not reach the phase; no fault injected) | "
+        f"{summary['not_run']} | 0 |",
         f"| `wrong_end_state` | {summary['wrong_end_state']} | 0 |",
         f"| `not_recovered` | {summary['not_recovered']} | 0 |",
         f"| true pressure range | {summary['true_range_pa'][0] / 1e3:.1f} to "
@@ -125,8 +127,8 @@ def main(argv=None) -> int:
             for index, (fault, phase) in enumerate(todo, 1):
                 result = run_case(rig, fault, phase)
                 for _ in range(args.retries):
-                    if result.passed or not result.within_limits:
-                        break
+                    if result.passed or (result.injected and not result.within_limits):
+                        break  # a limit violation is never run again
                     retried.append({"fault": fault.name, "phase": phase,
                                     "problem": result.problem or result.end_state})
                     print(f"[{index}/{len(todo)}] {fault.name} {phase}: failed "

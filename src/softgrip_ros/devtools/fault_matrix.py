@@ -118,6 +118,7 @@ class CaseResult:
     end_state: str = ""
     recovered: bool = False
     problem: str = ""
+    injected: bool = False  # the grasp reached its phase and the fault went in
 
     @property
     def passed(self) -> bool:
@@ -397,6 +398,7 @@ def run_case(rig: Rig, case: FaultCase, phase: str) -> CaseResult:
     rig.device.reset_true_extremes()
     injected = time.monotonic()
     _inject(rig, case)
+    result.injected = True
     deadline = injected + OBSERVE_S
     _script_on(rig, phase, deadline)
     while time.monotonic() < deadline and rig.evidence_since(injected, case) is None:
@@ -444,18 +446,21 @@ def summarise(results: list) -> dict:
     for r in results:
         if r.detected:
             latencies.setdefault(r.fault, []).append(r.detection_s)
+    ran = [r for r in results if r.injected]
     return {
         "cases": len(results),
-        "limit_violations": sum(not r.within_limits for r in results),
-        "undetected": sum(not r.detected for r in results),
-        "wrong_end_state": sum(not r.end_state_ok for r in results),
-        "not_recovered": sum(not r.recovered for r in results),
+        # a case whose grasp could not reach its phase never injected its fault: counted apart
+        "not_run": len(results) - len(ran),
+        "limit_violations": sum(not r.within_limits for r in ran),
+        "undetected": sum(not r.detected for r in ran),
+        "wrong_end_state": sum(not r.end_state_ok for r in ran),
+        "not_recovered": sum(not r.recovered for r in ran),
         "detection_s": {
             fault: {"median": statistics.median(v), "max": max(v)}
             for fault, v in latencies.items()
         },
         "true_range_pa": [
-            min(r.true_low_pa for r in results),
-            max(r.true_high_pa for r in results)
+            min((r.true_low_pa for r in ran), default=NAN),
+            max((r.true_high_pa for r in ran), default=NAN)
         ],
     }
