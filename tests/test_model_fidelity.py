@@ -120,6 +120,24 @@ def test_l2_in_a_process_of_its_own_gives_the_same_solution():
     assert apart.contact_force_n == pytest.approx(here.contact_force_n, rel=1e-9)
 
 
+def test_closing_the_solver_process_ends_a_running_solve_at_once():
+    """A SIGTERM'd controller closes it; a niced solve on a loaded host takes seconds, and close
+    once waited for it past the stop timeout (seen in CI)."""
+    import os
+    import time
+    from concurrent.futures.process import BrokenProcessPool
+    solver = RodSolverProcess("type_II", nice_increment=0)
+    pid = solver._child_pid.result(timeout=30.0)
+    running = solver._executor.submit(time.sleep, 60.0)
+    time.sleep(0.2)
+    solver.close()
+    # had close waited, the sleep would have ended normally
+    with pytest.raises(BrokenProcessPool):
+        running.result(timeout=5.0)
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)  # ended and reaped
+
+
 def test_the_solve_thread_solves_the_latest_request_and_reports_failures():
     """While a solve runs, newer requests replace each other: the latest pressure is solved next,
     the ones between never. A failing solve is reported and the thread goes on."""

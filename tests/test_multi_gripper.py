@@ -72,6 +72,11 @@ def test_a_grasp_on_one_gripper_leaves_the_other_idle_and_each_names_its_own_fra
         assert all(j.startswith(f"{name}_") for j in joints[-1].name)
         assert f"{name}_tip_spacing" in joints[-1].name
     assert g1.release()
-    wait_for(lambda: g1.is_task_complete() and g1.state().phase == S.IDLE, timeout=10.0,
-             message="g1 released")
+    # generous: the test is about two grippers apart, and on a loaded 2-core host two controllers
+    # and this process share it
+    try:
+        wait_for(g1.is_task_complete, timeout=20.0, message="g1's RELEASE to end")
+    except AssertionError as error:
+        raise AssertionError(f"{error}; grasp_state: {g1.state().message!r}") from None
+    assert g1.state().phase == S.IDLE, (g1.state().phase, g1.state().message)
     assert g2.state().phase == S.IDLE

@@ -14,12 +14,19 @@ def installed_executable(name: str) -> str:
 
 def stop_process(process: subprocess.Popen, timeout_s: float = 10.0) -> int | None:
     """SIGTERM ``process`` (only this one, by its PID) if it still runs, wait, kill it if it will
-    not stop; its return code, or None when it had to be killed."""
+    not stop; its return code, or None when it had to be killed. Before the kill it gets SIGUSR1:
+    the package's executables then print every thread's stack (run_node registers it), which
+    says where it hung; anything else ends on it, as it would on the kill."""
     if process.poll() is None:
         process.send_signal(signal.SIGTERM)
         try:
             process.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
+            process.send_signal(signal.SIGUSR1)
+            try:
+                process.wait(timeout=2.0)
+            except subprocess.TimeoutExpired:
+                pass
             process.kill()
             process.wait()
             return None

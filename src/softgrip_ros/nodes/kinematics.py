@@ -59,10 +59,10 @@ class KinematicsNode(Node):
         # L2 runs in a process of its own: in this one it would starve the controller's threads of
         # the GIL
         self.rod_solver = (RodSolverProcess(
-            self.values["cavity_type"], self.values["l2_nice_increment"], ROD_CONTINUATION_STEPS)
+            self.values["gripper_model"], self.values["l2_nice_increment"], ROD_CONTINUATION_STEPS)
                            if self.values["fidelity"] in ("l2", "auto") else None)
         self.model = SceneModel(self.values["fidelity"], self.values["tolerance_m"],
-                                self.values["cavity_type"],
+                                self.values["gripper_model"],
                                 resolve_pressure_pa=self.values["resolve_pressure_pa"],
                                 min_solve_interval_s=self.values["min_solve_interval"],
                                 rod_solver=self.rod_solver)
@@ -95,9 +95,10 @@ class KinematicsNode(Node):
         self.periodic.stop()
         with self._lock:
             self.closed = True
-        self.solver.close()
-        if self.rod_solver is not None:
+        self.solver.stop()
+        if self.rod_solver is not None:  # first: it ends a running solve the thread waits on
             self.rod_solver.close()
+        self.solver.close()
 
     def on_scene(self, scene: Scene) -> None:
         """What the fingers meet from now on (the grasp manager's call)."""

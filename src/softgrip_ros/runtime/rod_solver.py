@@ -65,23 +65,36 @@ class RodSolverProcess:
 
     continuation_steps: the load steps of each solve (SceneModel's ROD_CONTINUATION_STEPS)."""
 
-    def __init__(self, cavity_type: str = "type_II",
+    def __init__(self, gripper_model: str = "type_II",
                  nice_increment: int = SOLVER_PROCESS_NICE_INCREMENT, continuation_steps: int = 4):
         if not 0 <= nice_increment <= 19:
             raise ValueError(f"nice_increment must lie in [0, 19], got {nice_increment}")
         self._executor = ProcessPoolExecutor(
             1, mp_context=multiprocessing.get_context("spawn"), initializer=_start_rod_worker,
-            initargs=(cavity_type, nice_increment, os.getpid(), continuation_steps))
+            initargs=(gripper_model, nice_increment, os.getpid(), continuation_steps))
         with _environment_defaults(SOLVER_PROCESS_ENVIRONMENT), _sigint_blocked_for_children():
-            # start the child now (about a second), not at the first solve
-            self._executor.submit(int)
+            # start the child now (about a second), not at the first solve; its PID lets close
+            # end it by PID
+            self._child_pid = self._executor.submit(os.getpid)
 
     def __call__(self, pressure_pa: float, obstacle, from_pressure_pa: float):
         return self._executor.submit(_solve_in_rod_worker, pressure_pa, obstacle,
                                      from_pressure_pa).result()
 
-    def close(self) -> None:
-        self._executor.shutdown(wait=True, cancel_futures=True)
+    def close(self, timeout_s: float = 5.0) -> None:
+        """End the child now, a solve in it or not: a niced solve on a loaded host can take
+        seconds, and waiting for it held a SIGTERM'd controller past its stop timeout. A caller
+        waiting in :meth:`__call__` gets BrokenProcessPool."""
+        self._executor.shutdown(wait=False, cancel_futures=True)
+        try:
+            pid = self._child_pid.result(timeout=timeout_s)
+        except Exception:  # noqa: BLE001 - never started, or cancelled: nothing runs
+            pid = None
+        if pid is not None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGTERM)
+        # the executor's manager thread sees its child gone, reaps it and ends
+        self._executor.shutdown(wait=True)
 
 
 class LatestSolveThread:
@@ -104,10 +117,15 @@ class LatestSolveThread:
             self._request = (pressure_pa, scene, stamp_s)
             self._wanted.notify()
 
-    def close(self) -> None:
+    def stop(self) -> None:
+        """No solve after the running one; a failure from now on is not reported (closing the
+        solver process fails the running one)."""
         with self._wanted:
             self._closed = True
             self._wanted.notify_all()
+
+    def close(self) -> None:
+        self.stop()
         self._thread.join(timeout=2.0)
 
     def _run(self) -> None:
@@ -121,7 +139,7 @@ class LatestSolveThread:
             try:
                 self.model.solve_rod(pressure, scene, stamp_s)
             except Exception as error:  # noqa: BLE001 - a failed solve must not end the thread
-                if self.on_error is not None:
+                if self.on_error is not None and not self._closed:
                     self.on_error(pressure, error)
 
 
@@ -139,7 +157,7 @@ def _exit_with_parent(parent_pid: int) -> None:
     os._exit(0)
 
 
-def _start_rod_worker(cavity_type: str, nice_increment: int, parent_pid: int,
+def _start_rod_worker(gripper_model: str, nice_increment: int, parent_pid: int,
                       continuation_steps: int) -> None:
     # Ctrl-C in a terminal reaches the whole process group: the parent decides when this child
     # ends (close()), and a KeyboardInterrupt here would only print a traceback. Born with SIGINT
@@ -153,7 +171,7 @@ def _start_rod_worker(cavity_type: str, nice_increment: int, parent_pid: int,
     # the heavy imports, once watched
     from softgrip_ros.model.calibration import build_kinematics
     from softgrip_ros.model.rod import RodFinger
-    l1 = build_kinematics("l1", cavity_type)
+    l1 = build_kinematics("l1", gripper_model)
     _WORKER.update(rod=RodFinger(l1.geometry, l1.calibration), steps=continuation_steps)
 
 
