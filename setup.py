@@ -39,6 +39,7 @@ setup(
             "controller = softgrip_ros.nodes.controller:main",
             "softgrip = softgrip_ros.cli:main",
             "softgrip_identify = softgrip_ros.tools.identify:main",
+            "softgrip_calibrate = softgrip_ros.tools.calibrate:main",
         ],
         # python-can finds this interface by name: can.Bus(interface="softgrip_ipc", channel=...)
         "can.interface": [

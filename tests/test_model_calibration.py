@@ -47,7 +47,7 @@ def test_type_ii_accuracy_targets():
 
 def test_each_type_meets_its_own_alpha():
     for name in ("type_I", "type_II", "type_III"):
-        kin = calibration.build_kinematics("l0", cavity_type=name)
+        kin = calibration.build_kinematics("l0", gripper_model=name)
         expected = math.degrees(PAPER.alpha_25kpa_rad[name])
         angle_deg = math.degrees(kin.pose(25e3).included_angle_rad)
         assert angle_deg == pytest.approx(expected, rel=1e-6), name

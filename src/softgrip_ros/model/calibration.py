@@ -193,10 +193,10 @@ def load_calibration(cavity_type: str = "type_II", path=None) -> BendingCalibrat
     return BendingCalibration(**{k: float(v) for k, v in entry.items()})
 
 
-def build_kinematics(model: str = "l0", cavity_type: str = "type_II",
-                     max_pressure_pa: float = 50e3, geometry_path=None,
-                     calibration_path=None) -> GripperKinematics:
-    """The calibrated model of one cavity type, from the packaged configuration."""
-    return GripperKinematics(load_geometry(cavity_type, geometry_path),
-                             load_calibration(cavity_type, calibration_path), model=model,
-                             max_pressure_pa=max_pressure_pa)
+def build_kinematics(model: str = "l0", gripper_model: str = "type_II",
+                     max_pressure_pa: float = 50e3) -> GripperKinematics:
+    """The calibrated model of one gripper: a built-in cavity type or a user's calibration
+    (see softgrip_ros.model.gripper_models)."""
+    from softgrip_ros.model.gripper_models import resolve
+    geometry, calibration = resolve(gripper_model)
+    return GripperKinematics(geometry, calibration, model=model, max_pressure_pa=max_pressure_pa)

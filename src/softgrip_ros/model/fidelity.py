@@ -217,13 +217,13 @@ class SceneModel:
     falls back to L1 (which ignores the object) and says so."""
 
     def __init__(self, fidelity: str = "auto", tolerance_m: float = 1e-3,
-                 cavity_type: str = "type_II", max_pressure_pa: float = 60e3,
+                 gripper_model: str = "type_II", max_pressure_pa: float = 60e3,
                  bounds: ErrorBounds | None = None, resolve_pressure_pa: float = 200.0,
                  min_solve_interval_s: float = 0.1, rod_solver=None):
         """rod_solver(pressure_pa, obstacle, from_pressure_pa) -> RodSolution; default:
         ``self.rod`` in the calling thread (see :class:`RodSolverProcess` for a process of its
         own)."""
-        self.free = {m: build_kinematics(m, cavity_type, max_pressure_pa) for m in ("l0", "l1")}
+        self.free = {m: build_kinematics(m, gripper_model, max_pressure_pa) for m in ("l0", "l1")}
         # microseconds a pose, within 0.1 um
         self.tips = {m: TipTable(k) for m, k in self.free.items()}
         l1 = self.free["l1"]

@@ -121,17 +121,31 @@ def default_geometry_path() -> pathlib.Path:
 
 
 def load_geometry(cavity_type: str | None = None, path=None) -> FingerGeometry:
-    """Load one cavity type (default: the file's ``default_type``) from the geometry YAML."""
+    """One finger type (default: the file's ``default_type``) from a geometry YAML: the format
+    of config/gripper_geometry.yaml (``types``, each maybe ``based_on`` another), or a user's
+    file holding one finger's fields at its top level. ValueError naming what is wrong."""
     path = pathlib.Path(path) if path is not None else default_geometry_path()
-    with path.open() as handle:
-        document = yaml.safe_load(handle)
-    if not isinstance(document, dict) or not isinstance(document.get("types"), dict):
-        raise ValueError(f"{path}: expected a mapping with a 'types' section")
+    try:
+        document = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as error:
+        raise ValueError(f"{path}: not YAML: {error}") from None
+    except OSError as error:
+        raise ValueError(f"{path}: cannot read: {error.strerror}") from None
+    if not isinstance(document, dict):
+        raise ValueError(f"{path}: expected a mapping of geometry fields or a 'types' section")
+    if "types" not in document:
+        return geometry_from_fields(document, cavity_type or path.stem, path)
     types = document["types"]
+    if not isinstance(types, dict):
+        raise ValueError(f"{path}: 'types' must map type names to their fields")
     cavity_type = cavity_type or document.get("default_type", "type_II")
     if cavity_type not in types:
         raise ValueError(f"{path}: unknown cavity type {cavity_type!r}; known: {sorted(types)}")
-    fields = _resolve(types, cavity_type, path, seen=())
+    return geometry_from_fields(_resolve(types, cavity_type, path, seen=()), cavity_type, path)
+
+
+def geometry_from_fields(fields: dict, name: str, path) -> FingerGeometry:
+    """A FingerGeometry from the YAML fields (angles ``*_deg``); ValueError naming the field."""
     known = {f.name for f in dataclasses.fields(FingerGeometry)}
     renamed = {
         "inclination_deg": "inclination_rad",
@@ -140,13 +154,22 @@ def load_geometry(cavity_type: str | None = None, path=None) -> FingerGeometry:
     values = {}
     for key, value in fields.items():
         target = renamed.get(key, key)
-        if target not in known:
-            raise ValueError(f"{path}: {cavity_type}: unknown field {key!r}")
+        if target not in known or target == "name":
+            raise ValueError(f"{path}: {name}: unknown field {key!r}")
+        depths = target == "chamber_depths_m"
+        numbers = value if depths and isinstance(value, list) else [value]
+        if (depths and not isinstance(value, list)) or not all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in numbers):
+            raise ValueError(f"{path}: {name}: {key} must be "
+                             f"{'a list of numbers' if depths else 'a number'}, got {value!r}")
         values[target] = math.radians(value) if key in renamed else value
     missing = known - set(values) - {"name"}
     if missing:
-        raise ValueError(f"{path}: {cavity_type}: missing fields {sorted(missing)}")
-    return FingerGeometry(name=cavity_type, **values)
+        raise ValueError(f"{path}: {name}: missing fields {sorted(missing)}")
+    try:
+        return FingerGeometry(name=name, **values)
+    except ValueError as error:
+        raise ValueError(f"{path}: {error}") from None
 
 
 def _resolve(types: dict, name: str, path, seen: tuple) -> dict:

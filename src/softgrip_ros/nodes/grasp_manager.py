@@ -51,9 +51,9 @@ class GraspManagerNode(Node):
             specs, params, lambda _: "grasp_manager parameters apply at start-up: restart the node"
         ))
         config, force_law = grasp_config(v), clamp_force_law(v)
-        kinematics = build_kinematics(v["fidelity"], v["cavity_type"],
+        kinematics = build_kinematics(v["fidelity"], v["gripper_model"],
                                       max_pressure_pa=v["max_gauge_pressure_pa"])
-        scene_model = SceneModel(v["scene_fidelity"], v["tolerance_m"], v["cavity_type"])
+        scene_model = SceneModel(v["scene_fidelity"], v["tolerance_m"], v["gripper_model"])
         self.fsm = GraspStateMachine(kinematics, config, force_law, scene_model)
         self.scene = FREE
         self.scene_listeners = []  # in-process: kinematics.on_scene

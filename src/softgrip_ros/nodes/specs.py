@@ -14,7 +14,12 @@ from softgrip_ros.model.grasp import ClampForceLaw
 from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, replace_fields
 from softgrip_ros.runtime.rod_solver import SOLVER_PROCESS_NICE_INCREMENT
 
-CAVITY_TYPES = ("type_I", "type_II", "type_III")
+
+
+def _gripper_model_spec() -> ParamSpec:
+    return ParamSpec("gripper_model", "type_II", "the fingers' model: a paper cavity type "
+                     "(type_I, type_II, type_III), a softgrip_calibrate calibration's name, or "
+                     "its file")
 
 
 def plant_file_spec(uses: str) -> ParamSpec:
@@ -270,8 +275,7 @@ KINEMATICS_SPECS = [
         "l2_nice_increment", SOLVER_PROCESS_NICE_INCREMENT, "added to the nice value of "
         "the L2 solver's child process, so that its solves yield the CPU to the pressure "
         "loop, the CAN reception and the estimator", "", 0, 19),
-    ParamSpec("cavity_type", "type_II", "finger type of config/gripper_geometry.yaml",
-              choices=CAVITY_TYPES),
+    _gripper_model_spec(),
     ParamSpec("frame_id", "softgrip_base", "frame of the tip poses and markers (after prefix)"),
     ParamSpec("prefix", "", "put before every joint and frame name, as the URDF's prefix does "
               "(several grippers in one robot)", allow_empty=True),
@@ -317,8 +321,7 @@ CLAMP_FORCE_SPECS = [
               10.0, field="safety_factor"),
 ]
 GRASP_MANAGER_SPECS = [
-    ParamSpec("cavity_type", "type_II", "finger type of config/gripper_geometry.yaml",
-              choices=CAVITY_TYPES),
+    _gripper_model_spec(),
     ParamSpec("fidelity", "l0", "bending law of the grasp model (opening pressures, D2)",
               choices=("l0", "l1")),
     ParamSpec("scene_fidelity", "auto", "model reported in grasp_state for the scene: as the "
