@@ -71,14 +71,17 @@ def test_gripper_command_opens_then_closes_with_its_effort(suite):
     assert response.result.reached_goal and not response.result.stalled
     assert response.result.position == pytest.approx(0.05, abs=TOLERANCE_M)
     assert feedback and all(f.feedback.position >= 0.0 for f in feedback)
-    assert client.state().phase == GripperState.ENVELOPED
+    # grasp_state is its own topic: its ENVELOPED may land just after the result
+    wait_for(lambda: client.state().phase == GripperState.ENVELOPED, timeout=2.0,
+             message="grasp_state ENVELOPED")
     _, closed = send(action, gripper_goal(0.03, max_effort_n=3.0))
     response = result_of(closed)
     assert response.status == GoalStatus.STATUS_SUCCEEDED, response
     assert response.result.reached_goal and not response.result.stalled
     law = nodes["grasp_manager"].fsm.force_law
     assert response.result.effort == pytest.approx(3.0, abs=2e3 * law.stiffness_n_per_pa)
-    assert client.state().phase == GripperState.HOLDING
+    wait_for(lambda: client.state().phase == GripperState.HOLDING, timeout=2.0,
+             message="grasp_state HOLDING")
     assert client.stop()
     wait_for(lambda: client.is_task_complete() and client.state().phase == GripperState.IDLE,
              message="IDLE after stop")

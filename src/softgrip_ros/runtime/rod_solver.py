@@ -72,10 +72,19 @@ class RodSolverProcess:
         self._executor = ProcessPoolExecutor(
             1, mp_context=multiprocessing.get_context("spawn"), initializer=_start_rod_worker,
             initargs=(gripper_model, nice_increment, os.getpid(), continuation_steps))
-        with _environment_defaults(SOLVER_PROCESS_ENVIRONMENT), _sigint_blocked_for_children():
-            # start the child now (about a second), not at the first solve; its PID lets close
-            # end it by PID
-            self._child_pid = self._executor.submit(os.getpid)
+
+        def spawn():
+            with _environment_defaults(SOLVER_PROCESS_ENVIRONMENT), _sigint_blocked_for_children():
+                # start the child now (about a second), not at the first solve; its PID lets
+                # close end it by PID
+                self._child_pid = self._executor.submit(os.getpid)
+
+        # Spawned from a thread of its own: Python raises KeyboardInterrupt only in the main
+        # thread, and one raised there between the child's spawn and the write of its start-up
+        # data left the child to die on EOFError with a traceback (Ctrl-C during start-up, CI)
+        starter = threading.Thread(target=spawn, name="softgrip-l2-spawn", daemon=True)
+        starter.start()
+        starter.join()
 
     def __call__(self, pressure_pa: float, obstacle, from_pressure_pa: float):
         return self._executor.submit(_solve_in_rod_worker, pressure_pa, obstacle,
@@ -85,16 +94,15 @@ class RodSolverProcess:
         """End the child now, a solve in it or not: a niced solve on a loaded host can take
         seconds, and waiting for it held a SIGTERM'd controller past its stop timeout. A caller
         waiting in :meth:`__call__` gets BrokenProcessPool."""
-        self._executor.shutdown(wait=False, cancel_futures=True)
         try:
             pid = self._child_pid.result(timeout=timeout_s)
-        except Exception:  # noqa: BLE001 - never started, or cancelled: nothing runs
+        except Exception:  # noqa: BLE001 - never started: nothing runs
             pid = None
         if pid is not None:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGTERM)
-        # the executor's manager thread sees its child gone, reaps it and ends
-        self._executor.shutdown(wait=True)
+        # the executor's manager thread sees its child gone, reaps it and ends; this joins it
+        self._executor.shutdown(wait=True, cancel_futures=True)
 
 
 class LatestSolveThread:
