@@ -103,6 +103,16 @@ class NodeTimers:
             self.thread.stop()
 
 
+def _try_shutdown() -> None:
+    """rclpy.try_shutdown, while rclpy's signal handler may shut the context down at the same
+    moment (it raised "rcl_shutdown already called" after a Ctrl-C during start-up)."""
+    try:
+        rclpy.try_shutdown()
+    except Exception:
+        if rclpy.ok():
+            raise
+
+
 def run_node(node_factory, args=None, executor_factory=None) -> int:
     """rclpy.init, build the node(s), spin until SIGINT/SIGTERM, then ``close()`` each (the
     pressure controller vents) in reverse order of creation, and exit 0.
@@ -127,7 +137,7 @@ def run_node(node_factory, args=None, executor_factory=None) -> int:
     # a bad parameter at start-up: say which, exit 1
     except (ValueError, ParameterException) as error:
         print(f"{sys.argv[0]}: {error}", file=sys.stderr)
-        rclpy.try_shutdown()
+        _try_shutdown()
         return 1
     except (KeyboardInterrupt, Exception) as error:
         # SIGINT/SIGTERM during start-up: Ctrl-C raises here, and rclpy shuts the context down
@@ -135,7 +145,7 @@ def run_node(node_factory, args=None, executor_factory=None) -> int:
         if not isinstance(error, KeyboardInterrupt) and rclpy.ok():
             raise
         print(f"{sys.argv[0]}: stopped during start-up", file=sys.stderr)
-        rclpy.try_shutdown()
+        _try_shutdown()
         return 0
     nodes = made if isinstance(made, list) else [made]
     executor = None
@@ -158,7 +168,7 @@ def run_node(node_factory, args=None, executor_factory=None) -> int:
         if executor is not None:
             shutdown_executor(executor, timeout_sec=1.0)
         close_all(nodes)
-        rclpy.try_shutdown()
+        _try_shutdown()
     return 0
 
 

@@ -13,7 +13,7 @@ import os
 import signal
 import threading
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor
 
 # The solver's matrices are small: OpenBLAS's worker threads gain nothing on them and spin between
 # calls, which in the controller's child took 40 % of a core during grasps (solves 26 -> 8.5 ms of
@@ -72,19 +72,29 @@ class RodSolverProcess:
         self._executor = ProcessPoolExecutor(
             1, mp_context=multiprocessing.get_context("spawn"), initializer=_start_rod_worker,
             initargs=(gripper_model, nice_increment, os.getpid(), continuation_steps))
+        spawned = threading.Event()
 
         def spawn():
-            with _environment_defaults(SOLVER_PROCESS_ENVIRONMENT), _sigint_blocked_for_children():
-                # start the child now (about a second), not at the first solve; its PID lets
-                # close end it by PID
-                self._child_pid = self._executor.submit(os.getpid)
+            try:
+                with _environment_defaults(SOLVER_PROCESS_ENVIRONMENT), \
+                        _sigint_blocked_for_children():
+                    # start the child now (about a second), not at the first solve; its PID lets
+                    # close end it by PID
+                    self._child_pid = self._executor.submit(os.getpid)
+            except RuntimeError as error:  # the interpreter is exiting (Ctrl-C): no child
+                self._child_pid = Future()
+                self._child_pid.set_exception(error)
+            finally:
+                spawned.set()
 
         # Spawned from a thread of its own: Python raises KeyboardInterrupt only in the main
         # thread, and one raised there between the child's spawn and the write of its start-up
-        # data left the child to die on EOFError with a traceback (Ctrl-C during start-up, CI)
-        starter = threading.Thread(target=spawn, name="softgrip-l2-spawn", daemon=True)
-        starter.start()
-        starter.join()
+        # data left the child to die on EOFError with a traceback (Ctrl-C during start-up, CI).
+        # Not a daemon, so that an exit waits for it; and waited for on an Event, not by join: a
+        # Ctrl-C during Thread.join marks a running thread stopped (CPython 3.11, bpo-45274's
+        # fix), and the exit then no longer waits for it.
+        threading.Thread(target=spawn, name="softgrip-l2-spawn").start()
+        spawned.wait()
 
     def __call__(self, pressure_pa: float, obstacle, from_pressure_pa: float):
         return self._executor.submit(_solve_in_rod_worker, pressure_pa, obstacle,
