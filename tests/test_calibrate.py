@@ -257,3 +257,57 @@ def test_a_node_given_an_unknown_gripper_model_exits_1_saying_so():
                           timeout=60)
     assert done.returncode == 1
     assert "unknown gripper model 'no_such_gripper'" in done.stderr
+
+
+@pytest.fixture
+def running_controller(tmp_path):
+    from tests.helpers.ros import unique
+    from softgrip_ros.devtools.processes import stop_process
+    log = open(tmp_path / "controller.log", "w+")
+    process = subprocess.Popen([installed_executable("controller"), "--ros-args", "-p",
+                                f"can.channel:={unique('calibrate')}"],
+                               stdout=log, stderr=subprocess.STDOUT)
+    try:
+        yield tmp_path / "controller.log"
+    finally:
+        assert stop_process(process) == 0, (tmp_path / "controller.log").read_text()[-2000:]
+        log.close()
+
+
+@pytest.mark.ros
+def test_live_it_holds_each_pressure_asks_and_fits(tmp_path, running_controller):
+    targets = [10e3, 25e3, 40e3]
+    exact = bending_fit.predict(GEOMETRY, TYPE_II, targets)  # a user who measures type II
+    typed = "".join(f"{exact['alpha_deg'][i]:.2f}\n\n" if i == 1 else
+                    f"{exact['alpha_deg'][i]:.2f}\n{exact['tip_spacing_m'][i]:.5f}\n"
+                    for i in range(len(targets)))
+    csv = tmp_path / "live.csv"
+    done = subprocess.run(
+        [installed_executable("softgrip_calibrate"), str(csv), "--name", "live", "--live",
+         "--pressures", ",".join(f"{p:.0f}" for p in targets), "--fit", "gain"],
+        input=typed, capture_output=True, text=True, timeout=180,
+        env={**__import__("os").environ, "SOFTGRIP_CALIBRATION_DIR": str(tmp_path / "store")})
+    assert done.returncode == 0, done.stdout + done.stderr + running_controller.read_text()
+    assert "[3/3] holding 40.0 kPa" in done.stdout and "the gripper vents" in done.stdout
+    data = bending_fit.load_csv(csv)
+    # the estimate the grasp manager settled at, within its pressure tolerance of the target
+    assert data.pressure_pa == pytest.approx(targets, abs=2.5e3)
+    assert math.isnan(data.values["tip_spacing_m"][1])  # left empty: not measured
+    # the values typed were type II's at the targets; the pressures recorded are the estimate's
+    store = tmp_path / "store"
+    assert gripper_models.load_file(store / "live.yaml")[1].gain == pytest.approx(
+        TYPE_II.gain, rel=0.08)
+
+
+@pytest.mark.ros
+def test_live_a_stop_vents_keeps_the_rows_measured_and_writes_no_calibration(
+        tmp_path, running_controller):
+    csv = tmp_path / "live.csv"
+    done = subprocess.run(
+        [installed_executable("softgrip_calibrate"), str(csv), "--name", "live", "--live",
+         "--pressures", "10000,20000", "--columns", "alpha_deg"],
+        input="36.4\n", capture_output=True, text=True, timeout=180,  # then stdin ends
+        env={**__import__("os").environ, "SOFTGRIP_CALIBRATION_DIR": str(tmp_path / "store")})
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert "vented" in done.stderr and "no calibration written" in done.stderr
+    assert len(bending_fit.load_csv(csv)) == 1 and not (tmp_path / "store").exists()

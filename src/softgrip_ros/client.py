@@ -87,10 +87,14 @@ class GripperClient:
         return self._send(GraspMode.PINCH, command_id, object_diameter_m=diameter_m,
                           object_mass_kg=mass_kg, **overrides)
 
-    def open(self, tip_spacing_m: float | None = None, command_id: str = "") -> bool:
-        """Open to ``tip_spacing_m`` (None: fully) and hold there."""
+    def open(self, tip_spacing_m: float | None = None, command_id: str = "",
+             pressure_pa: float | None = None) -> bool:
+        """Open to ``tip_spacing_m`` (None: fully) and hold there; or, given ``pressure_pa`` (> 0,
+        with ``tip_spacing_m`` at most what it opens to), hold that pressure."""
         spacing = math.nan if tip_spacing_m is None else tip_spacing_m
-        return self._send(GraspMode.OPEN, command_id, target_tip_spacing_m=spacing)
+        pressure = math.nan if pressure_pa is None else pressure_pa
+        return self._send(GraspMode.OPEN, command_id, target_tip_spacing_m=spacing,
+                          open_pressure_pa=pressure)
 
     def clamp(self, command_id: str = "", **overrides) -> bool:
         """Clamp what the gripper holds open (after envelop_clamp, or open with the object's

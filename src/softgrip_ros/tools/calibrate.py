@@ -1,6 +1,7 @@
 """softgrip_calibrate: fit the bending model to measurements of your own fingers.
 
     softgrip_calibrate measurements.csv --name my_gripper --geometry my_fingers.yaml
+    softgrip_calibrate measurements.csv --name my_gripper --live   # hold pressures, ask, fit
     ros2 run softgrip_ros controller --ros-args -p gripper_model:=my_gripper
 
 The CSV has a column pressure_pa and any of alpha_deg, tip_spacing_m, root_spacing_m,
@@ -17,9 +18,14 @@ it NAME_calibration.md (the report: constants with their intervals, leave-one-ou
 flags) and NAME_calibration.png (the fit against the measurements). The nodes select it with
 their gripper_model parameter.
 
+With --live, the running controller holds each of --pressures in turn (an OPEN goal with that
+open_pressure_pa); once settled you type what you measured (--columns), and each row is appended
+to the CSV at once. Then the CSV is fitted as above. At the end, on Ctrl-C or on a failure the
+gripper vents; the rows measured so far stay in the CSV.
+
 Exit status: 0 written (flags, if any, are printed and recorded in the file); 1 refused (the
-data cannot determine what was asked, a bad file, or the calibration exists without --force);
-2 bad arguments.
+data cannot determine what was asked, a bad file, the calibration exists without --force, or a
+live run stopped); 2 bad arguments; 3 no gripper answered (--live).
 """
 from __future__ import annotations
 
@@ -35,6 +41,7 @@ import numpy as np
 
 from softgrip_ros.model import bending_fit, gripper_models
 from softgrip_ros.model.geometry import load_geometry
+from softgrip_ros.tools import calibrate_live
 
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]*$")
 
@@ -61,6 +68,14 @@ def parser() -> argparse.ArgumentParser:
                      "NAME.yaml in the calibration directory)")
     top.add_argument("--force", action="store_true", help="replace an existing calibration")
     top.add_argument("--no-plot", action="store_true", help="skip the figure")
+    live = top.add_argument_group("live measurement (through the running controller)")
+    live.add_argument("--live", action="store_true", help="hold each pressure and ask for the "
+                      "measurements, appending them to the CSV, then fit")
+    live.add_argument("--pressures", default="5000,10000,15000,20000,25000,30000,35000,40000",
+                      help="the pressures to hold, Pa, comma-separated (default: 5 to 40 kPa)")
+    live.add_argument("--columns", default="alpha_deg,tip_spacing_m", help="what you measure at "
+                      "each (default: alpha_deg,tip_spacing_m)")
+    live.add_argument("--namespace", default="", help="the gripper's namespace (e.g. /g1)")
     return top
 
 
@@ -74,9 +89,21 @@ def main(argv=None) -> int:
         top.error(f"--confidence must lie in [0.5, 1), got {args.confidence}")
     output = args.output or gripper_models.calibration_dir() / f"{args.name}.yaml"
     command = "softgrip_calibrate " + " ".join(sys.argv[1:] if argv is None else argv)
+    if args.live:
+        columns = [c.strip() for c in args.columns.split(",") if c.strip()]
+        unknown = [c for c in columns if c not in bending_fit.QUANTITIES]
+        if unknown or not columns:
+            top.error(f"--columns {args.columns!r}: give some of "
+                      f"{', '.join(bending_fit.QUANTITIES)}")
+        try:
+            pressures = calibrate_live.parse_pressures(args.pressures)
+        except ValueError as error:
+            top.error(str(error))
     try:
         if output.exists() and not args.force:
             raise ValueError(f"{output} exists; --force replaces it")
+        if args.live:
+            calibrate_live.measure(pressures, columns, args.measurements, args.namespace)
         print(f"reading {args.measurements}", flush=True)
         data = bending_fit.load_csv(args.measurements)
         base_geometry, base = gripper_models.resolve(args.base)
@@ -89,6 +116,14 @@ def main(argv=None) -> int:
         result = bending_fit.fit(data, geometry, base, requested, args.loss, args.confidence)
     except ValueError as error:
         print(f"softgrip_calibrate: {error}; nothing written", file=sys.stderr)
+        return 1
+    except ConnectionError as error:
+        print(f"softgrip_calibrate: {error}", file=sys.stderr)
+        return 3
+    except (calibrate_live.LiveStopped, KeyboardInterrupt, EOFError) as error:
+        reason = str(error) if isinstance(error, calibrate_live.LiveStopped) else "stopped"
+        print(f"softgrip_calibrate: {reason}; vented; the rows measured so far are in "
+              f"{args.measurements}; no calibration written", file=sys.stderr)
         return 1
     written = write(result, geometry, args, output, command)
     for flag in result.flags:
