@@ -188,3 +188,34 @@ def test_the_softgrip_command_drives_a_full_grasp_on_the_installed_controller(tm
     finally:
         assert stop_process(controller) == 0, (tmp_path / "controller.log").read_text()
         log.close()
+
+
+def test_a_goal_whose_acceptance_comes_too_late_is_reported_unstarted_and_then_cancelled(
+        rclpy_context, monkeypatch):
+    """A loaded host can delay a goal's acceptance past the client's wait: the caller is told the
+    task did not start, so when the acceptance does come the goal is cancelled (stop, vent)."""
+    from rclpy.node import Node
+    from rclpy.task import Future
+    from softgrip_ros import client as client_module
+    node = Node("late_acceptance_user", context=rclpy_context)
+    gripper = client_module.GripperClient(node=node)
+    pending, cancelled = Future(), []
+
+    class LateHandle:
+        accepted = True
+
+        def cancel_goal_async(self):
+            cancelled.append(True)
+
+    try:
+        monkeypatch.setattr(client_module, "ACCEPT_TIMEOUT_S", 0.1)
+        monkeypatch.setattr(gripper._action, "wait_for_server", lambda timeout_sec: True)
+        monkeypatch.setattr(gripper._action, "send_goal_async", lambda goal, **_: pending)
+        assert gripper.open(0.05) is False
+        assert gripper.is_task_complete() and gripper.result() is None
+        assert not cancelled
+        pending.set_result(LateHandle())
+        assert cancelled == [True]
+    finally:
+        gripper.close()
+        node.destroy_node()

@@ -44,6 +44,15 @@ def grasp_command(mode: int, command_id: str = "", **fields):
     return GraspCommand(mode=int(mode), command_id=command_id, **values)
 
 
+ACCEPT_TIMEOUT_S = 5.0  # a goal's acceptance normally takes milliseconds
+
+
+def _cancel_if_accepted(future) -> None:
+    handle = future.result()
+    if handle is not None and handle.accepted:
+        handle.cancel_goal_async()
+
+
 class GripperClient:
     """One gripper's grasp manager, reached in ``namespace`` ('' or e.g. "/g1")."""
 
@@ -190,10 +199,19 @@ class GripperClient:
                                               feedback_callback=self._on_feedback)
         with self._lock:
             self._goal, self._feedback = (future, None), None
-        deadline = time.monotonic() + 5.0
+        deadline = time.monotonic() + ACCEPT_TIMEOUT_S
         while not future.done() and time.monotonic() < deadline:
             time.sleep(0.005)
-        handle = future.result() if future.done() else None
+        if not future.done():
+            # Withdrawn: the caller is told it did not start, so should its acceptance still
+            # come (a loaded host delays DDS), it is cancelled then, which stops and vents,
+            # rather than left to move the fingers unannounced.
+            with self._lock:
+                if self._goal is not None and self._goal[0] is future:
+                    self._goal = None
+            future.add_done_callback(_cancel_if_accepted)
+            return False
+        handle = future.result()
         return bool(handle is not None and handle.accepted)
 
     def _result_future(self):
