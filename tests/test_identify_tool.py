@@ -139,7 +139,10 @@ def test_a_sensor_dropout_stops_a_live_run_which_vents_restores_and_writes_nothi
             wait_for(future.done, message="the fault set")
             out, err = run.communicate(timeout=120)
             assert run.returncode == 1, out + err
-            assert "stopped: sensor chamber_a silent" in err and "nothing written" in err
+            # the first to see it names it: the sensor's silence on DDS, or, on a loaded host,
+            # the controller's own frame age
+            assert ("stopped: sensor chamber_a silent" in err or
+                    "stopped: no sensor frame" in err) and "nothing written" in err, err
             assert not (tmp_path / "out").exists()
             getter = node.create_client(GetParameters, "/pressure_controller/get_parameters")
             assert getter.wait_for_service(timeout_sec=10.0)
