@@ -120,6 +120,9 @@ FAULT_RANGES = {
 }
 
 
+SEND_LAG_S = 0.001  # a sensor frame sent later than this after the plant's time: catch up first
+
+
 class SimulatedDevice:
     """The device on ``bus``. Call :meth:`start`, then :meth:`stop` (it does not close the bus)."""
 
@@ -337,7 +340,23 @@ class SimulatedDevice:
             self._true_low, self._true_high = min(self._true_low, float(gauge.min())), max(
                 self._true_high, float(gauge.max()))
 
+    def _catch_up(self) -> None:
+        """The plant brought to the present (frames that arrived meanwhile taken at their
+        arrival), when this thread was held up since its tick: python-can stamps a frame when it
+        is sent, so a reading of the tick's time sent late would carry a late stamp, and the next
+        tick's readings, a whole wait apart, would look one period apart (a false jump for the
+        safety checks, a large NIS for the estimator; a real device samples as it sends)."""
+        now = self.clock()
+        if now - self._last_tick <= SEND_LAG_S:
+            return
+        self._last_tick = max(self._last_tick, now - 0.05)  # bounded after a stall, as a tick
+        self._receive(now)
+        if now > self._last_tick:
+            self._advance(now - self._last_tick, now)
+            self._last_tick = now
+
     def _send_sensor(self, sensor: SensorSpec) -> None:
+        self._catch_up()
         with self._lock:
             faults = self._faults
             if faults["sensor_dropout"] in (sensor.name, "all"):
