@@ -16,6 +16,7 @@ travels as one file.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 import pathlib
@@ -25,9 +26,16 @@ import yaml
 from softgrip_ros.model.bending import BendingCalibration
 from softgrip_ros.model.geometry import FingerGeometry, geometry_from_fields
 
-BUILT_IN = ("type_I", "type_II", "type_III")
 FILE_HEADER = ("# softgrip_ros bending calibration, written by softgrip_calibrate. Select it with "
                "the nodes' gripper_model parameter.\n")
+
+
+@functools.lru_cache(maxsize=1)
+def built_in() -> tuple:
+    """The paper's cavity types: those of the packaged config/model_calibration.yaml."""
+    from softgrip_ros.config_paths import config_file
+    from softgrip_ros.model.calibration import CALIBRATION_FILE
+    return tuple(yaml.safe_load(config_file(CALIBRATION_FILE).read_text())["types"])
 
 
 def calibration_dir() -> pathlib.Path:
@@ -42,7 +50,7 @@ def calibration_dir() -> pathlib.Path:
 
 def model_path(name: str) -> pathlib.Path | None:
     """The calibration file ``name`` refers to; None for a built-in type."""
-    if name in BUILT_IN:
+    if name in built_in():
         return None
     if name.endswith(".yaml") or "/" in name:
         return pathlib.Path(name).expanduser()
@@ -62,7 +70,7 @@ def resolve(name: str) -> tuple[FingerGeometry, BendingCalibration]:
         return load_geometry(name), load_calibration(name)
     if not path.is_file():
         raise ValueError(
-            f"unknown gripper model {name!r}: not a built-in type ({', '.join(BUILT_IN)}) and "
+            f"unknown gripper model {name!r}: not a built-in type ({', '.join(built_in())}) and "
             f"no calibration file {path}; make one with softgrip_calibrate --name {path.stem}")
     return load_file(path)
 

@@ -82,9 +82,9 @@ def parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     top = parser()
     args = top.parse_args(argv)
-    if not NAME_PATTERN.match(args.name) or args.name in gripper_models.BUILT_IN:
+    if not NAME_PATTERN.match(args.name) or args.name in gripper_models.built_in():
         top.error(f"--name {args.name!r}: letters, digits, _ and - only, and not a built-in "
-                  f"type ({', '.join(gripper_models.BUILT_IN)})")
+                  f"type ({', '.join(gripper_models.built_in())})")
     if not 0.5 <= args.confidence < 1.0:
         top.error(f"--confidence must lie in [0.5, 1), got {args.confidence}")
     output = args.output or gripper_models.calibration_dir() / f"{args.name}.yaml"
