@@ -13,14 +13,18 @@ def spinning(context, *nodes, threads: int = 4):
     return spin_in_background(*nodes, context=context, threads=threads)
 
 
-def wait_for(condition, timeout: float = 10.0, period: float = 0.01, message: str = "condition"):
+def wait_for(condition, timeout: float = 10.0, period: float = 0.01, message: str = "condition",
+             detail=None):
+    """Poll ``condition`` until it is truthy; on timeout fail, naming ``message`` and, when given,
+    what ``detail()`` says of the state then (the controller's status message, say)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         value = condition()
         if value:
             return value
         time.sleep(period)
-    raise AssertionError(f"timed out after {timeout} s waiting for {message}")
+    seen = f" ({detail()})" if detail is not None else ""
+    raise AssertionError(f"timed out after {timeout} s waiting for {message}{seen}")
 
 
 def send_future_command(node, publisher, statuses, target_pa: float, source: int, ahead_s: float,
