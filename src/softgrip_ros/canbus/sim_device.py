@@ -14,7 +14,10 @@ holds even when a valve is stuck open.
 
 The plant runs on real elapsed time: each tick integrates exactly the time since the last one
 (a tick late by a few ms integrates those; the quick catch-up ticks after it integrate
-almost nothing), so that the simulated chamber keeps real time. The tick reads the frames
+almost nothing), so that the simulated chamber keeps real time, as a real device's does while
+the controller's host stalls (up to MAX_STALL_S: a plant that dropped the time of a stall lagged
+the controller's model of it, and the regulator check, the response check and the estimator
+took the lag for a fault on a loaded host). The tick reads the frames
 that have arrived itself, and splits its step at each one's arrival: a command takes effect
 when it reached the device, however late the thread ran. (A separate reception thread, held up
 for tens of ms by the GIL on a loaded host, once let the plant integrate past a ValveCommand
@@ -120,7 +123,13 @@ FAULT_RANGES = {
 }
 
 
-SEND_LAG_S = 0.001  # a sensor frame sent later than this after the plant's time: catch up first
+SEND_LAG_S = 0.001  # a frame sent later than this after the plant's time: catch up first
+# a device keeps real time through a stall of its host thread up to this long (beyond it, a
+# suspended process say, the plant resumes from where it stopped) ...
+MAX_STALL_S = 1.0
+# ... integrated in steps no longer than this (the regulator is exact at any step; a chamber's
+# backward Euler, stable at any step, follows a moving regulator to well within a sensor's noise)
+MAX_PLANT_STEP_S = 0.005
 
 
 class SimulatedDevice:
@@ -242,9 +251,7 @@ class SimulatedDevice:
             if frame is None:
                 return
             arrived = min(max(now - frame_age_s(frame), self._last_tick), now)
-            if arrived > self._last_tick:
-                self._advance(arrived - self._last_tick, arrived)
-                self._last_tick = arrived
+            self._advance_to(arrived)
             self._on_frame(frame)
 
     def _on_frame(self, frame: can.Message) -> None:
@@ -282,14 +289,11 @@ class SimulatedDevice:
         """One plant step of exactly the real time elapsed since the last tick (bounded after a
         stall), then the frames due."""
         now = self.clock()
-        self._last_tick = max(self._last_tick, now - 0.05)  # bounded after a stall
+        self._last_tick = max(self._last_tick, now - MAX_STALL_S)
         sim_time = now - self._started_at
         try:
             self._receive(now)
-            elapsed = now - self._last_tick
-            self._last_tick = now
-            if elapsed > 0.0:
-                self._advance(elapsed, now)
+            self._advance_to(now)
             if now >= self._next_replay:
                 with self._lock:
                     rate_hz = self._faults["replay_rate_hz"]
@@ -309,6 +313,14 @@ class SimulatedDevice:
                            {"DeviceState": 1, "Uptime": min(sim_time, 167772.15)})
         except can.CanError as error:  # a closed or failing bus: keep simulating, report it
             LOG.warning("sim device: CAN send failed: %s", error)
+
+    def _advance_to(self, when: float) -> None:
+        """The plant from the last tick's time to ``when``, in steps of at most
+        MAX_PLANT_STEP_S."""
+        while when > self._last_tick:
+            step_end = min(when, self._last_tick + MAX_PLANT_STEP_S)
+            self._advance(step_end - self._last_tick, step_end)
+            self._last_tick = step_end
 
     def _advance(self, dt: float, now: float) -> None:
         with self._lock:
@@ -349,11 +361,9 @@ class SimulatedDevice:
         now = self.clock()
         if now - self._last_tick <= SEND_LAG_S:
             return
-        self._last_tick = max(self._last_tick, now - 0.05)  # bounded after a stall, as a tick
+        self._last_tick = max(self._last_tick, now - MAX_STALL_S)
         self._receive(now)
-        if now > self._last_tick:
-            self._advance(now - self._last_tick, now)
-            self._last_tick = now
+        self._advance_to(now)
 
     def _send_sensor(self, sensor: SensorSpec) -> None:
         self._catch_up()
@@ -402,6 +412,7 @@ class SimulatedDevice:
                             timestamp=time.time()))
 
     def _send_status(self) -> None:
+        self._catch_up()
         with self._lock:
             actual = self._state.regulator_gauge_pa
         low, high = self.codec.signal_range("RegulatorStatus", "ActualGaugePressure")
