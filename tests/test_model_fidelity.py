@@ -127,7 +127,8 @@ def test_closing_the_solver_process_ends_a_running_solve_at_once():
     import time
     from concurrent.futures.process import BrokenProcessPool
     solver = RodSolverProcess("type_II", nice_increment=0)
-    pid = solver._child_pid.result(timeout=30.0)
+    pid = solver._executor.submit(os.getpid).result(timeout=30.0)
+    assert [child.pid for child in solver._children] == [pid]
     running = solver._executor.submit(time.sleep, 60.0)
     time.sleep(0.2)
     solver.close()

@@ -13,7 +13,7 @@ import os
 import signal
 import threading
 import time
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor
 
 # The solver's matrices are small: OpenBLAS's worker threads gain nothing on them and spin between
 # calls, which in the controller's child took 40 % of a core during grasps (solves 26 -> 8.5 ms of
@@ -73,17 +73,21 @@ class RodSolverProcess:
             1, mp_context=multiprocessing.get_context("spawn"), initializer=_start_rod_worker,
             initargs=(gripper_model, nice_increment, os.getpid(), continuation_steps))
         spawned = threading.Event()
+        self._children = []
 
         def spawn():
             try:
                 with _environment_defaults(SOLVER_PROCESS_ENVIRONMENT), \
                         _sigint_blocked_for_children():
-                    # start the child now (about a second), not at the first solve; its PID lets
-                    # close end it by PID
-                    self._child_pid = self._executor.submit(os.getpid)
-            except RuntimeError as error:  # the interpreter is exiting (Ctrl-C): no child
-                self._child_pid = Future()
-                self._child_pid.set_exception(error)
+                    # start the child now (about a second), not at the first solve
+                    self._executor.submit(os.getpid)
+                # the child as a Process, which close ends by its PID: the submit spawned it, but
+                # its first result comes only after its imports, which a loaded host and the nice
+                # value stretch past a stop's timeout (CI: a SIGTERM 8 s after start-up waited
+                # for them, and the controller was killed)
+                self._children = list(getattr(self._executor, "_processes", {}).values())
+            except RuntimeError:  # the interpreter is exiting (Ctrl-C): no child
+                pass
             finally:
                 spawned.set()
 
@@ -100,17 +104,13 @@ class RodSolverProcess:
         return self._executor.submit(_solve_in_rod_worker, pressure_pa, obstacle,
                                      from_pressure_pa).result()
 
-    def close(self, timeout_s: float = 5.0) -> None:
+    def close(self) -> None:
         """End the child now, a solve in it or not: a niced solve on a loaded host can take
         seconds, and waiting for it held a SIGTERM'd controller past its stop timeout. A caller
         waiting in :meth:`__call__` gets BrokenProcessPool."""
-        try:
-            pid = self._child_pid.result(timeout=timeout_s)
-        except Exception:  # noqa: BLE001 - never started: nothing runs
-            pid = None
-        if pid is not None:
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(pid, signal.SIGTERM)
+        for child in self._children:
+            if child.is_alive():  # still this process's child: its PID is not another's
+                child.terminate()
         # the executor's manager thread sees its child gone, reaps it and ends; this joins it
         self._executor.shutdown(wait=True, cancel_futures=True)
 
