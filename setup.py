@@ -40,6 +40,7 @@ setup(
             "softgrip = softgrip_ros.cli:main",
             "softgrip_identify = softgrip_ros.tools.identify:main",
             "softgrip_calibrate = softgrip_ros.tools.calibrate:main",
+            "softgrip_check_device = softgrip_ros.tools.check_device:main",
         ],
         # python-can finds this interface by name: can.Bus(interface="softgrip_ipc", channel=...)
         "can.interface": [

@@ -40,7 +40,7 @@ import time
 import can
 import numpy as np
 
-from softgrip_ros.canbus.codec import FrameCodec, frame_age_s
+from softgrip_ros.canbus.codec import CRC_BYTE, FrameCodec, frame_age_s
 from softgrip_ros.model.pneumatics import (P_ATM_PA, PlantInputs, PneumaticParameters,
                                            PneumaticPlant, Valve)
 from softgrip_ros.realtime import PeriodicThread
@@ -116,10 +116,17 @@ FAULTS = {
     "corrupt_rate": 0.0,  # fraction of sent frames with a bad CRC or a repeated counter
     # bursts per second of replayed old frames (see SimulatedDevice.replay_burst)
     "replay_rate_hz": 0.0,
+    # firmware defects, for the conformance checker (softgrip_check_device):
+    "crc_corrupt": 0.0,  # fraction of sent frames whose CRC byte is wrong (nothing else is)
+    "counter_stuck": False,  # every sent frame carries alive counter 0
+    "heartbeat_off": False,  # no DeviceHeartbeat
+    "ignore_valve_lifetime": False,  # an open channel stays open past its OpenLifetime
+    "sensor_rate_hz": 0.0,  # every sensor sends at this rate (0: each at its own)
 }
 FAULT_CHOICES = {"sensor_stuck_at": ("present", *STUCK_READINGS_PA)}
 FAULT_RANGES = {
-    "corrupt_rate": (0.0, 1.0), "sensor_noise_scale": (0.0, 100.0), "replay_rate_hz": (0.0, 100.0)
+    "corrupt_rate": (0.0, 1.0), "sensor_noise_scale": (0.0, 100.0), "replay_rate_hz": (0.0, 100.0),
+    "crc_corrupt": (0.0, 1.0), "sensor_rate_hz": (0.0, 1000.0)
 }
 
 
@@ -299,18 +306,23 @@ class SimulatedDevice:
                     rate_hz = self._faults["replay_rate_hz"]
                 self._next_replay = now + 1.0 / rate_hz if rate_hz > 0.0 else math.inf
                 self.replay_burst()
+            with self._lock:
+                rate_override_hz = self._faults["sensor_rate_hz"]
+                heartbeat_off = self._faults["heartbeat_off"]
             for sensor in self.config.sensors:
                 if sim_time >= self._next_sensor[sensor.name]:
                     self._next_sensor[sensor.name] = max(
-                        self._next_sensor[sensor.name] + 1.0 / sensor.rate_hz, sim_time)
+                        self._next_sensor[sensor.name] + 1.0 / (rate_override_hz or
+                                                                sensor.rate_hz), sim_time)
                     self._send_sensor(sensor)
             if sim_time >= self._next_status:
                 self._next_status += 1.0 / self.config.regulator_status_hz
                 self._send_status()
             if sim_time >= self._next_heartbeat:
                 self._next_heartbeat += 1.0 / self.config.heartbeat_hz
-                self._send("DeviceHeartbeat",
-                           {"DeviceState": 1, "Uptime": min(sim_time, 167772.15)})
+                if not heartbeat_off:
+                    self._send("DeviceHeartbeat",
+                               {"DeviceState": 1, "Uptime": min(sim_time, 167772.15)})
         except can.CanError as error:  # a closed or failing bus: keep simulating, report it
             LOG.warning("sim device: CAN send failed: %s", error)
 
@@ -336,7 +348,7 @@ class SimulatedDevice:
             inputs = dataclasses.replace(
                 inputs, regulator_overshoot_pa=self._faults["regulator_overshoot_pa"])
             open_for = self._valves_open_until - (now - dt)
-            expires = open_for < dt and not stuck
+            expires = open_for < dt and not stuck and not self._faults["ignore_valve_lifetime"]
             if expires and any(v in SOURCE_VALVES for v in inputs.valves):
                 if open_for > 0.0:
                     self._state = self.plant.step(self._state, inputs, open_for)
@@ -424,9 +436,15 @@ class SimulatedDevice:
         silent."""
         with self._lock:
             silent, corrupt_rate = self._faults["bus_silent"], self._faults["corrupt_rate"]
+            crc_corrupt, counter_stuck = self._faults["crc_corrupt"], self._faults["counter_stuck"]
         if silent:
             return None
-        frame = sent = self.codec.encode(message, signals)
+        frame = sent = self.codec.encode(message, signals, counter=0 if counter_stuck else None)
+        if crc_corrupt > 0.0 and self._corrupt_rng.random() < crc_corrupt:
+            data = bytearray(frame.data)
+            data[CRC_BYTE] ^= 0xFF
+            sent = can.Message(arbitration_id=frame.arbitration_id, data=bytes(data),
+                               is_extended_id=False)
         if corrupt_rate > 0.0 and self._corrupt_rng.random() < corrupt_rate:
             data = bytearray(frame.data)
             if self._corrupt_rng.random() < 0.5:

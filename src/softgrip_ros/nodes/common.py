@@ -8,7 +8,6 @@ import signal
 import sys
 import threading
 
-import can
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import (ExternalShutdownException, MultiThreadedExecutor,
@@ -31,12 +30,6 @@ def stamp_msg(seconds: float):
     """A builtin_interfaces Time for ``seconds`` of ROS time, to the nearest nanosecond (so that a
     stamp read back as sec + 1e-9 nanosec and written again is unchanged)."""
     return Time(nanoseconds=round(seconds * 1e9)).to_msg()
-
-
-def open_bus(interface: str, channel: str, bitrate: int) -> can.BusABC:
-    """A python-can bus; the virtual and softgrip_ipc interfaces take no bitrate."""
-    kwargs = {} if interface in ("virtual", "softgrip_ipc") else {"bitrate": bitrate}
-    return can.Bus(interface=interface, channel=channel, **kwargs)
 
 
 def publish(node, publisher, message) -> None:

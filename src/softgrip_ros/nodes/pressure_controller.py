@@ -24,8 +24,8 @@ from softgrip_ros.control.pressure import PressureController
 from softgrip_ros.model.pneumatics import PneumaticPlant
 from softgrip_ros.control.reports import pressure_controller_report
 from softgrip_ros.nodes import messages
-from softgrip_ros.nodes.common import (listened, notify, open_bus, publish,
-                                       run_node, stamp_seconds)
+from softgrip_ros.canbus import open_bus
+from softgrip_ros.nodes.common import listened, notify, publish, run_node, stamp_seconds
 from softgrip_ros.nodes.estimator import ESTIMATOR_STATUS
 from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import (PRESSURE_CONFIGURE_PREFIXES, check_rest_rate,

@@ -13,7 +13,8 @@ from rclpy.node import Node
 
 from softgrip_ros.canbus.sim_device import (DEFAULT_SENSORS, FAULT_CHOICES, FAULTS,
                                             STUCK_READINGS_PA, SimDeviceConfig, SimulatedDevice)
-from softgrip_ros.nodes.common import open_bus, run_node
+from softgrip_ros.canbus import open_bus
+from softgrip_ros.nodes.common import run_node
 from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, check_all, declare
 from softgrip_ros.nodes.specs import load_plant
 
@@ -43,6 +44,15 @@ FAULT_SPECS = [
         "fault.replay_rate_hz", 0.0,
         "bursts per second of replayed old frames (old sensor frames on the bus, "
         "an old ValveCommand into the device); 0 = none", "Hz", 0.0, 100.0),
+    # firmware defects, for softgrip_check_device
+    ParamSpec("fault.crc_corrupt", 0.0, "fraction of frames sent with a wrong CRC byte", "", 0.0,
+              1.0),
+    ParamSpec("fault.counter_stuck", False, "every frame carries alive counter 0"),
+    ParamSpec("fault.heartbeat_off", False, "no DeviceHeartbeat"),
+    ParamSpec("fault.ignore_valve_lifetime", False,
+              "an open channel stays open past its OpenLifetime"),
+    ParamSpec("fault.sensor_rate_hz", 0.0, "every sensor sends at this rate; 0 = each at its own",
+              "Hz", 0.0, 1000.0),
 ]
 SPECS = CAN_SPECS + [
     ParamSpec("plant_rate_hz", 1000.0, "plant integration rate", "Hz", 50.0, 5000.0),

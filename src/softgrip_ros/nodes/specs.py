@@ -3,7 +3,6 @@ the same, and tests/test_parameters_file.py checks that they agree), and how the
 each core's configuration: a spec with a ``field`` sets that field of the core's dataclass."""
 from __future__ import annotations
 
-from softgrip_ros.canbus.sim_device import FAULT_CHOICES, FAULTS, STUCK_READINGS_PA
 from softgrip_ros.control.grasp_fsm import GraspConfig
 from softgrip_ros.config_paths import config_file
 from softgrip_ros.control.pressure import PressureControlConfig
@@ -359,35 +358,3 @@ def grasp_config(values: dict) -> GraspConfig:
 
 def clamp_force_law(values: dict) -> ClampForceLaw:
     return replace_fields(_F, CLAMP_FORCE_SPECS, values)
-
-
-# ---- sim_device ---------------------------------------------------------------------------------
-SIM_FAULT_SPECS = [
-    ParamSpec("fault.sensor_dropout", "", "silence a sensor (its name, or 'all'); '' = none",
-              allow_empty=True),
-    ParamSpec("fault.sensor_stuck", "", "stick a sensor at fault.sensor_stuck_at (its name, or "
-              "'all'); '' = none", allow_empty=True),
-    ParamSpec(
-        "fault.sensor_stuck_at", "present", "what a stuck sensor reads: its last reading, "
-        f"or a fixed {STUCK_READINGS_PA['low']:.0f} or {STUCK_READINGS_PA['high']:.0f} Pa",
-        choices=FAULT_CHOICES["sensor_stuck_at"]),
-    ParamSpec("fault.sensor_bias_pa", 0.0, "bias added to every reading", "Pa", -50e3, 50e3),
-    ParamSpec("fault.sensor_noise_scale", 1.0, "every sensor's noise multiplied by this", "", 0.0,
-              100.0),
-    ParamSpec("fault.regulator_overshoot_pa", 0.0, "the regulator settles this far above its "
-              "setpoint", "Pa", -50e3, 100e3),
-    ParamSpec("fault.valve_stuck", False, "the valves ignore commands and keep their state"),
-    ParamSpec("fault.valve_stuck_open", False, "the valves ignore commands and stay open to "
-              "SUPPLY"),
-    ParamSpec("fault.bus_silent", False, "the device stops sending"),
-    ParamSpec("fault.corrupt_rate", 0.0, "fraction of frames sent with a bad CRC or a repeated "
-              "counter", "", 0.0, 1.0),
-    ParamSpec(
-        "fault.replay_rate_hz", 0.0, "bursts per second of replayed old frames (old sensor "
-        "frames on the bus, an old ValveCommand into the device); 0 = none", "Hz", 0.0, 100.0),
-]
-SIM_DEVICE_SPECS = CAN_SPECS + [
-    ParamSpec("plant_rate_hz", 1000.0, "plant integration rate", "Hz", 50.0, 5000.0),
-    ParamSpec("seed", -1, "noise seed; -1 = random", "", -1, 2**31 - 1),
-] + SIM_FAULT_SPECS
-assert {s.name[len("fault."):] for s in SIM_FAULT_SPECS} == set(FAULTS)
