@@ -193,3 +193,19 @@ def test_the_installed_tool_checks_a_sim_device_process_over_softgrip_ipc(tmp_pa
     bad = run_tool("--interface", "softgrip_ipc", "--channel", channel, "--limit-kpa", "5")
     assert bad.returncode == 2 and "test_pressure_pa" in bad.stderr
     assert run_tool("--help").returncode == 0
+
+
+def test_the_hardware_guides_worked_example_frame_is_what_the_codec_sends():
+    """docs/hardware.md shows a firmware author one frame byte by byte, CRC included."""
+    import pathlib
+    import re
+    guide = (pathlib.Path(__file__).resolve().parents[1] / "docs" / "hardware.md").read_text()
+    shown = re.search(r"so the frame is `([0-9A-F ]+)`", guide).group(1)
+    crc_input = re.search(r"The CRC runs over `([0-9A-F ]+)`", guide).group(1)
+    frame = FrameCodec().encode("RegulatorSetpoint", {"SetpointGaugePressure": 20000.0,
+                                                      "Enable": 1, "Source": 0}, counter=5)
+    assert frame.arbitration_id == 0x100 and bytes(frame.data).hex(" ").upper() == shown
+    assert crc_input == ("00 01 " + shown[:-3])
+    from softgrip_ros.canbus.codec import crc8_sae_j1850
+    assert crc8_sae_j1850(bytes.fromhex(crc_input)) == frame.data[7] == 0xFE
+    assert crc8_sae_j1850(b"123456789") == 0x4B
