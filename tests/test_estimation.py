@@ -302,6 +302,50 @@ def test_repeated_inputs_neither_fuse_the_waiting_samples_nor_predict():
     assert not estimator._pending and estimator.time_s == pytest.approx(0.003)
 
 
+def test_a_report_changes_nothing_the_samples_waiting_stay_for_their_fusion():
+    """The node's diagnostics ask for a report every 0.5 s: it fused the waiting samples then,
+    and the estimates depended on when that ran (a replay of the estimator's events diverged at
+    each report)."""
+    estimator = PressureEstimator(EstimatorConfig(fusion_window_s=0.005))
+    estimator.set_inputs(0.0, True, Valve.CLOSED, 0.0)
+    for k in range(4):
+        estimator.add_measurement("chamber_a", 100.0 + k, 0.001 * k)
+    before = (estimator.filter.x.copy(), estimator.filter.P.copy(), estimator.time_s,
+              list(estimator._pending))
+    report = estimator.report(0.01)
+    assert report.values["gauge_pa"] == pytest.approx(100.0, abs=5.0)
+    assert np.array_equal(estimator.filter.x, before[0])
+    assert np.array_equal(estimator.filter.P, before[1])
+    assert (estimator.time_s, estimator._pending) == (before[2], before[3])
+
+
+def test_a_moving_chamber_widens_each_readings_noise_by_its_stamps_uncertainty():
+    """sample_timing_std_s: a reading stamped 0.5 ms off its sampling, while the chamber moves
+    at some 10^5 Pa/s, is off by tens of Pa: the gate and the NIS count that as noise. At rest,
+    nothing changes."""
+    def nis_of_one_sample(timing_std_s, valve, regulator_pa):
+        estimator = PressureEstimator(EstimatorConfig(
+            sample_timing_std_s=timing_std_s, nis_input_settle_s=0.0, input_timing_std_s=0.0))
+        estimator.set_inputs(regulator_pa, True, Valve.CLOSED, 0.0)
+        estimator.add_measurement("chamber_b", 0.0, 0.0)
+        estimator.set_inputs(regulator_pa, True, valve, 0.0)
+        estimator.add_measurement("chamber_b", 500.0, 0.001)
+        return estimator.stats["chamber_b"].nis[-1]
+
+    estimator = PressureEstimator(EstimatorConfig())
+    x = np.array([0.0, 0.0])
+    rate = (plant_step(estimator.plant, x, 1e-3, PlantInputs(0.0, True, (Valve.VACUUM,)))[0]
+            - x[0]) / 1e-3
+    assert rate < -1e5  # the evacuation's rate from 0 kPa, Pa/s
+    moving = [nis_of_one_sample(t, Valve.VACUUM, 0.0) for t in (0.0, 0.002)]
+    resting = [nis_of_one_sample(t, Valve.CLOSED, 0.0) for t in (0.0, 0.002)]
+    # 2 ms at >1e5 Pa/s: >200 Pa of noise beside chamber_b's 150 Pa: the NIS at least halved
+    assert moving[1] < 0.5 * moving[0]
+    assert resting[1] == pytest.approx(resting[0], rel=1e-12)
+    with pytest.raises(ValueError, match="sample_timing_std_s"):
+        EstimatorConfig(sample_timing_std_s=0.02)
+
+
 @pytest.mark.parametrize("gap_pa", [20.0, 50.0])
 def test_waiting_samples_are_moved_by_the_straight_line_within_a_few_pascals_of_the_model(gap_pa):
     """A chamber filling slowly towards its regulator, at rest by the 50 Pa rule: each sample is

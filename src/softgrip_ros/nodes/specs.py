@@ -205,6 +205,10 @@ ESTIMATOR_FILTER_SPECS = [
         "device may lie from its stamp (1 sigma); P grows by the change in rate times "
         "this at each input change", "s", 0.0, 0.1, field="input_timing_std_s"),
     ParamSpec(
+        "sample_timing_std", _E.sample_timing_std_s, "how far a reading's stamp may lie from "
+        "its sampling (1 sigma); the chamber's rate times this adds to each sensor's noise",
+        "s", 0.0, 0.01, field="sample_timing_std_s"),
+    ParamSpec(
         "nis_input_settle", _E.nis_input_settle_s, "samples this soon after an input "
         "change stay out of the NIS window (still gated and fused): the input's timing is "
         "uncertain there", "s", 0.0, 1.0, field="nis_input_settle_s"),
