@@ -41,6 +41,8 @@ setup(
             "softgrip_identify = softgrip_ros.tools.identify:main",
             "softgrip_calibrate = softgrip_ros.tools.calibrate:main",
             "softgrip_check_device = softgrip_ros.tools.check_device:main",
+            "softgrip_record = softgrip_ros.tools.record:main",
+            "softgrip_replay = softgrip_ros.tools.replay:main",
         ],
         # python-can finds this interface by name: can.Bus(interface="softgrip_ipc", channel=...)
         "can.interface": [

@@ -9,8 +9,11 @@ most ``rest_frequency``: nothing moves, and every estimate costs the kinematics 
 manager work and its subscribers a message) and, once neither a sample nor an estimate has come
 for two periods of a timer at min(``frequency``, 50 Hz), the prediction: every 40 ms by default
 while the sensors are silent (an rclpy timer at hundreds of Hz would starve the sensor
-callbacks); /diagnostics at 2 Hz.
-Parameters follow robot_localization where they fit. The filters live in softgrip_ros.estimation.
+callbacks); /diagnostics at 2 Hz; pressure/estimator_input (EstimatorInput), the journal of every
+event taken, while someone subscribes and for the first JOURNAL_STARTUP_S after start-up (kept
+for a subscriber that joins late, transient local): what softgrip_replay runs again.
+Parameters follow robot_localization where they fit. The filters live in softgrip_ros.estimation;
+the event rules in softgrip_ros.estimation.runner.
 """
 from __future__ import annotations
 
@@ -18,10 +21,12 @@ import threading
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile
 from sensor_msgs.msg import FluidPressure
 
-from softgrip_interfaces.msg import ControllerStatus, PressureCommand
+from softgrip_interfaces.msg import ControllerStatus, EstimatorInput, PressureCommand
 from softgrip_ros.estimation.estimator import PressureEstimator
+from softgrip_ros.estimation.runner import PREDICTION_RATE_LIMIT_HZ, EstimatorRunner
 from softgrip_ros.health import Health
 from softgrip_ros.model.pneumatics import PneumaticPlant, Valve
 from softgrip_ros.checks import future_stamp_reason
@@ -37,7 +42,12 @@ ESTIMATOR_STATUS = "softgrip: estimator"
 # the NIS evidence handed to the composed pressure controller this often
 EVIDENCE_PERIOD_S = 0.1
 REFUSAL_REPORTED_S = 5.0  # a refused message keeps the diagnostics at WARN this long
-PREDICTION_RATE_LIMIT_HZ = 50.0
+# the journal goes out for this long after start-up whether or not anyone listens, and the last
+# JOURNAL_HISTORY events stay for a subscriber that joins late: a recorder started before the
+# controller gets it from its first event, which an exact replay needs
+JOURNAL_STARTUP_S = 5.0
+JOURNAL_HISTORY = 5000
+JOURNAL_TOPIC = "pressure/estimator_input"
 
 
 class EstimatorNode(Node):
@@ -64,11 +74,16 @@ class EstimatorNode(Node):
         plant = load_plant(self.values)
         self.estimator = PressureEstimator(estimator_config(self.values, plant),
                                            PneumaticPlant(plant.parameters))
+        self.journal_pub = self.create_publisher(
+            EstimatorInput, JOURNAL_TOPIC,
+            QoSProfile(depth=JOURNAL_HISTORY, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        self.started_s = self._now()
         self.add_on_set_parameters_callback(lambda params: check_all(
             specs, params, lambda _: "estimator parameters apply at start-up: restart the node"))
         self.period_s = 1.0 / self.values["frequency"]
         self.rest_period_s = 1.0 / self.values["rest_frequency"]
-        self.last_publish_s = self.last_sample_s = -float("inf")
+        self.runner = EstimatorRunner(self.estimator, self.period_s, self.rest_period_s,
+                                      journal=self._journal)
         self.estimate_pub = self.create_publisher(FluidPressure, "pressure/estimate", 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         for name in [] if in_process else self.values["sensors.names"]:
@@ -106,23 +121,10 @@ class EstimatorNode(Node):
         from a topic); then at most one estimate, when one is due: the newest, not one of a
         batch's older samples. A sensor this estimator does not fuse raises the estimator's
         ValueError, after the others are taken."""
-        refused = None
         with self._lock:
-            newest = None
-            for name, gauge_pa, stamp_s in samples:
-                try:
-                    taken = (not self.closed and
-                             self.estimator.add_measurement(name, gauge_pa, stamp_s))
-                # an unknown sensor: the rest of the batch still counts
-                except ValueError as error:
-                    refused, taken = refused or error, False
-                if taken:
-                    newest = stamp_s if newest is None else max(newest, stamp_s)
-            if newest is not None:
-                self.last_sample_s = max(self.last_sample_s, newest)
-            due = newest is not None and newest - self.last_publish_s >= 0.9 * (
-                self.rest_period_s if self.estimator.resting else self.period_s)
-            estimate = self._take_estimate() if due else None
+            if self.closed:
+                return
+            estimate, refused = self.runner.samples(samples)
         self._publish(estimate)
         if refused is not None:
             raise refused
@@ -139,9 +141,9 @@ class EstimatorNode(Node):
             return
         try:
             with self._lock:
-                self.estimator.set_inputs(msg.regulator_command_gauge_pressure_pa,
-                                          msg.regulator_enabled, msg.valve_states[0],
-                                          stamp_seconds(msg.header.stamp))
+                self.runner.inputs(msg.regulator_command_gauge_pressure_pa,
+                                   msg.regulator_enabled, msg.valve_states[0],
+                                   stamp_seconds(msg.header.stamp))
         # a NaN command or an unknown valve value: keep the last inputs
         except ValueError as error:
             self.get_logger().warn(f"controller/status ignored: {error}",
@@ -154,29 +156,32 @@ class EstimatorNode(Node):
                                                    stamp_seconds(msg.header.stamp)):
             with self._lock:
                 inputs = self.estimator.inputs
-                self.estimator.set_inputs(inputs.regulator_setpoint_gauge_pa,
-                                          inputs.regulator_enabled, valve,
-                                          stamp_seconds(msg.header.stamp) or self._now())
+                self.runner.inputs(inputs.regulator_setpoint_gauge_pa, inputs.regulator_enabled,
+                                   valve, stamp_seconds(msg.header.stamp) or self._now())
 
     def _on_timer(self) -> None:
         """While no sample has come (and no estimate gone out) for two timer periods, publish the
         prediction."""
         now = self._now()
         with self._lock:
-            estimate = None
-            if self.estimator.initialised and now - max(
-                    self.last_publish_s, self.last_sample_s) >= 2.0 / PREDICTION_RATE_LIMIT_HZ:
-                # committed: a sample older than this would be dropped as late anyway
-                self.estimator.predict_to(now)
-                estimate = self._take_estimate()
+            estimate = self.runner.predict(now)
         self._publish(estimate)
 
-    def _take_estimate(self):
-        """The current estimate, marked as published (call with the lock held)."""
-        estimate = self.estimator.estimate()
-        if estimate is not None:
-            self.last_publish_s = estimate.stamp_s
-        return estimate
+    def _journal(self, event) -> None:
+        """An event the runner took (called with the lock held, so in order): published while
+        someone listens or the start-up window lasts. The sequence number orders them; a
+        subscriber sees a gap where it joined late or lost one."""
+        if not (self._now() - self.started_s < JOURNAL_STARTUP_S or
+                listened(self, self.journal_pub)):
+            return
+        names, values, stamps = zip(*event.samples) if event.samples else ((), (), ())
+        message = EstimatorInput(
+            sequence=event.sequence, kind=event.kind, sensor_names=list(names),
+            gauge_pressure_pa=list(values), sample_stamps_s=list(stamps),
+            regulator_command_gauge_pressure_pa=event.regulator_command_gauge_pa,
+            regulator_enabled=event.regulator_enabled, valve=event.valve, stamp_s=event.stamp_s)
+        message.header.stamp = self.get_clock().now().to_msg()
+        publish(self, self.journal_pub, message)
 
     def _publish(self, estimate) -> None:
         if estimate is None:

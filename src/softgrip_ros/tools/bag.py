@@ -54,6 +54,19 @@ class BagWriter:
     def __exit__(self, *exc) -> None:
         self._writer.close()
 
+    def set_custom_data(self, key: str, value: str) -> None:
+        """A string in metadata.yaml's custom_data (read back with :func:`custom_data`)."""
+        self._writer.set_custom_data(key, value)
+
+    def stamped(self, msgtype: str) -> bool:
+        """Whether ``msgtype``'s first field is a std_msgs/Header."""
+        fields = self.store.fielddefs.get(msgtype, (None, []))[1]
+        return bool(fields) and fields[0][0] == "header"
+
+    def knows(self, msgtype: str) -> bool:
+        """Whether messages of ``msgtype`` can be logged (their definition is known)."""
+        return msgtype in self.store.fielddefs
+
     def write(self, topic: str, msgtype: str, stamp_ns: int, data: bytes) -> None:
         connection = self._connections.get(topic)
         if connection is None:
@@ -77,3 +90,14 @@ def read(path):
         if type(error).__module__.startswith("rosbags"):
             raise ValueError(f"cannot read the log {path}: {error}") from None
         raise
+
+
+def custom_data(path) -> dict:
+    """The custom_data of the log at ``path`` (metadata.yaml; {} when it has none)."""
+    import yaml
+    try:
+        metadata = yaml.safe_load((pathlib.Path(path) / "metadata.yaml").read_text())
+    except (OSError, yaml.YAMLError) as error:
+        raise ValueError(f"{path}: no readable metadata.yaml ({error})") from None
+    info = (metadata or {}).get("rosbag2_bagfile_information") or {}
+    return dict(info.get("custom_data") or {})

@@ -1,0 +1,230 @@
+"""softgrip_record and softgrip_replay (#25): the estimator's journal replays to the same
+estimates bit for bit; a recorded demo run is read back by rosbags message for message and
+replays within 1e-9; bad input gets a clear message and an exit code, never a traceback."""
+import json
+import math
+import shutil
+import subprocess
+import time
+
+import numpy as np
+import pytest
+
+from softgrip_ros.devtools.estimator_simulation import simulate, step_scenario
+from softgrip_ros.devtools.processes import installed_executable, stop_process
+from softgrip_ros.estimation.estimator import EstimatorConfig, PressureEstimator, SensorConfig
+from softgrip_ros.estimation.runner import INPUTS, PREDICT, SAMPLES, EstimatorRunner, replay
+
+
+def runner(journal=None):
+    config = EstimatorConfig(sensors=(SensorConfig("chamber_a", 300.0),
+                                      SensorConfig("chamber_b", 150.0)))
+    return EstimatorRunner(PressureEstimator(config), 1 / 200.0, 1 / 20.0, journal=journal)
+
+
+def test_a_journal_replays_to_the_same_estimates_bit_for_bit():
+    """The step scenario's readings in batches, its input changes and timer predictions in
+    between: a fresh runner through the journal gives every estimate again, equal as floats."""
+    trajectory = simulate(scenario=step_scenario())
+    journal = []
+    live = runner(journal.append)
+    changes, estimates = list(trajectory.input_changes), []
+    batch, predicted = [], False
+    for t, name, value in trajectory.samples:
+        if 1.1 < t < 1.2:  # the sensors silent for 0.1 s: the timer predicts
+            if not predicted:
+                estimates += [e for e in (live.predict(1.15), live.predict(1.19)) if e]
+                predicted = True
+            continue
+        while changes and changes[0][0] <= t:
+            start, inputs = changes.pop(0)
+            live.inputs(inputs.regulator_setpoint_gauge_pa, inputs.regulator_enabled,
+                        inputs.valves[0], start)
+        batch.append((name, value, t))
+        if len(batch) == 3:  # a bus batch
+            estimate, refused = live.samples(batch)
+            assert refused is None
+            estimates += [estimate] if estimate else []
+            batch = []
+    assert len(estimates) > 100
+    assert {e.kind for e in journal} == {SAMPLES, INPUTS, PREDICT}
+    again = replay(runner(), journal)
+    assert [(e.stamp_s, e.gauge_pa, e.variance_pa2) for e in again] == [
+        (e.stamp_s, e.gauge_pa, e.variance_pa2) for e in estimates]
+    # shuffled delivery: the sequence numbers restore the order
+    assert replay(runner(), list(reversed(journal)))[-1] == again[-1]
+    with pytest.raises(ValueError, match="lacks events"):
+        replay(runner(), journal[:10] + journal[11:])
+
+
+def tool(name, *args, timeout=120):
+    return subprocess.run([installed_executable(name), *map(str, args)], capture_output=True,
+                          text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def demo_bag(tmp_path_factory):
+    """softgrip_record started first, then the controller; a grasp through the `softgrip` command
+    line (open to 50 mm, then release); the recorder's duration ends it."""
+    from tests.helpers.ros import unique
+    directory = tmp_path_factory.mktemp("record")
+    bag, namespace = directory / "demo", f"/{unique('rec').replace('-', '_')}"
+    recorder = subprocess.Popen([installed_executable("softgrip_record"), str(bag), "--namespace",
+                                 namespace, "--duration", "14"], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+    time.sleep(1.5)
+    controller = subprocess.Popen(
+        [installed_executable("controller"), "--ros-args", "-r", f"__ns:={namespace}", "-p",
+         f"can.channel:={unique('rec')}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        opened = tool("softgrip", "open", "--spacing", "0.05", "--namespace", namespace,
+                      "--timeout", "20")
+        released = tool("softgrip", "release", "--namespace", namespace, "--timeout", "20")
+        out, err = recorder.communicate(timeout=60)
+    finally:
+        if recorder.poll() is None:
+            stop_process(recorder)
+        stop_process(controller)
+    assert opened.returncode == 0, opened.stdout + opened.stderr
+    assert released.returncode == 0, released.stdout + released.stderr
+    assert recorder.returncode == 0, err
+    return bag, err
+
+
+@pytest.mark.ros
+def test_the_recorded_bag_reads_back_message_for_message(demo_bag):
+    from rosbags.rosbag2 import Reader
+    import yaml
+    from softgrip_ros.tools import bag as bags
+    bag, log = demo_bag
+    metadata = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert metadata["storage_identifier"] == "mcap"
+    declared = {t["topic_metadata"]["name"]: t["message_count"]
+                for t in metadata["topics_with_message_count"]}
+    read = {}
+    phases, sequences = [], []
+    for topic, _, _, message in bags.read(bag):
+        read[topic] = read.get(topic, 0) + 1
+        if topic.endswith("grasp_state"):
+            phases.append(message.phase)
+        if topic.endswith("estimator_input"):
+            sequences.append(message.sequence)
+    assert read == declared and sum(read.values()) == metadata["message_count"]
+    suffixes = ("grasp_state", "controller/status", "pressure/sensor/chamber_a",
+                "pressure/estimate", "pressure/estimator_input", "tip_pose/left",
+                "joint_states")
+    assert all(any(t.endswith(s) for t in read) for s in suffixes), sorted(read)
+    assert "/diagnostics" in read
+    # the recorder counted what it wrote
+    assert f"{sum(read.values())} messages" in log
+    # the journal from the estimator's first event, without a gap
+    assert sorted(sequences) == list(range(len(sequences)))
+    with Reader(bag) as reader:  # the rosbags library itself, with the definitions embedded
+        assert reader.message_count == sum(read.values())
+    assert "softgrip.estimator_parameters" in bags.custom_data(bag)
+
+
+@pytest.mark.ros
+def test_replay_reproduces_the_recorded_estimates(demo_bag, tmp_path):
+    bag, _ = demo_bag
+    done = tool("softgrip_replay", bag, "--output", tmp_path / "out")
+    assert done.returncode == 0, done.stdout + done.stderr
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["max_relative_difference"] <= 1e-9
+    assert summary["matched"] > 200 and summary["matched"] >= 0.95 * summary["recorded"]
+    assert (tmp_path / "out" / "replay.png").stat().st_size > 10_000
+    rows = (tmp_path / "out" / "estimates.csv").read_text().splitlines()
+    assert rows[0] == "stamp_s,gauge_pa,variance_pa2" and len(rows) > summary["matched"]
+
+
+@pytest.mark.ros
+def test_replay_without_a_journal_is_close_and_says_so(demo_bag, tmp_path):
+    """The same bag without pressure/estimator_input: the readings and statuses in stamp order
+    give estimates near the recorded ones, not equal (exit 1), and the summary says why."""
+    from softgrip_ros.tools import bag as bags
+    from softgrip_ros.tools.bag import BagWriter
+    source, _ = demo_bag
+    stripped = tmp_path / "stripped"
+    store = bags.typestore()
+    with BagWriter(stripped) as out:
+        for topic, msgtype, stamp_ns, message in bags.read(source):
+            if not topic.endswith("estimator_input"):
+                out.write(topic, msgtype, stamp_ns, store.serialize_cdr(message, msgtype))
+        out.set_custom_data("softgrip.estimator_parameters",
+                            bags.custom_data(source)["softgrip.estimator_parameters"])
+    done = tool("softgrip_replay", stripped, "--output", tmp_path / "out", "--no-plot")
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert "no journal" in summary["source"]
+    assert done.returncode == 1 and summary["matched"] > 50
+    # the readings one by one, not in the live batches and fusion windows: the pressure within
+    # 1 kPa of the recorded estimate (the sensors' noise is 0.15-0.3 kPa), the variance not equal
+    assert 0.0 < summary["max_pressure_difference_pa"] < 1000.0
+    assert not (tmp_path / "out" / "replay.png").exists()
+
+
+@pytest.mark.ros
+def test_a_truncated_or_corrupt_bag_is_reported_not_a_traceback(demo_bag, tmp_path):
+    bag, _ = demo_bag
+    truncated = tmp_path / "truncated"
+    shutil.copytree(bag, truncated)
+    storage = next(truncated.glob("*.mcap"))
+    data = storage.read_bytes()
+    storage.write_bytes(data[:len(data) // 2])
+    done = tool("softgrip_replay", truncated, "--output", tmp_path / "out")
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert str(truncated) in done.stderr
+    broken = tmp_path / "broken"
+    shutil.copytree(bag, broken)
+    (broken / "metadata.yaml").write_text("rosbag2_bagfile_information: [unclosed")
+    done = tool("softgrip_replay", broken)
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    done = tool("softgrip_replay", tmp_path / "no_such_bag")
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+
+
+@pytest.mark.ros
+def test_the_recorder_refuses_an_existing_directory_and_warns_of_missing_topics(tmp_path):
+    (tmp_path / "exists").mkdir()
+    done = tool("softgrip_record", tmp_path / "exists", "--duration", "1")
+    assert done.returncode == 2 and "exists" in done.stderr
+    done = tool("softgrip_record", tmp_path / "quiet", "--topics", "no_such_topic",
+                "--namespace", "/nobody_here", "--duration", "1.5")
+    assert done.returncode == 0, done.stderr
+    assert "never appeared: /nobody_here/no_such_topic" in done.stderr
+    from softgrip_ros.tools import bag as bags
+    assert list(bags.read(tmp_path / "quiet")) == []
+
+
+@pytest.mark.ros
+def test_a_full_disk_stops_recording_with_a_message_and_a_readable_bag(tmp_path):
+    """Free space below --min-free-mb (here: more than any disk has) stops the recording at its
+    first check; the bag is closed and reads."""
+    done = tool("softgrip_record", tmp_path / "full", "--min-free-mb", "1e12", "--duration", "10")
+    assert done.returncode == 1
+    assert "recording stopped: the disk has" in done.stderr
+    from softgrip_ros.tools import bag as bags
+    assert list(bags.read(tmp_path / "full")) == []
+
+
+@pytest.mark.ros
+def test_the_raw_can_traffic_goes_to_a_python_can_log(tmp_path):
+    """--can with the simulated device's frames on softgrip_ipc: a .blf that python-can reads."""
+    import can
+    from tests.helpers.ros import unique
+    channel = unique("reccan")
+    device = subprocess.Popen(
+        [installed_executable("sim_device"), "--ros-args", "-p", "can.interface:=softgrip_ipc",
+         "-p", f"can.channel:={channel}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        time.sleep(1.5)
+        done = tool("softgrip_record", tmp_path / "bag", "--topics", "grasp_state", "--duration",
+                    "2", "--can", tmp_path / "trial.blf", "--can-interface", "softgrip_ipc",
+                    "--can-channel", channel)
+    finally:
+        stop_process(device)
+    assert done.returncode == 0, done.stderr
+    frames = list(can.BLFReader(str(tmp_path / "trial.blf")))
+    # 2 s of sensor frames at 500 + 200 Hz (a quarter lost would still pass)
+    assert len(frames) > 1000
+    assert {f.arbitration_id for f in frames} >= {0x210, 0x211, 0x200, 0x280}
+    assert math.isfinite(np.mean([f.timestamp for f in frames]))
