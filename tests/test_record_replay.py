@@ -155,7 +155,8 @@ def test_replay_without_a_journal_is_close_and_says_so(demo_bag, tmp_path):
     done = tool("softgrip_replay", stripped, "--output", tmp_path / "out", "--no-plot")
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert "no journal" in summary["source"]
-    assert done.returncode == 1 and summary["matched"] > 50
+    # the estimates come at other instants than the live batches gave them: some share a stamp
+    assert done.returncode == 1 and summary["matched"] >= 10
     # the readings one by one, not in the live batches and fusion windows: the pressure within
     # 1 kPa of the recorded estimate (the sensors' noise is 0.15-0.3 kPa), the variance not equal
     assert 0.0 < summary["max_pressure_difference_pa"] < 1000.0
