@@ -302,6 +302,21 @@ def test_repeated_inputs_neither_fuse_the_waiting_samples_nor_predict():
     assert not estimator._pending and estimator.time_s == pytest.approx(0.003)
 
 
+def test_a_sensor_is_reported_silent_after_a_tenth_of_a_second_not_one_fusion_timeout():
+    """The fusion drops a sensor after sensor_timeout_s (50 ms); the report names it silent
+    only after SILENCE_REPORTED_S (0.1 s): a loaded host holds the reading thread up 50 ms now
+    and then."""
+    estimator = PressureEstimator(EstimatorConfig())
+    estimator.set_inputs(0.0, True, Valve.CLOSED, 0.0)
+    for k in range(100):
+        estimator.add_measurement("chamber_a", 0.0, 0.002 * k)
+        estimator.add_measurement("chamber_b", 0.0, 0.002 * k + 0.001)
+    last = 0.199
+    assert "silent" not in estimator.report(last + 0.07).message
+    assert estimator.alive_sensors(last + 0.07) == []  # the fusion has dropped them already
+    assert "all sensors silent" in estimator.report(last + 0.11).message
+
+
 def test_a_report_changes_nothing_the_samples_waiting_stay_for_their_fusion():
     """The node's diagnostics ask for a report every 0.5 s: it fused the waiting samples then,
     and the estimates depended on when that ran (a replay of the estimator's events diverged at
