@@ -16,6 +16,13 @@ import math
 from softgrip_ros.estimation.estimator import Estimate, PressureEstimator
 
 SAMPLES, INPUTS, PREDICT = 0, 1, 2  # the kinds of softgrip_interfaces/msg/EstimatorInput
+JOURNAL_TOPIC = "pressure/estimator_input"  # where the estimator node publishes the journal
+# the journal goes out for this long after the node's start whether or not anyone listens, and
+# the last JOURNAL_HISTORY events stay for a subscriber that joins late (transient local): a
+# recorder started before the controller gets it from its first event, which an exact replay
+# needs
+JOURNAL_STARTUP_S = 5.0
+JOURNAL_HISTORY = 5000
 # the timer predicts once neither a reading nor an estimate has come for two of its periods; it
 # runs at most this often
 PREDICTION_RATE_LIMIT_HZ = 50.0

@@ -26,7 +26,8 @@ from sensor_msgs.msg import FluidPressure
 
 from softgrip_interfaces.msg import ControllerStatus, EstimatorInput, PressureCommand
 from softgrip_ros.estimation.estimator import PressureEstimator
-from softgrip_ros.estimation.runner import PREDICTION_RATE_LIMIT_HZ, EstimatorRunner
+from softgrip_ros.estimation.runner import (JOURNAL_HISTORY, JOURNAL_STARTUP_S, JOURNAL_TOPIC,
+                                             PREDICTION_RATE_LIMIT_HZ, EstimatorRunner)
 from softgrip_ros.health import Health
 from softgrip_ros.model.pneumatics import PneumaticPlant, Valve
 from softgrip_ros.checks import future_stamp_reason
@@ -42,12 +43,6 @@ ESTIMATOR_STATUS = "softgrip: estimator"
 # the NIS evidence handed to the composed pressure controller this often
 EVIDENCE_PERIOD_S = 0.1
 REFUSAL_REPORTED_S = 5.0  # a refused message keeps the diagnostics at WARN this long
-# the journal goes out for this long after start-up whether or not anyone listens, and the last
-# JOURNAL_HISTORY events stay for a subscriber that joins late: a recorder started before the
-# controller gets it from its first event, which an exact replay needs
-JOURNAL_STARTUP_S = 5.0
-JOURNAL_HISTORY = 5000
-JOURNAL_TOPIC = "pressure/estimator_input"
 
 
 class EstimatorNode(Node):

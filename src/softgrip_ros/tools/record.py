@@ -42,7 +42,6 @@ FLUSH_PERIOD_S = 0.1
 PROGRESS_PERIOD_S = 5.0
 DRAIN_QUIET_S = 0.5
 DRAIN_MAX_S = 15.0
-JOURNAL_TOPIC = "pressure/estimator_input"
 
 
 def parser() -> argparse.ArgumentParser:
@@ -93,6 +92,8 @@ class Recorder:
 
     def discover(self) -> None:
         from rclpy.qos import DurabilityPolicy, QoSProfile
+
+        from softgrip_ros.estimation.runner import JOURNAL_HISTORY, JOURNAL_TOPIC
         for topic, types in self.node.get_topic_names_and_types():
             if topic in self.subscribed or topic in self.skipped or not any(
                     fnmatch.fnmatchcase(topic, p) for p in self.patterns):
@@ -105,7 +106,7 @@ class Recorder:
                       file=sys.stderr)
                 continue
             # the journal is kept for a late subscriber (transient local): take its history
-            qos = (QoSProfile(depth=5000, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            qos = (QoSProfile(depth=JOURNAL_HISTORY, durability=DurabilityPolicy.TRANSIENT_LOCAL)
                    if topic.endswith("/" + JOURNAL_TOPIC) else QoSProfile(depth=1000))
             self.node.create_subscription(
                 message_class, topic,

@@ -46,18 +46,15 @@ def parser() -> argparse.ArgumentParser:
     return top
 
 
-def _stamp(header) -> float:
-    return header.stamp.sec + 1e-9 * header.stamp.nanosec
-
-
 def load(path: pathlib.Path) -> dict:
     """What a replay needs from the bag; ValueError when it cannot be read."""
-    from softgrip_ros.estimation.runner import Event
+    from softgrip_ros.estimation.runner import JOURNAL_TOPIC, Event
     from softgrip_ros.model.pneumatics import P_ATM_PA
+    from softgrip_ros.nodes.common import stamp_seconds
     from softgrip_ros.tools import bag
     found = {"journal": [], "estimates": [], "sensors": [], "status": [], "d2": []}
     for topic, _, _, message in bag.read(path):
-        if topic.endswith("pressure/estimator_input"):
+        if topic.endswith(JOURNAL_TOPIC):
             found["journal"].append(Event(
                 int(message.sequence), int(message.kind),
                 tuple(zip(message.sensor_names, map(float, message.gauge_pressure_pa),
@@ -68,15 +65,15 @@ def load(path: pathlib.Path) -> dict:
             found["estimates"].append((message.header.stamp.sec, message.header.stamp.nanosec,
                                        float(message.fluid_pressure), float(message.variance)))
         elif "/pressure/sensor/" in topic:
-            found["sensors"].append((_stamp(message.header), topic.rsplit("/", 1)[1],
+            found["sensors"].append((stamp_seconds(message.header.stamp), topic.rsplit("/", 1)[1],
                                      float(message.fluid_pressure) - P_ATM_PA))
         elif topic.endswith("controller/status") and len(message.valve_states):
-            found["status"].append((_stamp(message.header),
+            found["status"].append((stamp_seconds(message.header.stamp),
                                     float(message.regulator_command_gauge_pressure_pa),
                                     bool(message.regulator_enabled),
                                     int(message.valve_states[0])))
         elif topic.endswith("grasp_state"):
-            found["d2"].append((_stamp(message.header), float(message.tip_spacing_m)))
+            found["d2"].append((stamp_seconds(message.header.stamp), float(message.tip_spacing_m)))
     found["custom"] = bag.custom_data(path)
     return found
 
