@@ -296,11 +296,9 @@ class SimulatedDevice:
         """One plant step of exactly the real time elapsed since the last tick (bounded after a
         stall), then the frames due."""
         now = self.clock()
-        self._last_tick = max(self._last_tick, now - MAX_STALL_S)
         sim_time = now - self._started_at
         try:
-            self._receive(now)
-            self._advance_to(now)
+            self._bring_to(now)
             if now >= self._next_replay:
                 with self._lock:
                     rate_hz = self._faults["replay_rate_hz"]
@@ -325,6 +323,12 @@ class SimulatedDevice:
                                {"DeviceState": 1, "Uptime": min(sim_time, 167772.15)})
         except can.CanError as error:  # a closed or failing bus: keep simulating, report it
             LOG.warning("sim device: CAN send failed: %s", error)
+
+    def _bring_to(self, now: float) -> None:
+        """The plant to ``now`` (from at most MAX_STALL_S back), split at each frame's arrival."""
+        self._last_tick = max(self._last_tick, now - MAX_STALL_S)
+        self._receive(now)
+        self._advance_to(now)
 
     def _advance_to(self, when: float) -> None:
         """The plant from the last tick's time to ``when``, in steps of at most
@@ -371,11 +375,8 @@ class SimulatedDevice:
         tick's readings, a whole wait apart, would look one period apart (a false jump for the
         safety checks, a large NIS for the estimator; a real device samples as it sends)."""
         now = self.clock()
-        if now - self._last_tick <= SEND_LAG_S:
-            return
-        self._last_tick = max(self._last_tick, now - MAX_STALL_S)
-        self._receive(now)
-        self._advance_to(now)
+        if now - self._last_tick > SEND_LAG_S:
+            self._bring_to(now)
 
     def _send_sensor(self, sensor: SensorSpec) -> None:
         self._catch_up()

@@ -277,12 +277,15 @@ class PressureEstimator:
         Without it, a boosted fill starting a few ms off its stamp put the estimate kilopascals
         behind with a tight P, and the gate rejected every sample until the lockout reset the
         filter."""
-        x, step_s = self.filter.x[:, 0], 1e-3
-        rate_before = (plant_step(self.plant, x, step_s, self.inputs) - x) / step_s
-        rate_after = (plant_step(self.plant, x, step_s, inputs) - x) / step_s
-        d = (rate_after - rate_before) * self.config.input_timing_std_s
+        d = (self._state_rate(inputs) - self._state_rate(self.inputs)) * \
+            self.config.input_timing_std_s
         self.filter.add_covariance(np.outer(d, d))
         return d
+
+    def _state_rate(self, inputs: PlantInputs) -> np.ndarray:
+        """d(state)/dt at the filter's state under ``inputs`` (Pa/s, over 1 ms)."""
+        x, step_s = self.filter.x[:, 0], 1e-3
+        return (plant_step(self.plant, x, step_s, inputs) - x) / step_s
 
     def predict_to(self, stamp_s: float) -> None:
         """Advance the filter to ``stamp_s`` with the current inputs (no-op when not later), after
@@ -440,8 +443,7 @@ class PressureEstimator:
                                                                                      CHAMBER])
         timing_variance = 0.0
         if self.config.sample_timing_std_s > 0.0:
-            x, step_s = self.filter.x[:, 0], 1e-3
-            rate = (plant_step(self.plant, x, step_s, self.inputs)[CHAMBER] - x[CHAMBER]) / step_s
+            rate = self._state_rate(self.inputs)[CHAMBER]
             timing_variance = (rate * self.config.sample_timing_std_s)**2
         for name, value, walk_variance in samples:
             stats = self.stats[name]
