@@ -97,6 +97,14 @@ class CheckConfig:
                              f"{self.channels!r}")
 
 
+def _pressure_signal(message: str) -> str | None:
+    """The pressure a device message carries: a sensor's reading, the regulator's output (None:
+    no pressure)."""
+    if message == "RegulatorStatus":
+        return "ActualGaugePressure"
+    return "GaugePressure" if message.startswith(SENSOR_PREFIX) else None
+
+
 class CheckAborted(RuntimeError):
     """A reading passed the pressure limit: the device was vented."""
 
@@ -293,10 +301,9 @@ class DeviceChecker:
     def _regulator_row(self) -> Row:
         target = self.config.test_pressure_pa
         self.progress(f"regulator: setpoint {target / 1e3:.1f} kPa, valves closed")
-        results = []
+        results, tolerance = [], max(1000.0, 0.1 * abs(target))
         for setpoint in (target, 0.0):
             self._set_command(setpoint, True, (CLOSED,) * VALVE_CHANNELS)
-            tolerance = max(1000.0, 0.1 * abs(target))
             reached = self._wait_for(
                 lambda s=setpoint: abs(self._latest_value("RegulatorStatus") - s) <= tolerance,
                 self.config.response_timeout_s, samples=3)
@@ -307,7 +314,8 @@ class DeviceChecker:
             (f" in {reached:.2f} s" if reached is not None else "")
             for setpoint, reached, value in results)
         reason = "" if ok else "; ".join(
-            f"ActualGaugePressure {value / 1e3:.1f} kPa, not within 1 kPa of the setpoint "
+            f"ActualGaugePressure {value / 1e3:.1f} kPa, not within {tolerance / 1e3:g} kPa of "
+            "the setpoint "
             f"{setpoint / 1e3:g} kPa after {self.config.response_timeout_s:g} s"
             for setpoint, reached, value in results if reached is None)
         return Row("regulator follows RegulatorSetpoint", ok, measured, reason)
@@ -468,8 +476,7 @@ class DeviceChecker:
                     self._latest[name] = (received.arrival, signals)
             # a chamber reading beyond the limit, or a regulator output beyond it that a SUPPLY
             # channel would pass on
-            signal = {"RegulatorStatus": "ActualGaugePressure"}.get(
-                name, "GaugePressure" if name.startswith(SENSOR_PREFIX) else None)
+            signal = _pressure_signal(name)
             if (usable and signal and abs(signals[signal]) > limit and not self._aborted):
                 self._aborted = (f"{name} {signal} {signals[signal] / 1e3:+.1f} kPa, beyond the "
                                  f"check's limit of +-{limit / 1e3:g} kPa: vented")
@@ -498,7 +505,7 @@ class DeviceChecker:
             return list(self._frames)
 
     def _latest_value(self, name: str) -> float:
-        signal = "ActualGaugePressure" if name == "RegulatorStatus" else "GaugePressure"
+        signal = _pressure_signal(name)
         with self._lock:
             latest = self._latest.get(name)
         return float(latest[1][signal]) if latest else math.nan

@@ -258,11 +258,8 @@ class Rig:
     def reset(self) -> bool:
         """Every fault cleared, the grasp stopped and vented, the controller out of its safe
         state."""
-        for name, value in (("sensor_stuck", ""), ("sensor_stuck_at", "present"),
-                            ("sensor_bias_pa", 0.0), ("sensor_noise_scale", 1.0),
-                            ("sensor_dropout", ""), ("valve_stuck", False),
-                            ("valve_stuck_open", False), ("regulator_overshoot_pa", 0.0),
-                            ("bus_silent", False), ("corrupt_rate", 0.0), ("replay_rate_hz", 0.0)):
+        from softgrip_ros.canbus.sim_device import FAULTS as DEVICE_FAULTS
+        for name, value in DEVICE_FAULTS.items():  # each at its default: no fault
             self.device.set_fault(name, value)
         controller = self.nodes["pressure_controller"].controller
         for _ in range(3):
