@@ -158,9 +158,12 @@ def test_replay_without_a_journal_is_close_and_says_so(demo_bag, tmp_path):
     assert "no journal" in summary["source"]
     # the estimates come at other instants than the live batches gave them: some share a stamp
     assert done.returncode == 1 and summary["matched"] >= 10
-    # the readings one by one, not in the live batches and fusion windows: the pressure within
-    # 1 kPa of the recorded estimate (the sensors' noise is 0.15-0.3 kPa), the variance not equal
-    assert 0.0 < summary["max_pressure_difference_pa"] < 1000.0
+    # the readings one by one, not in the live batches and fusion windows: typically within the
+    # sensors' noise (0.15-0.3 kPa) of the recorded estimate; in a fast fill, where a fusion
+    # window's 20 ms at 100-300 kPa/s is kPa, by up to 3 kPa (1.04 kPa in CI, ci19: the 1 kPa
+    # this asserted before was a guess below that)
+    assert 0.0 < summary["median_pressure_difference_pa"] < 150.0
+    assert summary["max_pressure_difference_pa"] < 3000.0
     assert not (tmp_path / "out" / "replay.png").exists()
 
 

@@ -26,6 +26,7 @@ import csv
 import json
 import math
 import pathlib
+import statistics
 import sys
 import time
 
@@ -142,6 +143,7 @@ def compare(replayed: list, recorded: list) -> dict:
         by_stamp[(nanoseconds // 10**9, nanoseconds % 10**9)] = e
     worst, worst_at, matched, first_off = 0.0, math.nan, 0, None
     worst_pa = worst_variance = 0.0
+    differences_pa = []
     for sec, nanosec, absolute_pa, variance in recorded:
         e = by_stamp.get((sec, nanosec))
         if e is None:
@@ -150,6 +152,7 @@ def compare(replayed: list, recorded: list) -> dict:
         difference_pa = abs(e.gauge_pa + P_ATM_PA - absolute_pa)
         variance_off = abs(e.variance_pa2 - variance) / max(abs(variance), 1e-300)
         worst_pa, worst_variance = max(worst_pa, difference_pa), max(worst_variance, variance_off)
+        differences_pa.append(difference_pa)
         off = max(difference_pa / abs(absolute_pa), variance_off)
         if off > REPRODUCED_RELATIVE and first_off is None:
             first_off = sec + 1e-9 * nanosec
@@ -158,6 +161,8 @@ def compare(replayed: list, recorded: list) -> dict:
     return {"recorded": len(recorded), "replayed": len(replayed), "matched": matched,
             "max_relative_difference": worst, "at_s": worst_at, "first_beyond_s": first_off,
             "max_pressure_difference_pa": worst_pa,
+            "median_pressure_difference_pa": (statistics.median(differences_pa)
+                                              if differences_pa else math.nan),
             "max_variance_relative_difference": worst_variance}
 
 
