@@ -584,3 +584,11 @@ def test_the_nis_evidence_follows_a_sensor_back_within_a_few_samples():
             {"chamber_a": rng.normal(10e3, 300.0), "chamber_b": rng.normal(10e3, 150.0)}, t)
     assert estimator.nis_evidence()["chamber_b"] < 5.0
     assert estimator.stats["chamber_b"].mean_nis() > 100.0  # the window itself still remembers
+
+
+def test_the_report_judges_silence_at_the_last_controller_status_unless_it_stalled():
+    from softgrip_ros.estimation.runner import STATUS_STALL_S, report_time_s
+    assert report_time_s(10.0, None) == 10.0  # no status yet: the wall clock
+    assert report_time_s(10.0, 9.85) == 9.85  # a host stall of 0.15 s: judged at the status
+    assert report_time_s(10.0, 10.0 - STATUS_STALL_S - 0.01) == 10.0  # the status stalled too
+    assert report_time_s(10.0, 10.2) == 10.0  # never ahead of the clock

@@ -161,6 +161,29 @@ def test_silent_sensors_give_predictions_with_growing_variance_and_a_warning(wir
                     for d in diagnostics[-3:]), message="a WARN naming the lost sensor")
 
 
+def test_silent_sensors_are_reported_while_the_controller_status_keeps_coming(wired):
+    """The report judges silence at the last controller/status (a stalled host is no silence of
+    the sensors), so with the status flowing a silent bus is still named."""
+    import time
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from softgrip_interfaces.msg import ControllerStatus
+    feeder, publishers, status_pub, estimates, diagnostics = wired
+    rng = np.random.default_rng(2)
+    _feed(feeder, publishers, ("chamber_a", "chamber_b"), 5e3, 0.5, rng)
+
+    def warned():
+        return any(d.level == DiagnosticStatus.WARN and "all sensors silent" in d.message
+                   for d in diagnostics[-3:])
+
+    end = time.monotonic() + 10.0
+    while time.monotonic() < end and not warned():
+        status_pub.publish(
+            ControllerStatus(header=_header(feeder.get_clock().now().to_msg(), ""),
+                             valve_states=[0], regulator_enabled=True))
+        time.sleep(0.02)
+    assert warned(), [d.message for d in diagnostics[-3:]]
+
+
 @pytest.mark.parametrize("argument, message", [
     ("filter_type:=particle", "must be one of ['kf', 'ekf', 'ukf']"),
     ("process_noise_covariance:=[1.0,2.0,3.0]", "process noise needs 2 values"),

@@ -27,7 +27,8 @@ from sensor_msgs.msg import FluidPressure
 from softgrip_interfaces.msg import ControllerStatus, EstimatorInput, PressureCommand
 from softgrip_ros.estimation.estimator import PressureEstimator
 from softgrip_ros.estimation.runner import (JOURNAL_HISTORY, JOURNAL_STARTUP_S, JOURNAL_TOPIC,
-                                             PREDICTION_RATE_LIMIT_HZ, EstimatorRunner)
+                                             PREDICTION_RATE_LIMIT_HZ, EstimatorRunner,
+                                             report_time_s)
 from softgrip_ros.health import Health
 from softgrip_ros.model.pneumatics import PneumaticPlant, Valve
 from softgrip_ros.checks import future_stamp_reason
@@ -63,6 +64,7 @@ class EstimatorNode(Node):
         self.consistency_listeners = []
         self.future_stamps = 0  # messages ignored for a stamp too far ahead
         self.last_refusal, self.last_refusal_at = "", -float("inf")
+        self.status_received_s = None  # when the last controller/status reached this node
         self.closed = False
         specs = {s.name: s for s in SPECS}
         self.values = declare(self, SPECS)
@@ -134,6 +136,7 @@ class EstimatorNode(Node):
         if not msg.valve_states or self._refused("controller/status",
                                                  stamp_seconds(msg.header.stamp)):
             return
+        self.status_received_s = self._now()
         try:
             with self._lock:
                 self.runner.inputs(msg.regulator_command_gauge_pressure_pa,
@@ -199,7 +202,7 @@ class EstimatorNode(Node):
 
     def _publish_diagnostics(self) -> None:
         with self._lock:
-            report = self.estimator.report(self._now())
+            report = self.estimator.report(report_time_s(self._now(), self.status_received_s))
         report.values["future_stamps_ignored"] = self.future_stamps
         if self._now() - self.last_refusal_at < REFUSAL_REPORTED_S:
             report = report.with_note(Health.WARN, self.last_refusal)
