@@ -10,7 +10,7 @@ which_control_msgs=0
 usage="usage: scripts/setup.sh [--with-reference] [--which-control-msgs]"
 for arg in "$@"; do
   case "$arg" in
-    --with-reference) with_reference=1 ;;   # the optional PyElastica reference (requirements/reference.txt)
+    --with-reference) with_reference=1 ;;   # the optional references: PyElastica and the FE (requirements/reference.txt, fe.txt)
     --which-control-msgs) which_control_msgs=1 ;;   # print the prefix of a real control_msgs, or "stand-in"; build nothing
     -h|--help) echo "$usage"; exit 0 ;;
     *) echo "[setup] ERROR: unknown argument '$arg' ($usage)" >&2; exit 2 ;;
@@ -85,15 +85,16 @@ else
   echo "$requirements_hash" > "$stamp"
 fi
 
-# ---- 1b. the optional reference model's dependencies (pyelastica, numba)
+# ---- 1b. the optional reference models' dependencies (pyelastica and numba; scikit-fem, gmsh)
 if [ "$with_reference" = 1 ]; then
-  reference_hash="$py_version-$(hash_of requirements/reference.txt requirements/constraints.txt)"
+  reference_hash="$py_version-$(hash_of requirements/reference.txt requirements/fe.txt requirements/constraints.txt)"
   reference_stamp="$venv/.softgrip-reference"
   if stamp_matches "$reference_stamp" "$reference_hash"; then
     say "reference extra up to date"
   else
-    say "installing the reference extra (PyElastica)"
+    say "installing the reference extras (PyElastica; scikit-fem and gmsh)"
     install_pinned requirements/reference.txt
+    install_pinned requirements/fe.txt
     echo "$reference_hash" > "$reference_stamp"
   fi
 fi

@@ -48,6 +48,30 @@ def test_validate_model_json_has_the_contract_keys():
     assert figures["alpha_25kPa_deg"] == pytest.approx(68.4, rel=0.035)
     assert figures["D2_50kPa_mm"] == pytest.approx(151.0, rel=0.05)
     assert figures["held_out"] == ["D1 at 0 kPa", "D1 at 50 kPa"]
+    # the FE figures, read from config/fe_reference.yaml (bench_fe.py writes it; no sweep here)
+    for key in ("fe_alpha_25kPa_deg", "fe_D2_50kPa_mm", "fe_D1_0kPa_mm", "fe_D1_50kPa_mm",
+                "fe_curvature_growth_50_55_pct", "fe_curvature_growth_55_60_pct",
+                "fe_verification_error_pct", "fe_mesh_change_pct", "fe_volume_change_pct"):
+        assert isinstance(figures[key], float), key
+    assert figures["fe_D1_0kPa_mm"] == pytest.approx(13.98, abs=0.01)  # the geometry's
+    assert figures["fe_verification_error_pct"] < 1.0
+    assert figures["fe_mesh_change_pct"] < 1.0
+    assert figures["fe_volume_change_pct"] < 0.5
+    # refitted to the FE, each law follows it closer than with the paper's constants
+    for law in ("l0", "l1"):
+        assert (figures[f"{law}_fe_cal_tip_err_vs_fe_to_45kPa_mm"] <
+                figures[f"{law}_paper_cal_tip_err_vs_fe_to_45kPa_mm"])
+
+
+def test_bench_fe_quick_runs_the_checks_and_a_coarse_sweep():
+    result = run("scripts/bench_fe.py", "--quick", timeout=600)
+    assert result.returncode == 0, result.stderr
+    figures = json.loads(result.stdout)
+    assert figures["fe_verification_error_pct"] < 1.0
+    assert figures["fe_mesh_change_pct"] < 1.0
+    assert 20.0 < figures["fe_alpha_25kPa_deg"] < 60.0  # 29.6 deg on the 1 mm mesh
+    assert figures["fe_vacuum_limit_kpa"] < 0.0
+    assert "[fe]" in result.stderr or "sweep" in result.stderr  # progress on stderr
 
 
 def test_bench_model_quick_json_reports_every_figure():

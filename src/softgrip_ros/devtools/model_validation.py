@@ -10,6 +10,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
+
 from softgrip_ros.model.bending import BendingCalibration
 from softgrip_ros.model.calibration import PaperNumbers, load_calibration, mean_curvature_per_m
 from softgrip_ros.model.geometry import load_geometry
@@ -101,3 +103,82 @@ def summary(paper: PaperNumbers | None = None) -> dict:
         result[prefix + "D1_50kPa_mm"] = getattr(table["D1 at 50 kPa"], attribute)
         result[prefix + "D2_50kPa_mm"] = getattr(table["D2 at 50 kPa"], attribute)
     return result
+
+
+# ---- against the FE reference (config/fe_reference.yaml, written by scripts/bench_fe.py) ------
+FE_KEYS = ("fe_alpha_25kPa_deg", "fe_D2_50kPa_mm", "fe_D1_0kPa_mm", "fe_D1_50kPa_mm",
+           "fe_curvature_growth_50_55_pct", "fe_curvature_growth_55_60_pct",
+           "fe_verification_error_pct", "fe_mesh_change_pct", "fe_volume_change_pct")
+LINEAR_RANGE_PA = 45e3  # the paper: its linear law within 3.5 % of its FEA up to 45 kPa
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelAgainstFE:
+    """One model's errors against the FE over the positive sweep (absolute, worst)."""
+
+    name: str
+    alpha_deg_to_45: float
+    d2_mm_to_45: float
+    tip_mm_to_45: float
+    alpha_deg_beyond: float  # 50-60 kPa
+    d2_mm_beyond: float
+    tip_mm_beyond: float
+    tip_mm_held_out: float  # at the FE calibration's held-out pressures
+
+
+def fe_models():
+    """{name: kinematics}: L0 and L1 with the paper's calibration (type_II) and with the FE's
+    (type_II_fe, type_II_fe_l1)."""
+    from softgrip_ros.model.fe_data import FE_CALIBRATION_NAMES
+    geometry = load_geometry("type_II")
+    top = GripperKinematics.MODEL_MAX_PRESSURE_PA
+    out = {}
+    for law in ("l0", "l1"):
+        out[f"{law.upper()}, paper calibration"] = GripperKinematics(
+            geometry, load_calibration("type_II"), model=law, max_pressure_pa=top)
+    for law, name in FE_CALIBRATION_NAMES.items():
+        out[f"{law.upper()}, FE calibration ({name})"] = GripperKinematics(
+            geometry, load_calibration(name), model=law, max_pressure_pa=top)
+    return out
+
+
+def against_fe(reference) -> list[ModelAgainstFE]:
+    from softgrip_ros.model.fe_data import HELD_OUT_PRESSURES_PA, errors_against_fe
+    pressures = [p.pressure_pa for p in reference.positive()]
+    result = []
+    for name, kin in fe_models().items():
+        rows = errors_against_fe(kin, reference, pressures)
+        low = [r for r in rows if r[0] <= LINEAR_RANGE_PA]
+        high = [r for r in rows if r[0] > LINEAR_RANGE_PA]
+        held = [r for r in rows if any(abs(r[0] - h) < 1.0 for h in HELD_OUT_PRESSURES_PA)]
+
+        def worst(selection, column):
+            return max(abs(r[column]) for r in selection)
+
+        result.append(ModelAgainstFE(name, worst(low, 1), worst(low, 2), worst(low, 3),
+                                     worst(high, 1), worst(high, 2), worst(high, 3),
+                                     worst(held, 3)))
+    return result
+
+
+def fe_linearity(reference) -> tuple[float, float]:
+    """The FE's mean curvature against the best line through the origin on (0, 45 kPa]: the
+    largest relative deviation there (%), and the line's slope (1/m per Pa)."""
+    points = [p for p in reference.positive() if p.pressure_pa <= LINEAR_RANGE_PA]
+    p = np.array([q.pressure_pa for q in points])
+    kappa = np.array([q.mean_curvature_per_m for q in points])
+    slope = float(np.dot(p, kappa) / np.dot(p, p))
+    return float(np.max(np.abs(slope * p / kappa - 1.0)) * 100.0), slope
+
+
+def fe_summary(reference) -> dict:
+    """The --json FE keys of the issue, and the models' worst errors against the FE."""
+    out = {key: float(reference.figures[key]) for key in FE_KEYS}
+    out["fe_linear_law_max_deviation_to_45kPa_pct"] = fe_linearity(reference)[0]
+    out["fe_vacuum_limit_kpa"] = float(reference.figures["fe_vacuum_limit_kpa"])
+    for row in against_fe(reference):
+        key = row.name.split(",")[0].lower() + ("_fe_cal" if "FE" in row.name else "_paper_cal")
+        out[f"{key}_tip_err_vs_fe_to_45kPa_mm"] = row.tip_mm_to_45
+        out[f"{key}_D2_err_vs_fe_to_45kPa_mm"] = row.d2_mm_to_45
+        out[f"{key}_alpha_err_vs_fe_to_45kPa_deg"] = row.alpha_deg_to_45
+    return out

@@ -141,13 +141,19 @@ def calibrate_gain_from_alpha(geometry: FingerGeometry, paper: PaperNumbers,
     return dataclasses.replace(base, gain=float(fit.x[0]))
 
 
-def calibrate_all(paper: PaperNumbers, geometry_path=None) -> dict:
-    """Calibrations of types II, I and III, keyed by type name."""
+def calibrate_all(paper: PaperNumbers, geometry_path=None, fe_reference=None) -> dict:
+    """Calibrations of types II, I and III from the paper, keyed by type name; with
+    ``fe_reference`` (softgrip_ros.model.fe_data.FEReference) also type II's L0 and L1 fitted
+    to the FE (type_II_fe, type_II_fe_l1)."""
     type_ii = calibrate_type_ii(load_geometry("type_II", geometry_path), paper)
     result = {"type_II": type_ii}
     for name in ("type_I", "type_III"):
         result[name] = calibrate_gain_from_alpha(load_geometry(name, geometry_path), paper,
                                                  paper.alpha_25kpa_rad[name], type_ii)
+    if fe_reference is not None:
+        from softgrip_ros.model.fe_data import FE_CALIBRATION_NAMES, fit_to_fe
+        for law, name in FE_CALIBRATION_NAMES.items():
+            result[name] = fit_to_fe(load_geometry(name, geometry_path), fe_reference, law)
     return result
 
 
@@ -163,6 +169,12 @@ def write_calibration(calibrations: dict, path, paper_path: str) -> None:
                 "type II gain and ballooning compliance (2 constants) solved from alpha(25 kPa) "
                 "and D2(50 kPa) by least squares (exactly determined); types I and III: "
                 "gain only, from their alpha(25 kPa). Held out: D1(0), D1(50 kPa)."),
+            "fe_types": (
+                "type_II_fe (L0) and type_II_fe_l1 (L1): gain and ballooning compliance fitted "
+                "by least squares to the FE sweep's alpha(p) and D2(p) in "
+                "config/fe_reference.yaml "
+                "(softgrip_ros.model.fe_data.fit_to_fe), 15, 35 and 55 kPa held out; no "
+                "saturation (the FE shows none)."),
         },
         "types": {
             name: {

@@ -1,0 +1,114 @@
+"""The FE reference's committed results (config/fe_reference.yaml), and the bending calibration
+fitted to them.
+
+Reading the file needs neither scikit-fem nor gmsh: scripts/bench_fe.py (the FE extra) writes it,
+and scripts/validate_model.py, scripts/bench_speed_accuracy.py and the calibration read it.
+
+The FE calibration (``type_II_fe`` for L0, ``type_II_fe_l1`` for L1): the gain g and the chamber
+ballooning compliance c_b of each law, fitted by least squares to the FE's alpha(p) and D2(p) at
+the positive sweep pressures except the held-out ones. The saturation stays off (p_sat = inf):
+the FE shows no saturation to fit (docs/model_validation.md). The paper calibration
+(``type_II``) is untouched; a user picks one by the nodes' ``gripper_model``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import yaml
+from scipy.optimize import least_squares
+
+from softgrip_ros.model.bending import BendingCalibration
+from softgrip_ros.model.geometry import FingerGeometry
+from softgrip_ros.model.kinematics import GripperKinematics
+
+FE_REFERENCE_FILE = "fe_reference.yaml"
+HELD_OUT_PRESSURES_PA = (15e3, 35e3, 55e3)  # FE points the calibration does not see
+FE_CALIBRATION_NAMES = {"l0": "type_II_fe", "l1": "type_II_fe_l1"}
+# residual scales: one degree of alpha weighs as one millimetre of D2
+ALPHA_SCALE_RAD = math.radians(1.0)
+D2_SCALE_M = 1e-3
+
+
+@dataclasses.dataclass(frozen=True)
+class FEPoint:
+    pressure_pa: float
+    alpha_rad: float
+    d1_m: float
+    d2_m: float
+    mean_curvature_per_m: float
+    tip: tuple  # (x m, z m, angle rad)
+    backbone_m: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class FEReference:
+    points: tuple  # FEPoint, ascending pressure
+    figures: dict
+    sweep: dict
+    verification: dict
+
+    def at(self, pressure_pa: float) -> FEPoint:
+        for point in self.points:
+            if abs(point.pressure_pa - pressure_pa) < 1e-6:
+                return point
+        raise KeyError(f"config/{FE_REFERENCE_FILE} has no point at {pressure_pa / 1e3:+.1f} kPa")
+
+    def positive(self) -> list:
+        return [p for p in self.points if p.pressure_pa > 0.0]
+
+
+def load_fe_reference(path=None) -> FEReference:
+    if path is None:
+        from softgrip_ros.config_paths import config_file
+        path = config_file(FE_REFERENCE_FILE)
+    document = yaml.safe_load(open(path).read())
+    points = tuple(
+        FEPoint(pressure_pa=float(s["pressure_pa"]), alpha_rad=math.radians(s["alpha_deg"]),
+                d1_m=s["D1_mm"] * 1e-3, d2_m=s["D2_mm"] * 1e-3,
+                mean_curvature_per_m=float(s["mean_curvature_per_m"]),
+                tip=(s["tip_x_mm"] * 1e-3, s["tip_z_mm"] * 1e-3, math.radians(s["tip_angle_deg"])),
+                backbone_m=np.asarray(s["backbone_mm"], dtype=float) * 1e-3)
+        for s in document["states"])
+    return FEReference(points, dict(document["figures"]), dict(document["sweep"]),
+                       dict(document["verification"]))
+
+
+def fit_to_fe(geometry: FingerGeometry, reference: FEReference, law: str,
+              held_out=HELD_OUT_PRESSURES_PA) -> BendingCalibration:
+    """``law``'s gain and ballooning compliance from the FE's alpha and D2 (see the module)."""
+    points = [p for p in reference.positive()
+              if not any(abs(p.pressure_pa - h) < 1.0 for h in held_out)]
+    top = max(p.pressure_pa for p in reference.points)
+
+    def calibration(params):
+        return BendingCalibration(gain=float(params[0]),
+                                  ballooning_compliance_per_pa=float(params[1]) * 1e-6,
+                                  validated_max_pressure_pa=top)
+
+    def residuals(params):
+        kin = GripperKinematics(geometry, calibration(params), model=law, max_pressure_pa=top)
+        out = []
+        for point in points:
+            pose = kin.pose(point.pressure_pa)
+            out.append((pose.included_angle_rad - point.alpha_rad) / ALPHA_SCALE_RAD)
+            out.append((pose.tip_spacing_m - point.d2_m) / D2_SCALE_M)
+        return out
+
+    fit = least_squares(residuals, x0=[1.0, 0.1], bounds=([1e-3, 0.0], [1e3, 1e3]),
+                        xtol=1e-12, ftol=1e-12)
+    return calibration(fit.x)
+
+
+def errors_against_fe(kinematics: GripperKinematics, reference: FEReference, pressures_pa):
+    """Per pressure: (p, alpha error deg, D2 error mm, tip position error mm) of a model."""
+    rows = []
+    for p in pressures_pa:
+        point = reference.at(p)
+        pose = kinematics.pose(p)
+        rows.append((p, math.degrees(pose.included_angle_rad - point.alpha_rad),
+                     (pose.tip_spacing_m - point.d2_m) * 1e3,
+                     math.hypot(pose.left_tip_x_m - point.tip[0],
+                                pose.left_tip_z_m - point.tip[1]) * 1e3))
+    return rows
