@@ -370,3 +370,15 @@ def test_tip_table_refuses_bad_grids_and_pressures():
     for bad in (math.nan, 55e3, -200e3, "x"):
         with pytest.raises(ValueError):
             table.tip(bad)
+
+
+def test_spacings_for_a_model_s_own_angles_are_its_pose_s():
+    from softgrip_ros.model.calibration import build_kinematics
+    kin = build_kinematics("l1", max_pressure_pa=60e3)
+    for pressure in (0.0, 12e3, 40e3):
+        pose = kin.pose(pressure)
+        d1, d2 = kin.spacings_for_angles(pressure, pose.segment_angles_rad)
+        assert d1 == pytest.approx(pose.root_spacing_m, abs=1e-12)
+        assert d2 == pytest.approx(pose.tip_spacing_m, abs=1e-12)
+    with pytest.raises(ValueError, match="5 finite segment angles"):
+        kin.spacings_for_angles(10e3, [0.1, 0.2])

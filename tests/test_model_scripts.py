@@ -167,6 +167,13 @@ def test_bench_speed_accuracy_quick_json_runs_through_and_reports_every_key():
     assert {p["method"] for p in result_doc["estimators"]} >= {"kf", "ekf", "ukf"}
     assert all(p["cost_us"] > 0 for p in result_doc["estimators"]
                if p["method"] in ("kf", "ekf", "ukf"))
+    # against the FE: every model with both calibrations, the FE itself, and a Pareto set
+    fe = {p["method"]: p for p in result_doc["fe"]["summary"]}
+    assert len(fe) == 9 and "FE (the truth)" in result_doc["fe"]["pareto_tip"]
+    for model in ("L0", "L1", "L2", "PyElastica"):
+        fitted, paper = fe[f"{model}, FE calibration"], fe[f"{model}, paper calibration"]
+        assert fitted["tip_error_m"] < paper["tip_error_m"]  # the paper's bends far more
+        assert fitted["cost_s"] > 0.0
 
 
 @pytest.mark.ros

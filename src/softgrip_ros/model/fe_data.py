@@ -31,6 +31,14 @@ ALPHA_SCALE_RAD = math.radians(1.0)
 D2_SCALE_M = 1e-3
 
 
+def at_pressure(items, pressure_pa: float, where: str):
+    """The item (a sweep's state or point) at ``pressure_pa``; KeyError saying where it lacks."""
+    for item in items:
+        if abs(item.pressure_pa - pressure_pa) < 1e-6:
+            return item
+    raise KeyError(f"{where} has no point at {pressure_pa / 1e3:+.1f} kPa")
+
+
 @dataclasses.dataclass(frozen=True)
 class FEPoint:
     pressure_pa: float
@@ -50,10 +58,7 @@ class FEReference:
     verification: dict
 
     def at(self, pressure_pa: float) -> FEPoint:
-        for point in self.points:
-            if abs(point.pressure_pa - pressure_pa) < 1e-6:
-                return point
-        raise KeyError(f"config/{FE_REFERENCE_FILE} has no point at {pressure_pa / 1e3:+.1f} kPa")
+        return at_pressure(self.points, pressure_pa, f"config/{FE_REFERENCE_FILE}")
 
     def positive(self) -> list:
         return [p for p in self.points if p.pressure_pa > 0.0]

@@ -278,6 +278,18 @@ class GripperKinematics:
                 f"need {CHAMBER_COUNT} finite segment angles, got {segment_angles_rad!r}")
         return self._chain(thetas, [0.0] * CHAMBER_COUNT, _SCALAR_OPS)[1]
 
+    def spacings_for_angles(self, pressure_pa: float, segment_angles_rad) -> tuple[float, float]:
+        """(D1, D2) in m for explicit segment bends (a rod's, say), with this model's chamber
+        ballooning at ``pressure_pa``: the surfaces measured on another backbone."""
+        thetas = [float(t) for t in segment_angles_rad]
+        if len(thetas) != CHAMBER_COUNT or not all(math.isfinite(t) for t in thetas):
+            raise ValueError(
+                f"need {CHAMBER_COUNT} finite segment angles, got {segment_angles_rad!r}")
+        p = _checked_scalar(pressure_pa)
+        faces = self._chain(thetas, self._bulges(max(p, self.contact_pressure_pa)),
+                            _SCALAR_OPS)[0]
+        return -2.0 * faces[0][0], -2.0 * faces[1][0]
+
     # ---- derivative -----------------------------------------------------------------------
     def tip_slope(self, pressures_pa):
         """d(left tip x, z, angle)/dp for an array of pressures: shape (N, 3), in m/Pa and rad/Pa.

@@ -30,6 +30,7 @@ import numpy as np
 
 from softgrip_ros.model.fe.mesh import CORNER_REFINEMENT, FingerLayout
 from softgrip_ros.model.fe.solver import HyperelasticSolid, NotConverged, YeohMaterial
+from softgrip_ros.model.fe_data import at_pressure
 from softgrip_ros.model.geometry import CHAMBER_COUNT, FingerGeometry
 
 INSTALL_HINT = ("the FE reference needs scikit-fem and gmsh: bash scripts/setup.sh "
@@ -275,14 +276,11 @@ class FESweep:
     states: list
     vacuum_stop: str  # why the vacuum side ended before its last pressure ('' if it did not)
     vacuum_limit_pa: float  # the most negative pressure measured
-    seconds: float  # the solve time of the whole sweep (0 when it came from the cache)
+    seconds: float  # the solve time of the whole sweep, when it was computed (the cache keeps it)
     triangles: int
 
     def at(self, pressure_pa: float) -> FEState:
-        for state in self.states:
-            if abs(state.pressure_pa - pressure_pa) < 1e-6:
-                return state
-        raise KeyError(f"the FE sweep has no state at {pressure_pa / 1e3:+.1f} kPa")
+        return at_pressure(self.states, pressure_pa, "the FE sweep")
 
     def to_dict(self) -> dict:
         out = dataclasses.asdict(self)

@@ -125,17 +125,26 @@ class FingerLayout:
     the vertical root part, n from the backbone (the outer, strain-limiting side) towards the
     other finger. Metres.
 
-    Assumptions where Table 1 is silent (docs/model_validation.md repeats them):
+    Assumptions where Table 1 is silent (docs/model_validation.md repeats them), and why:
       * the solid base between the backbone and the chamber bottoms is d2 thick along the whole
-        inclined part, and the tip piece after the last segment is d3 (the terminal width) thick;
+        inclined part: Table 1's d2 is "the distance from the bottom of the air chamber to the
+        sidewall", and the kinematic models put the chamber faces at d2 + m_i on the same
+        reading;
+      * the tip piece after the last segment is d3 (the "terminal width") thick and ends square:
+        the text gives no tip shape, and the piece has no chamber, so its shape changes where
+        the tip point sits, not how the finger bends;
       * chamber i is a block L3 long and m_i deep on the base; its cavity is L3 - 2 m1 long and
-        m_i - m1 deep, sitting on the base (the chamber bottom d2 from the backbone), so that
-        its end and top walls are m1 = 3 mm thick and its face is d2 + m_i from the backbone,
-        as in the kinematic models;
-      * the gap after each chamber is h3 (h2 before the first), with no material above the base;
-      * the vertical root part is held by the gripper base: the inclined part is clamped across
-        its section at s = 0;
-      * plane strain: the finger's out-of-plane width and its side walls do not enter.
+        m_i - m1 deep, sitting on the base, so that its end and top walls have the stated
+        "overall wall thickness" m1 = 3 mm and its face is d2 + m_i from the backbone;
+      * the gap after each chamber is h3 (h2 before the first), with no material above the base:
+        Table 1's chamber spacings;
+      * the vertical root part is held by the gripper base, so the inclined part is clamped
+        across its section at s = 0: the kinematic models start bending there too, so both
+        measure from the same root;
+      * plane strain: the finger's out-of-plane width (not in Table 1) and its side walls do not
+        enter: it is the mid-plane of a wide finger, softer than the real, walled chambers.
+      * one material: the outer side limits strain by its thickness (the 13 mm base), as no
+        second, stiffer layer is named.
     """
 
     length_m: float
