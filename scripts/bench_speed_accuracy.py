@@ -459,14 +459,11 @@ def fe_points(repeat: int, quick: bool) -> dict:
 def fe_error_bounds(rows) -> dict:
     """Per model, each law fitted to the FE: the largest tip error in free bending inside and
     beyond 46 kPa (the classes of config/model_error_bounds.yaml)."""
-    out = {}
-    for model, method in (("l0", "l0"), ("l1", "l1"), ("l2", "l2")):
-        fitted = [r for r in rows if r["calibration"] == "FE"]
-        out[model] = {
-            "free": max(r["tip_error_m"][method] for r in fitted if r["pressure_pa"] <= 46e3),
-            "free_beyond": max([r["tip_error_m"][method] for r in fitted
-                                if r["pressure_pa"] > 46e3] or [math.nan])}
-    return out
+    fitted = [r for r in rows if r["calibration"] == "FE"]
+    return {model: {
+        "free": max(r["tip_error_m"][model] for r in fitted if r["pressure_pa"] <= 46e3),
+        "free_beyond": max([r["tip_error_m"][model] for r in fitted if r["pressure_pa"] > 46e3]
+                           or [math.nan])} for model in MODELS}
 
 
 def fe_chart(fe: dict) -> None:

@@ -117,6 +117,8 @@ class ModelAgainstFE:
     """One model's errors against the FE over the positive sweep (absolute, worst)."""
 
     name: str
+    law: str  # "l0" or "l1"
+    calibration: str  # "paper" or "fe"
     alpha_deg_to_45: float
     d2_mm_to_45: float
     tip_mm_to_45: float
@@ -127,18 +129,19 @@ class ModelAgainstFE:
 
 
 def fe_models():
-    """{name: kinematics}: L0 and L1 with the paper's calibration (type_II) and with the FE's
-    (type_II_fe, type_II_fe_l1)."""
+    """{(law, calibration): (name, kinematics)}: L0 and L1 with the paper's calibration
+    (type_II) and with the FE's (type_II_fe, type_II_fe_l1)."""
     from softgrip_ros.model.fe_data import FE_CALIBRATION_NAMES
     geometry = load_geometry("type_II")
     top = GripperKinematics.MODEL_MAX_PRESSURE_PA
     out = {}
-    for law in ("l0", "l1"):
-        out[f"{law.upper()}, paper calibration"] = GripperKinematics(
-            geometry, load_calibration("type_II"), model=law, max_pressure_pa=top)
-    for law, name in FE_CALIBRATION_NAMES.items():
-        out[f"{law.upper()}, FE calibration ({name})"] = GripperKinematics(
-            geometry, load_calibration(name), model=law, max_pressure_pa=top)
+    for calibration, names in (("paper", {"l0": "type_II", "l1": "type_II"}),
+                               ("fe", FE_CALIBRATION_NAMES)):
+        for law, name in names.items():
+            label = (f"{law.upper()}, paper calibration" if calibration == "paper" else
+                     f"{law.upper()}, FE calibration ({name})")
+            out[law, calibration] = (label, GripperKinematics(
+                geometry, load_calibration(name), model=law, max_pressure_pa=top))
     return out
 
 
@@ -146,7 +149,7 @@ def against_fe(reference) -> list[ModelAgainstFE]:
     from softgrip_ros.model.fe_data import HELD_OUT_PRESSURES_PA, errors_against_fe
     pressures = [p.pressure_pa for p in reference.positive()]
     result = []
-    for name, kin in fe_models().items():
+    for (law, calibration), (name, kin) in fe_models().items():
         rows = errors_against_fe(kin, reference, pressures)
         low = [r for r in rows if r[0] <= LINEAR_RANGE_PA]
         high = [r for r in rows if r[0] > LINEAR_RANGE_PA]
@@ -155,9 +158,9 @@ def against_fe(reference) -> list[ModelAgainstFE]:
         def worst(selection, column):
             return max(abs(r[column]) for r in selection)
 
-        result.append(ModelAgainstFE(name, worst(low, 1), worst(low, 2), worst(low, 3),
-                                     worst(high, 1), worst(high, 2), worst(high, 3),
-                                     worst(held, 3)))
+        result.append(ModelAgainstFE(name, law, calibration, worst(low, 1), worst(low, 2),
+                                     worst(low, 3), worst(high, 1), worst(high, 2),
+                                     worst(high, 3), worst(held, 3)))
     return result
 
 
@@ -177,7 +180,7 @@ def fe_summary(reference) -> dict:
     out["fe_linear_law_max_deviation_to_45kPa_pct"] = fe_linearity(reference)[0]
     out["fe_vacuum_limit_kpa"] = float(reference.figures["fe_vacuum_limit_kpa"])
     for row in against_fe(reference):
-        key = row.name.split(",")[0].lower() + ("_fe_cal" if "FE" in row.name else "_paper_cal")
+        key = f"{row.law}_{row.calibration}_cal"
         out[f"{key}_tip_err_vs_fe_to_45kPa_mm"] = row.tip_mm_to_45
         out[f"{key}_D2_err_vs_fe_to_45kPa_mm"] = row.d2_mm_to_45
         out[f"{key}_alpha_err_vs_fe_to_45kPa_deg"] = row.alpha_deg_to_45

@@ -272,19 +272,13 @@ class GripperKinematics:
 
     def tip_for_angles(self, segment_angles_rad) -> tuple[float, float, float]:
         """The left tip (x, z, angle) for explicit segment bends (5 floats), without ballooning."""
-        thetas = [float(t) for t in segment_angles_rad]
-        if len(thetas) != CHAMBER_COUNT or not all(math.isfinite(t) for t in thetas):
-            raise ValueError(
-                f"need {CHAMBER_COUNT} finite segment angles, got {segment_angles_rad!r}")
+        thetas = _checked_angles(segment_angles_rad)
         return self._chain(thetas, [0.0] * CHAMBER_COUNT, _SCALAR_OPS)[1]
 
     def spacings_for_angles(self, pressure_pa: float, segment_angles_rad) -> tuple[float, float]:
         """(D1, D2) in m for explicit segment bends (a rod's, say), with this model's chamber
         ballooning at ``pressure_pa``: the surfaces measured on another backbone."""
-        thetas = [float(t) for t in segment_angles_rad]
-        if len(thetas) != CHAMBER_COUNT or not all(math.isfinite(t) for t in thetas):
-            raise ValueError(
-                f"need {CHAMBER_COUNT} finite segment angles, got {segment_angles_rad!r}")
+        thetas = _checked_angles(segment_angles_rad)
         p = _checked_scalar(pressure_pa)
         faces = self._chain(thetas, self._bulges(max(p, self.contact_pressure_pa)),
                             _SCALAR_OPS)[0]
@@ -421,6 +415,13 @@ def _checked_scalar(value, what: str = "pressure") -> float:
     if not math.isfinite(value):
         raise ValueError(f"{what} must be finite, got {value}")
     return value
+
+
+def _checked_angles(segment_angles_rad) -> list:
+    thetas = [float(t) for t in segment_angles_rad]
+    if len(thetas) != CHAMBER_COUNT or not all(math.isfinite(t) for t in thetas):
+        raise ValueError(f"need {CHAMBER_COUNT} finite segment angles, got {segment_angles_rad!r}")
+    return thetas
 
 
 def _checked_array(values) -> np.ndarray:

@@ -123,9 +123,8 @@ class FingerFE:
             raise RuntimeError("a cavity has no boundary facets: the mesh lost a chamber")
         self.chambers = {f"chamber_{i + 1}": facets for i, facets in enumerate(cavities)}
         clamp = self.layout.clamp_facets(self.mesh)
-        probe = HyperelasticSolid(self.mesh, self.material, [], {})
-        self.solid = HyperelasticSolid(self.mesh, self.material, probe.dofs_on(clamp),
-                                       self.chambers)
+        self.solid = HyperelasticSolid(self.mesh, self.material, self.chambers)
+        self.solid.fix(self.solid.dofs_on(clamp))
         self._build_probes()
 
     # ---- where things are measured -----------------------------------------------------------

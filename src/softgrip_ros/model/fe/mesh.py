@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import math
 import signal
 import threading
 
@@ -184,29 +183,16 @@ class FingerLayout:
             occ.cut(body, [(2, h) for h in holes])
             return _triangulate(gmsh, size_m, corner_refinement)
 
-    def facets_where(self, mesh: MeshTri, predicate) -> np.ndarray:
-        """Boundary facets whose midpoints (s, n) satisfy predicate(s, n)."""
-        facets = mesh.boundary_facets()
-        mid = mesh.p[:, mesh.facets[:, facets]].mean(axis=1)
-        return facets[predicate(mid[0], mid[1])]
-
     def cavity_facets(self, mesh: MeshTri, tolerance: float = 1e-7) -> list:
-        return [self.facets_where(mesh, lambda s, n, c=c: c.on_boundary(s, n, tolerance))
+        return [boundary_facets_where(mesh, lambda s, n, c=c: c.on_boundary(s, n, tolerance))
                 for c in self.cavities]
 
     def clamp_facets(self, mesh: MeshTri, tolerance: float = 1e-7) -> np.ndarray:
-        return self.facets_where(mesh, lambda s, n: np.abs(s) < tolerance)
-
-    def cavity_area_m2(self) -> float:
-        return sum((c.s1 - c.s0) * (c.n1 - c.n0) for c in self.cavities)
+        return boundary_facets_where(mesh, lambda s, n: np.abs(s) < tolerance)
 
 
-def polygon_area(points) -> float:
-    """The signed area of a closed polygon given as (2, K) vertices in order."""
-    x, y = points
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
-
-
-def size_for(level: int, coarsest_m: float) -> float:
-    """The element size of refinement ``level`` (0 = coarsest): each level halves the area."""
-    return coarsest_m / math.sqrt(2.0)**level
+def boundary_facets_where(mesh: MeshTri, predicate) -> np.ndarray:
+    """The boundary facets whose midpoints (x, y) satisfy predicate(x, y)."""
+    facets = mesh.boundary_facets()
+    mid = mesh.p[:, mesh.facets[:, facets]].mean(axis=1)
+    return facets[predicate(mid[0], mid[1])]

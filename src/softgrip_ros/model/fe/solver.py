@@ -163,11 +163,11 @@ class HyperelasticSolid:
     """A plane-strain Yeoh body on a triangle mesh, with Dirichlet displacements and gas
     pressure on named boundaries.
 
-    mesh: a skfem.MeshTri (metres). fixed_dofs: displacement dofs held at zero, from
-    :meth:`dofs_on`. pressure_facets: {name: facet indices} of walls that a gas pressure loads.
+    mesh: a skfem.MeshTri (metres). pressure_facets: {name: facet indices} of walls that a gas
+    pressure loads. :meth:`fix` holds displacement dofs (none at first).
     """
 
-    def __init__(self, mesh, material: YeohMaterial, fixed_dofs, pressure_facets: dict,
+    def __init__(self, mesh, material: YeohMaterial, pressure_facets: dict,
                  quadrature_order: int = QUADRATURE_ORDER):
         self.mesh = mesh
         self.material = material
@@ -178,24 +178,29 @@ class HyperelasticSolid:
                              intorder=quadrature_order)
             for name, facets in pressure_facets.items()
         }
-        self.fixed_dofs = np.unique(np.asarray(fixed_dofs, dtype=np.int64))
         self.n_u = self.basis_u.N
         self.n_p = self.basis_p.N
         self.u = np.zeros(self.n_u)
         self.p = np.zeros(self.n_p)
         self.gas_pressures = {name: 0.0 for name in pressure_facets}
-        # the fixed dofs' displacement at full load (``solve``'s dirichlet_scale = 1)
-        self.fixed_values = np.zeros(len(self.fixed_dofs))
         self.dirichlet_scale = 0.0
         self.stats = SolverStats()
         kappa = material.bulk_modulus_pa
         self._inv_kappa = 0.0 if math.isinf(kappa) else 1.0 / kappa
         self._m_pp = _m_pp.assemble(self.basis_p) if self._inv_kappa else None
+        self.fix([])
+
+    # ---- set-up helpers ----------------------------------------------------------------------
+    def fix(self, dofs, displacement_m=None):
+        """Hold these displacement dofs (from :meth:`dofs_on`); at ``solve``'s dirichlet_scale = 1
+        they sit at ``displacement_m`` (a dof -> metres mapping of some of them; the rest 0)."""
+        self.fixed_dofs = np.unique(np.asarray(dofs, dtype=np.int64))
+        displacement_m = displacement_m or {}
+        self.fixed_values = np.array([displacement_m.get(int(d), 0.0) for d in self.fixed_dofs])
         free = np.ones(self.n_u + self.n_p, dtype=bool)
         free[self.fixed_dofs] = False
         self._free = np.flatnonzero(free)
 
-    # ---- set-up helpers ----------------------------------------------------------------------
     def dofs_on(self, facets, components=(0, 1)):
         """Displacement dofs on the given boundary facets, for the given components."""
         dofs = self.basis_u.get_dofs(facets=np.asarray(facets))

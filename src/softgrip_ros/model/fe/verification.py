@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from softgrip_ros.model.fe.finger import FingerFE
-from softgrip_ros.model.fe.mesh import quarter_annulus, rectangle
+from softgrip_ros.model.fe.mesh import boundary_facets_where, quarter_annulus, rectangle
 from softgrip_ros.model.fe.solver import HyperelasticSolid, YeohMaterial
 from softgrip_ros.model.geometry import FingerGeometry
 
@@ -32,28 +32,20 @@ class KnownAnswer:
     worst_error_pct: float
 
 
-def _boundary(mesh, predicate):
-    facets = mesh.boundary_facets()
-    mid = mesh.p[:, mesh.facets[:, facets]].mean(axis=1)
-    return facets[predicate(mid[0], mid[1])]
-
-
 def planar_tension(material: YeohMaterial | None = None, element_size_m: float = 4e-3,
                    stretches=PLANAR_STRETCHES) -> KnownAnswer:
     """A 20 x 10 mm block pulled to each stretch; the reaction over the height against P."""
     material = material or YeohMaterial()
     length, height = 0.02, 0.01
     mesh = rectangle(length, height, element_size_m)
-    probe = HyperelasticSolid(mesh, material, [], {})
-    pulled = probe.dofs_on(_boundary(mesh, lambda x, y: np.abs(x - length) < 1e-9), (0,))
-    fixed = np.concatenate([probe.dofs_on(_boundary(mesh, lambda x, y: np.abs(x) < 1e-9), (0,)),
-                            pulled,
-                            probe.dofs_on(_boundary(mesh, lambda x, y: np.abs(y) < 1e-9), (1,))])
     fe, exact = [], []
     for stretch in stretches:
-        solid = HyperelasticSolid(mesh, material, fixed, {})
-        solid.fixed_values = np.where(np.isin(solid.fixed_dofs, pulled), (stretch - 1) * length,
-                                      0.0)
+        solid = HyperelasticSolid(mesh, material, {})
+        pulled = solid.dofs_on(boundary_facets_where(mesh, lambda x, y: np.abs(x - length) < 1e-9),
+                               (0,))
+        solid.fix(np.concatenate([_symmetry_dofs(solid, mesh, axis=0), pulled,
+                                  _symmetry_dofs(solid, mesh, axis=1)]),
+                  {int(d): (stretch - 1) * length for d in pulled})
         solid.solve({}, dirichlet_scale=1.0)
         fe.append(solid.reaction(pulled) / height)
         x = stretch**2 + stretch**-2 - 2.0
@@ -67,11 +59,11 @@ def lame_cylinder(material: YeohMaterial | None = None,
     material = material or YeohMaterial()
     a, b, q = LAME_INNER_M, LAME_OUTER_M, LAME_PRESSURE_PA
     mesh = quarter_annulus(a, b, element_size_m)
-    bore = _boundary(mesh, lambda x, y: np.abs(np.hypot(x, y) - a) < 0.25 * element_size_m)
-    probe = HyperelasticSolid(mesh, material, [], {})
-    fixed = np.concatenate([probe.dofs_on(_boundary(mesh, lambda x, y: np.abs(x) < 1e-9), (0,)),
-                            probe.dofs_on(_boundary(mesh, lambda x, y: np.abs(y) < 1e-9), (1,))])
-    solid = HyperelasticSolid(mesh, material, fixed, {"bore": bore})
+    bore = boundary_facets_where(mesh,
+                                 lambda x, y: np.abs(np.hypot(x, y) - a) < 0.25 * element_size_m)
+    solid = HyperelasticSolid(mesh, material, {"bore": bore})
+    solid.fix(np.concatenate([_symmetry_dofs(solid, mesh, axis=0),
+                              _symmetry_dofs(solid, mesh, axis=1)]))
     solid.solve({"bore": q})
     radius = np.hypot(*mesh.p)
     displacement = solid.nodal_displacement()
@@ -83,6 +75,13 @@ def lame_cylinder(material: YeohMaterial | None = None,
         exact.append(q * a * a * b * b / (2.0 * material.shear_modulus_pa * (b * b - a * a) * r))
     return KnownAnswer("Lame cylinder, u_r at the bore and the rim (m)", fe, exact,
                        _worst(fe, exact))
+
+
+def _symmetry_dofs(solid: HyperelasticSolid, mesh, axis: int):
+    """The normal displacement dofs on the line where coordinate ``axis`` is 0 (a symmetry plane,
+    or the block's held end)."""
+    return solid.dofs_on(boundary_facets_where(mesh, lambda x, y: np.abs((x, y)[axis]) < 1e-9),
+                         (axis,))
 
 
 def _worst(fe, exact) -> float:
