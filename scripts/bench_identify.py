@@ -24,7 +24,6 @@ docs/benchmarks.md unless --json or --quick.
 Reproduce: source scripts/env.sh; python scripts/bench_identify.py
 """
 import contextlib
-import dataclasses
 import json
 import os
 import pathlib
@@ -42,6 +41,7 @@ import numpy as np
 from softgrip_ros.devtools.benchmarking import benchmark_parser, machine_line, update_section
 from softgrip_ros.devtools.closed_loop import step_figures
 from softgrip_ros.devtools.estimator_simulation import anees
+from softgrip_ros.devtools.identification_sim import SLOW_LARGE, drawn, scaled
 from softgrip_ros.devtools.processes import installed_executable, stop_process
 from softgrip_ros.estimation.identification import excitation
 from softgrip_ros.model import plant_file
@@ -54,40 +54,10 @@ IDENTIFIED = ("supply_conductance", "vacuum_conductance", "vent_conductance",
               "chamber_compliance_m3_per_pa", "vacuum_compliance_m3_per_pa",
               "vacuum_source_gauge_pa", "regulator_time_constant_s",
               "regulator_rate_limit_pa_per_s")
-# the issue's case: a slower supply path and a larger chamber
-SLOW_LARGE = {"chamber_volume_m3": 1.6, "min_chamber_volume_m3": 1.6, "supply_conductance": 0.6,
-              "vent_conductance": 1.3, "vacuum_conductance": 0.8,
-              "regulator_time_constant_s": 1.5, "chamber_compliance_m3_per_pa": 1.4,
-              "vacuum_compliance_m3_per_pa": 0.7, "supply_critical_ratio": 1.2,
-              "vent_critical_ratio": 0.8}
-DRAWN = ("chamber_volume_m3", "supply_conductance", "vacuum_conductance", "vent_conductance",
-         "supply_critical_ratio", "vent_critical_ratio", "chamber_compliance_m3_per_pa",
-         "vacuum_compliance_m3_per_pa", "regulator_time_constant_s")
 
 
 def progress(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
-
-
-def scaled(factors: dict, biases=(600.0, -300.0)) -> plant_file.PlantDescription:
-    shipped = plant_file.default_description()
-    parameters = dataclasses.replace(shipped.parameters, **{
-        name: getattr(shipped.parameters, name) * factor for name, factor in factors.items()})
-    sensors = {name: plant_file.SensorModel(model.noise_std_pa, bias)
-               for (name, model), bias in zip(shipped.sensors.items(), biases)}
-    return plant_file.PlantDescription(parameters, sensors, {"source": "assumed",
-                                                             "note": "a bench truth"})
-
-
-def drawn(seed: int) -> plant_file.PlantDescription:
-    """Each of DRAWN scaled by a factor in [0.5, 2] (log-uniform), from ``seed``; the floor follows
-    the volume."""
-    rng = np.random.default_rng(seed)
-    factors = {name: float(np.exp(rng.uniform(np.log(0.5), np.log(2.0)))) for name in DRAWN}
-    factors["min_chamber_volume_m3"] = factors["chamber_volume_m3"]
-    for name in ("supply_critical_ratio", "vent_critical_ratio"):  # b stays in a valve's range
-        factors[name] = min(factors[name], 0.6 / 0.3)
-    return scaled(factors)
 
 
 def identify_live(truth_path: pathlib.Path, truth: plant_file.PlantDescription, quick: bool,
@@ -134,6 +104,10 @@ def evaluate(truth: plant_file.PlantDescription, identified_path: pathlib.Path,
     figures["fit_flags"] = len(provenance.get("flags", []))
     figures["validation_rmse_over_noise"] = float(provenance["validation_rmse_over_noise"])
     figures["fit_s"] = float(provenance["fit_s"])
+    # the truth as the controller's model: what a perfect identification would reach (the
+    # boost's ceiling, single-fault safety, depends on the plant and may cap the rise)
+    step = step_figures(STEP_PA, truth_plant, truth_plant)
+    figures.update({f"truth_model_{key}": value for key, value in step.items()})
     for label, model in (("default", shipped), ("identified", identified)):
         step = step_figures(STEP_PA, truth_plant, PneumaticPlant(model.parameters))
         figures.update({f"{label}_{key}": value for key, value in step.items()})
@@ -173,6 +147,8 @@ def markdown(rows: list, command: str, seconds: float) -> str:
                        ("identified_overshoot_pct", "identified: overshoot % (<= 3)"),
                        ("identified_steady_state_error_kpa", "identified: steady state kPa "
                         "(<= 0.2)"),
+                       ("truth_model_rise_time_ratio", "the truth as the model: rise ratio"),
+                       ("truth_model_overshoot_pct", "the truth as the model: overshoot %"),
                        ("nees_default", "ANEES, default file"),
                        ("nees_identified", "ANEES, identified"),
                        ("fit_flags", "flags the fit raised (values and residuals)"),
@@ -190,7 +166,11 @@ def markdown(rows: list, command: str, seconds: float) -> str:
     lines += ["", f"ANEES 95 % bounds: [{bounds[0]:.2f}, {bounds[1]:.2f}]. Flagged (*): the fit "
               "says the data do not determine the value (within the pressure limits the vacuum "
               "path's flow is choked nearly all the way, so its critical ratio and the source's "
-              "level trade off); the flag and the interval are in the written file.", ""]
+              "level trade off); the flag and the interval are in the written file. \"The truth "
+              "as the model\": the controller given the truth itself, the best any identified "
+              "file can do; the boost's ceiling (a valve stuck open must stay within the limit, "
+              "control.pressure.boost_ceiling_pa) depends on the plant and can hold the rise "
+              "above 1.3x on a slow one.", ""]
     return "\n".join(lines)
 
 

@@ -3,6 +3,7 @@ core in its identification mode on a truth plant, with the simulated device's se
 noise, quantisation, bias) and regulator reports, recorded as softgrip_identify records them."""
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -13,9 +14,42 @@ from softgrip_ros.estimation.identification import InputChange, Recording
 from softgrip_ros.model import plant_file
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 
+# The issue's case: a slower supply path and a larger chamber.
+SLOW_LARGE = {"chamber_volume_m3": 1.6, "min_chamber_volume_m3": 1.6, "supply_conductance": 0.6,
+              "vent_conductance": 1.3, "vacuum_conductance": 0.8,
+              "regulator_time_constant_s": 1.5, "chamber_compliance_m3_per_pa": 1.4,
+              "vacuum_compliance_m3_per_pa": 0.7, "supply_critical_ratio": 1.2,
+              "vent_critical_ratio": 0.8}
+# what a seeded draw scales
+DRAWN = ("chamber_volume_m3", "supply_conductance", "vacuum_conductance", "vent_conductance",
+         "supply_critical_ratio", "vent_critical_ratio", "chamber_compliance_m3_per_pa",
+         "vacuum_compliance_m3_per_pa", "regulator_time_constant_s")
 PLANT_DT_S = 1e-3
 CONTROL_PERIOD_TICKS = 2  # 500 Hz
 REPORT_PERIOD_TICKS = 10  # the regulator's report, 100 Hz
+
+
+def scaled(factors: dict, biases=(600.0, -300.0)) -> plant_file.PlantDescription:
+    """The shipped plant with each value in ``factors`` scaled, and the sensors given
+    ``biases`` (Pa, in the shipped file's order): a truth for "the user's hardware"."""
+    shipped = plant_file.default_description()
+    parameters = dataclasses.replace(shipped.parameters, **{
+        name: getattr(shipped.parameters, name) * factor for name, factor in factors.items()})
+    sensors = {name: plant_file.SensorModel(model.noise_std_pa, bias)
+               for (name, model), bias in zip(shipped.sensors.items(), biases)}
+    provenance = {"source": "assumed", "note": "a truth for the simulated device"}
+    return plant_file.PlantDescription(parameters, sensors, provenance)
+
+
+def drawn(seed: int) -> plant_file.PlantDescription:
+    """Each of DRAWN scaled by a factor in [0.5, 2] (log-uniform), from ``seed``; the floor follows
+    the volume, and a critical ratio stays in a valve's range (at most 0.6)."""
+    rng = np.random.default_rng(seed)
+    factors = {name: float(np.exp(rng.uniform(np.log(0.5), np.log(2.0)))) for name in DRAWN}
+    factors["min_chamber_volume_m3"] = factors["chamber_volume_m3"]
+    for name in ("supply_critical_ratio", "vent_critical_ratio"):
+        factors[name] = min(factors[name], 0.6 / 0.3)
+    return scaled(factors)
 
 
 def record(truth: plant_file.PlantDescription, steps: list, held_out_s: float = math.inf,

@@ -226,7 +226,10 @@ def run_live(args, progress) -> tuple[pathlib.Path, dict]:
     node = rclpy.create_node(f"softgrip_identify_{int(time.time()) % 100000}", context=context)
     live = Live(node, args.namespace, args.timeout)
     try:
-        with spinning(node, context=context, threads=2):
+        # one thread: rclpy's multi-threaded executor took so much longer per message that, next
+        # to a controller and a device on two cores, 30-80 % of the 700 readings a second were
+        # lost (bench_identify's logs); the single-threaded one keeps them all (< 1 % lost)
+        with spinning(node, context=context, threads=1):
             if not live.ready():
                 raise ConnectionError(f"no pressure controller answered at {live.controller} in "
                                       f"{args.timeout:g} s (is the controller running, in this "
