@@ -301,12 +301,14 @@ class ControllerLink:
                 "Enable": int(output.regulator_enabled), "Source": int(output.regulator_source)
         }), ("ValveCommand", self._valve_signals(valves))):
             last = self._last_command_frames.get(message)
-            if last is None or last[0] != signals:
-                self.output_changed_time = now
-            if last is None or last[
-                    0] != signals or now - last[1] >= self.command_frame_period_s - 1e-9:
+            changed = last is None or last[0] != signals
+            if changed or now - last[1] >= self.command_frame_period_s - 1e-9:
                 self._last_command_frames[message] = (signals, now)
                 self._send(message, signals)
+            if changed:
+                # when the frame went out, not when the step began: the thread may wait for the
+                # GIL between the two (a switch interval, 5 ms), and the device acts on the frame
+                self.output_changed_time = self.clock()
 
     def _valve_signals(self, valves) -> dict:
         signals = {f"Channel{i}": int(v) for i, v in enumerate(valves)}

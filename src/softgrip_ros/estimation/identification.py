@@ -527,15 +527,16 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
         return whole(result.x), result
 
     x3 = np.clip(_stage3_vector(base), STAGE3_BOUNDS[0] + 1e-6, STAGE3_BOUNDS[1] - 1e-6)
-    # Restarted while a pass ends on its step size (xtol) rather than on the cost (ftol, gtol):
-    # trf's trust region had shrunk away from a minimum, where the ratios and the conductances
-    # trade off. On a seeded plant whose values were off by factors near 2, one pass stopped there
-    # 4 % above the truth's cost, its critical ratios 65-94 % off with +-2 % intervals; the
-    # restart reached the truth's cost.
+    # Restarted while a pass stops on its step size (xtol) or its evaluation budget rather than
+    # on the cost (ftol, gtol): trf's trust region had shrunk away from a minimum, where the
+    # ratios and the conductances trade off. On a seeded plant whose values were off by factors
+    # near 2, one pass stopped there 4 % above the truth's cost, its critical ratios 65-94 % off
+    # with +-2 % intervals; the restart reached the truth's cost.
     stage3 = None
     for _ in range(STAGE3_PASSES):
+        previous = math.inf if stage3 is None else stage3.cost
         x3, stage3 = solve(x3, list(range(len(x3))))
-        if stage3.status != 3:
+        if stage3.status in (1, 2, 4) or stage3.cost > previous * (1.0 - 1e-6):
             break
     fitted = _stage3_parameters(stage3.x, base)
     covariance = _covariance(stage3.jac, stage3.fun)
