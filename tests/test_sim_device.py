@@ -98,6 +98,23 @@ def test_the_plant_integrates_exactly_the_real_elapsed_time_even_when_ticks_come
     assert device.chamber_gauge_pa() == pytest.approx(state.chamber_pa[0] - P_ATM_PA, rel=1e-6)
 
 
+def test_after_a_stall_one_heartbeat_goes_out_and_its_uptime_counts_up(bench):
+    device, clock, peer_bus, codec = bench
+    tick_for(device, clock, 0.25, period_s=1e-3)
+    clock.now += 0.5  # the thread held up for five heartbeat periods
+    device._tick()
+    tick_for(device, clock, 0.25, period_s=1e-3)
+    uptimes = []
+    while (frame := peer_bus.recv(0.0)) is not None:
+        decoded = codec.decode(frame)
+        if decoded is not None and decoded.name == "DeviceHeartbeat":
+            uptimes.append(decoded.signals["Uptime"])
+    assert len(uptimes) >= 3
+    assert all(b > a for a, b in zip(uptimes, uptimes[1:])), uptimes
+    # none of the missed ones was sent late: the gap spans the stall
+    assert max(b - a for a, b in zip(uptimes, uptimes[1:])) >= 0.5
+
+
 def test_a_disabled_regulator_cuts_both_sources_even_through_valves_stuck_open(bench):
     device, clock, _, codec = bench
     device.set_fault("valve_stuck_open", True)

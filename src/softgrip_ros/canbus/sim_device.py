@@ -319,7 +319,13 @@ class SimulatedDevice:
                 self._next_status += 1.0 / self.config.regulator_status_hz
                 self._send_status()
             if sim_time >= self._next_heartbeat:
-                self._next_heartbeat += 1.0 / self.config.heartbeat_hz
+                period = 1.0 / self.config.heartbeat_hz
+                self._next_heartbeat += period
+                if self._next_heartbeat <= sim_time:
+                    # after a stall one heartbeat, not the ones it missed: those would go out in
+                    # one tick with one Uptime, which check_device rightly calls a clock that does
+                    # not count up (seen once in CI, a loaded host, with no defect injected)
+                    self._next_heartbeat = sim_time + period
                 if not heartbeat_off:
                     self._send("DeviceHeartbeat",
                                {"DeviceState": 1, "Uptime": min(sim_time, 167772.15)})
