@@ -100,12 +100,10 @@ class SoftgripIpcBus(can.BusABC):
         if len(data) > 8:
             raise can.CanOperationError(
                 "softgrip_ipc carries classic CAN frames of at most 8 bytes")
+        payload = FRAME.pack(time.time(), msg.arbitration_id, len(data), msg.is_extended_id,
+                             msg.is_remote_frame, data.ljust(8, b"\0"))
         with self._send_lock:
             self._refresh_peers()
-            # stamped as it goes: a stamp taken before waiting for the lock or the GIL would date
-            # the frame early, and its receiver, which acts on a frame at its stamp, late
-            payload = FRAME.pack(time.time(), msg.arbitration_id, len(data), msg.is_extended_id,
-                                 msg.is_remote_frame, data.ljust(8, b"\0"))
             for peer in self._peers:
                 try:
                     self._socket.sendto(payload, socket.MSG_DONTWAIT, peer)
