@@ -487,44 +487,29 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
     cache = {}
     evaluations = []
 
-    def batch(x, columns):
-        """The predictions at ``x`` and at ``x`` moved along each of ``columns``, in one run."""
-        key = (x.tobytes(), tuple(columns))
+    def batch(x):
+        """The predictions at ``x`` and at ``x`` moved along each coordinate, in one run."""
+        key = x.tobytes()
         if key not in cache:
             sets = [_stage3_parameters(x, base)]
-            for i in columns:
+            for i, step in enumerate(STAGE3_STEPS):
                 shifted = x.copy()
-                shifted[i] += STAGE3_STEPS[i]
+                shifted[i] += step
                 sets.append(_stage3_parameters(shifted, base))
             cache.clear()
             cache[key] = grid.simulate(sets)
         return cache[key]
 
-    def solve(x0, columns):
-        """least_squares over ``columns`` of the stage-3 vector, the others held at x0's."""
-        columns = np.asarray(columns)
+    def residuals(x):
+        evaluations.append(time.perf_counter())
+        if evaluations[-1] - started > max_seconds:
+            raise TimeoutError(f"the fit ran over its {max_seconds:g} s budget")
+        progress(f"  iteration {len(evaluations)}")
+        return (batch(x)[0] - grid.measured) * grid.weight
 
-        def whole(x_part):
-            x = x0.copy()
-            x[columns] = x_part
-            return x
-
-        def residuals(x_part):
-            evaluations.append(time.perf_counter())
-            if evaluations[-1] - started > max_seconds:
-                raise TimeoutError(f"the fit ran over its {max_seconds:g} s budget")
-            progress(f"  iteration {len(evaluations)}")
-            return (batch(whole(x_part), columns)[0] - grid.measured) * grid.weight
-
-        def jacobian(x_part):
-            predictions = batch(whole(x_part), columns)
-            return ((predictions[1:] - predictions[0]) * grid.weight /
-                    STAGE3_STEPS[columns, None]).T
-
-        result = least_squares(residuals, x0[columns], jac=jacobian, method="trf",
-                               bounds=(STAGE3_BOUNDS[0][columns], STAGE3_BOUNDS[1][columns]),
-                               x_scale="jac", ftol=1e-8, xtol=1e-8, max_nfev=40)
-        return whole(result.x), result
+    def jacobian(x):
+        predictions = batch(x)
+        return ((predictions[1:] - predictions[0]) * grid.weight / STAGE3_STEPS[:, None]).T
 
     x3 = np.clip(_stage3_vector(base), STAGE3_BOUNDS[0] + 1e-6, STAGE3_BOUNDS[1] - 1e-6)
     # Restarted while a pass stops on its step size (xtol) or its evaluation budget rather than
@@ -535,7 +520,9 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
     stage3 = None
     for _ in range(STAGE3_PASSES):
         previous = math.inf if stage3 is None else stage3.cost
-        x3, stage3 = solve(x3, list(range(len(x3))))
+        stage3 = least_squares(residuals, x3, jac=jacobian, method="trf", bounds=STAGE3_BOUNDS,
+                               x_scale="jac", ftol=1e-8, xtol=1e-8, max_nfev=40)
+        x3 = stage3.x
         if stage3.status in (1, 2, 4) or stage3.cost > previous * (1.0 - 1e-6):
             break
     fitted = _stage3_parameters(stage3.x, base)
