@@ -17,7 +17,7 @@ class FaultyLoop:
     Faults (attributes, changeable between runs): ``bias_pa`` on both sensors,
     ``bias_rate_pa_per_s`` (a drift), ``stuck`` {sensor: None (at its reading) or a value},
     ``noise_scale``, ``valve_stuck`` (the valves keep their state), ``valve_stuck_open`` (SUPPLY),
-    ``overshoot_pa``."""
+    ``overshoot_pa``. ``step_period_ms`` (2) spaces the controller's steps: a loaded host."""
 
     SENSORS = {"chamber_a": (300.0, 2), "chamber_b": (150.0, 5)}  # noise Pa, period in ms
 
@@ -35,6 +35,7 @@ class FaultyLoop:
         self.noise_scale, self.overshoot_pa = 1.0, 0.0
         self.stuck, self._frozen = {}, {}
         self.valve_stuck = self.valve_stuck_open = False
+        self.step_period_ms = 2
         self.true, self.outputs = [], []
 
     @property
@@ -68,7 +69,7 @@ class FaultyLoop:
                     self.controller.update_sensor(name, self.reading(name), self.now)
             if self.tick % 10 == 0:
                 self.controller.update_regulator_status(self.state.regulator_gauge_pa, 0, self.now)
-            if self.tick % 2 == 0:
+            if self.tick % self.step_period_ms == 0:
                 out = self.controller.step(self.now)
                 self.outputs.append((self.now, out))
                 valves = ((Valve.SUPPLY,) if self.valve_stuck_open else
