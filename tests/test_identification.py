@@ -113,3 +113,32 @@ def test_a_recording_without_rests_or_readings_is_refused_with_the_reason():
     recording.sensors["chamber_b"] = (np.array([]), np.array([]))
     with pytest.raises(ValueError, match="too few readings"):
         identification.fit(recording, truth.parameters)
+
+
+def test_intervals_keep_their_coverage_when_the_residuals_are_correlated():
+    """Live, the model misses part of the response and the residuals stay correlated over tens of
+    readings; the Gauss-Newton intervals then came out far too narrow (a critical ratio 211 % off
+    inside +-2 %). On a straight line with AR(1) errors (rho 0.9, two series of 400), the
+    sandwich covariance's 95 % intervals cover the slope in 168 of 200 seeds (84 %: the Bartlett
+    kernel is known to under-cover somewhat at such correlation), Gauss-Newton's in 61 (30 %)."""
+    times = np.linspace(0.0, 1.0, 400)
+    jacobian = np.column_stack([np.ones(800), np.tile(times, 2)])
+    series = [np.arange(400), np.arange(400, 800)]
+    covered = {"gauss_newton": 0, "robust": 0}
+    for seed in range(200):
+        rng = np.random.default_rng(seed)
+        errors = np.empty(800)
+        for rows in series:
+            noise = rng.standard_normal(400)
+            for k in range(1, 400):
+                noise[k] += 0.9 * noise[k - 1]
+            errors[rows] = noise
+        data = 1.0 + 2.0 * np.tile(times, 2) + errors
+        solution, *_ = np.linalg.lstsq(jacobian, data, rcond=None)
+        residuals = jacobian @ solution - data
+        for name, covariance in (
+                ("gauss_newton", identification._covariance(jacobian, residuals)),
+                ("robust", identification._robust_covariance(jacobian, residuals, series))):
+            half = 1.96 * math.sqrt(covariance[1, 1])
+            covered[name] += abs(solution[1] - 2.0) <= half
+    assert covered["robust"] >= 150 and covered["gauss_newton"] <= 90, covered
