@@ -315,8 +315,7 @@ class SafetyMonitor:
         self._model_regulator = math.nan  # synchronised to the first report
         # (time, modelled regulator output, the PlantInputs sent from then on)
         self._model_history = collections.deque()
-        # (time, valve, regulator command, enabled)
-        self._outputs = collections.deque()
+        self._sent = None  # the PlantInputs of the last output (None before any)
         self._valve_since = (None, math.inf)  # (valve, since)
         self._last_step = None
         self._persist = collections.defaultdict(_Persistence)
@@ -370,21 +369,16 @@ class SafetyMonitor:
                       enabled: bool) -> None:
         """What the controller sent in this step (the plant model's inputs from now on)."""
         valve = Valve(valve)
-        if self._last_step is not None and now > self._last_step and self._outputs \
+        if self._last_step is not None and now > self._last_step and self._sent is not None \
                 and math.isfinite(self._model_regulator):
-            _, last_valve, last_command, last_enabled = self._outputs[-1]
-            inputs = PlantInputs(last_command, last_enabled, (last_valve,))
-            self._model_regulator = self.plant.regulator_step(self._model_regulator, inputs,
+            self._model_regulator = self.plant.regulator_step(self._model_regulator, self._sent,
                                                               now - self._last_step)[0]
         self._last_step = now
+        self._sent = PlantInputs(float(regulator_command_gauge_pa), bool(enabled), (valve,))
         if math.isfinite(self._model_regulator):
-            self._model_history.append(
-                (now, self._model_regulator,
-                 PlantInputs(float(regulator_command_gauge_pa), bool(enabled), (valve,))))
-        self._outputs.append((now, valve, float(regulator_command_gauge_pa), bool(enabled)))
-        for history in (self._model_history, self._outputs):
-            while len(history) > 1 and history[0][0] < now - HISTORY_S:
-                history.popleft()
+            self._model_history.append((now, self._model_regulator, self._sent))
+        while len(self._model_history) > 1 and self._model_history[0][0] < now - HISTORY_S:
+            self._model_history.popleft()
         if valve != self._valve_since[0]:
             self._valve_since = (valve, now)
 
@@ -403,10 +397,10 @@ class SafetyMonitor:
 
     def commanded(self) -> tuple:
         """(valve, regulator command, enabled) last sent; CLOSED and disabled before any."""
-        if not self._outputs:
+        if self._sent is None:
             return Valve.CLOSED, 0.0, False
-        _, valve, command, enabled = self._outputs[-1]
-        return valve, command, enabled
+        return (self._sent.valves[0], self._sent.regulator_setpoint_gauge_pa,
+                self._sent.regulator_enabled)
 
     def _regulator_known(self, now: float, timeout_s: float) -> bool:
         """Whether a fresh report of the regulator's output is at hand (without one, nothing says
