@@ -24,19 +24,19 @@ the conductances and compliances are only as right as that volume.
    well within the noise, once the chamber has vented for ``REST_S``);
 2. the regulator's time constant and rate limit, by least squares over its reports;
 3. the chamber: C and b of each path, both compliances and the vacuum source's level, by
-   least squares (scipy's trust-region reflective) over every sensor reading, weighted by its
-   noise. The chamber rests wherever its valves stay closed or vented a while; each segment,
-   from one rest to the next, is simulated from the measured pressure at its rest, all
-   segments at once.
+   least squares (scipy's trf and dogbox, restarted, see :func:`fit`) over every sensor
+   reading, weighted by its noise. The chamber rests wherever its valves stay closed or vented a
+   while; each segment, from one rest to the next, is simulated from the measured pressure at
+   its rest, all segments at once.
 
-Confidence intervals come from the Jacobian at the optimum: per value the wider of the Gauss-Newton
-covariance (scaled by the residual variance) and the sandwich covariance that keeps the residuals'
-autocorrelation along each sensor's series (Newey-West, Bartlett weights, Andrews' bandwidth). A
-value is flagged, and never written silently, when its 95 % interval
-is wider than +-25 %, when the data do not excite it (the interval is then wide, or its column of
-the Jacobian vanishes); the whole fit, when a sensor's normalised residuals are clearly not white
-(lag-one autocorrelation above ``WHITENESS_LIMIT``), its residuals exceed 1.5x the noise, or the
-held-out excitation is predicted worse than ``VALIDATION_LIMIT`` times the noise.
+Confidence intervals come from the Jacobian at the optimum: per value the wider of the
+Gauss-Newton covariance (scaled by the residual variance) and the sandwich covariance that keeps
+the residuals' autocorrelation along each sensor's series (Newey-West, Bartlett weights, Andrews'
+bandwidth). A value is flagged, and never written silently, when its 95 % interval is wider than
++-25 %, when the data do not excite it (the interval is then wide, or its column of the Jacobian
+vanishes); the whole fit, when a sensor's normalised residuals are clearly not white (lag-one
+autocorrelation above ``WHITENESS_LIMIT``), its residuals exceed 1.5x the noise, or the held-out
+excitation is predicted worse than ``VALIDATION_LIMIT`` times the noise.
 """
 from __future__ import annotations
 
@@ -556,7 +556,13 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
         predictions = batch(x)
         return ((predictions[1:] - predictions[0]) * grid.weight / STAGE3_STEPS[:, None]).T
 
-    x3 = np.clip(_stage3_vector(base), STAGE3_BOUNDS[0] + 1e-6, STAGE3_BOUNDS[1] - 1e-6)
+    def solve(x0, method: str):
+        return least_squares(residuals, x0, jac=jacobian, method=method, bounds=STAGE3_BOUNDS,
+                             x_scale="jac", ftol=1e-8, xtol=1e-8, max_nfev=40)
+
+    # the start strictly inside the bounds, as least_squares needs
+    start = np.clip(_stage3_vector(base), STAGE3_BOUNDS[0] + 1e-6, STAGE3_BOUNDS[1] - 1e-6)
+    x3 = start
     # Restarted while a pass stops on its step size (xtol) or its evaluation budget rather than
     # on the cost (ftol, gtol): the trust region had shrunk away from a minimum, in the valley
     # where the ratios and the conductances trade off. trf and dogbox stall at different places
@@ -566,8 +572,7 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
     # above the truth's cost, and the dogbox pass after it took a third of that gap off.
     stage3 = None
     for method in STAGE3_METHODS:
-        trial = least_squares(residuals, x3, jac=jacobian, method=method, bounds=STAGE3_BOUNDS,
-                              x_scale="jac", ftol=1e-8, xtol=1e-8, max_nfev=40)
+        trial = solve(x3, method)
         improved = stage3 is None or trial.cost < stage3.cost * (1.0 - 1e-6)
         if improved:
             stage3, x3 = trial, trial.x
@@ -577,10 +582,8 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
     # ratios drift furthest, and a pass from there went further down it (live drawn_1: 5371 to
     # 5170, the truth's 5135; ratios 63-88 % off to 34-55 %)
     restart = stage3.x.copy()
-    restart[RATIOS] = np.clip(_stage3_vector(base)[RATIOS], STAGE3_BOUNDS[0][RATIOS] + 1e-6,
-                              STAGE3_BOUNDS[1][RATIOS] - 1e-6)
-    trial = least_squares(residuals, restart, jac=jacobian, method="trf", bounds=STAGE3_BOUNDS,
-                          x_scale="jac", ftol=1e-8, xtol=1e-8, max_nfev=40)
+    restart[RATIOS] = start[RATIOS]
+    trial = solve(restart, "trf")
     if trial.cost < stage3.cost:
         stage3 = trial
     fitted = _stage3_parameters(stage3.x, base)
