@@ -34,6 +34,32 @@ _FIELDS = ("object_diameter_m", "object_mass_kg", "target_tip_spacing_m", "frict
            "open_pressure_pa", "clamp_pressure_pa")
 
 
+def serial_action_client(node, action_type, action_name: str):
+    """An rclpy ActionClient whose goal responses wait until their request is registered.
+
+    rclpy registers a goal's future only after the request has gone out; an executor thread that
+    takes the response in between drops it ("Ignoring unexpected goal response", rclpy#1123),
+    and the goal never completes (CI: test_multi_gripper's clamp() returned False so)."""
+    from rclpy.action import ActionClient
+
+    class SerialActionClient(ActionClient):
+
+        def __init__(self, *args, **kwargs):
+            self._registering = threading.Lock()
+            super().__init__(*args, **kwargs)
+
+        def send_goal_async(self, *args, **kwargs):
+            with self._registering:
+                return super().send_goal_async(*args, **kwargs)
+
+        async def execute(self, taken_data):
+            with self._registering:  # a request being sent is registered first
+                pass
+            return await super().execute(taken_data)
+
+    return SerialActionClient(node, action_type, action_name)
+
+
 def grasp_command(mode: int, command_id: str = "", **fields):
     """A softgrip_interfaces/GraspCommand with every field not given NaN (automatic)."""
     from softgrip_interfaces.msg import GraspCommand
@@ -59,7 +85,6 @@ class GripperClient:
     def __init__(self, node=None, namespace: str = "", context=None,
                  node_name: str = "softgrip_client"):
         import rclpy
-        from rclpy.action import ActionClient
         from softgrip_interfaces.action import Grasp
         from softgrip_interfaces.msg import GripperState
 
@@ -75,7 +100,7 @@ class GripperClient:
         self._subscription = self.node.create_subscription(
             GripperState, f"{prefix}grasp_state", self._on_state, 10)
         self.action_name = f"{prefix}grasp"
-        self._action = ActionClient(self.node, Grasp, self.action_name)
+        self._action = serial_action_client(self.node, Grasp, self.action_name)
         self._spinner = None
         if self._own:
             from softgrip_ros.nodes.common import spinning
