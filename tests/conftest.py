@@ -3,9 +3,12 @@
 Network rule: every process that starts rclpy here keeps DDS on loopback
 (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) and this session gets its own
 ``ROS_DOMAIN_ID``, so parallel runs on one machine do not cross-talk. Both are
-set in ``os.environ`` before anything imports rclpy, and subprocesses inherit them.
+set in ``os.environ`` before anything imports rclpy, and subprocesses inherit them, as they
+inherit config/fastdds_tests.xml (Fast DDS's library settings for many participants in one
+process).
 """
 import os
+import pathlib
 import random
 import threading
 
@@ -18,6 +21,10 @@ else:
     # 1..100 stays inside the port range every RMW accepts on Linux.
     os.environ["ROS_DOMAIN_ID"] = str(random.Random(os.getpid()).randint(1, 100))
 os.environ.setdefault("MPLBACKEND", "Agg")
+# Discovery between this process's DDS participants (one per rclpy context) through the
+# transport: in-process, Fast DDS 2.14 can deadlock destroying a publisher (see the file)
+FAST_DDS_PROFILE = pathlib.Path(__file__).resolve().parents[1] / "config" / "fastdds_tests.xml"
+os.environ.setdefault("FASTRTPS_DEFAULT_PROFILES_FILE", str(FAST_DDS_PROFILE))
 
 
 @pytest.fixture

@@ -93,3 +93,30 @@ def test_shutdown_reads_the_errors_of_callbacks_it_cut_short_and_reports_any_oth
     assert cut_short._exception_fetched and failed._exception_fetched
     err = capsys.readouterr().err
     assert "ValueError: boom" in err and "Destroyable" not in err
+
+
+
+def test_the_suites_fast_dds_profile_is_read_without_an_error(tmp_path):
+    """config/fastdds_tests.xml (Fast DDS's library settings: discovery between the participants
+    of one process through the transport, see that file) parses. A profile Fast DDS rejects is
+    only logged, and the deadlock it avoids would come back silently; a bad value is logged so."""
+    import os
+    import subprocess
+    import sys
+
+    from tests.conftest import FAST_DDS_PROFILE
+
+    def node_log(profile):  # Fast DDS logs to stdout
+        code = ("import rclpy, rclpy.node; rclpy.init(); node = rclpy.node.Node('profile_check');"
+                " node.destroy_node(); rclpy.shutdown()")
+        result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                                timeout=60,
+                                env={**os.environ, "FASTRTPS_DEFAULT_PROFILES_FILE": str(profile)})
+        assert result.returncode == 0, result.stderr
+        return result.stdout + result.stderr
+
+    assert os.environ["FASTRTPS_DEFAULT_PROFILES_FILE"] == str(FAST_DDS_PROFILE)
+    assert "XMLPARSER" not in node_log(FAST_DDS_PROFILE)
+    bogus = tmp_path / "bogus.xml"
+    bogus.write_text(FAST_DDS_PROFILE.read_text().replace("USER_DATA_ONLY", "NOT_A_SETTING"))
+    assert "intraprocess_delivery' with bad content" in node_log(bogus)
