@@ -104,8 +104,7 @@ def evaluate(truth: plant_file.PlantDescription, identified_path: pathlib.Path,
     figures["fit_flags"] = len(provenance.get("flags", []))
     figures["validation_rmse_over_noise"] = float(provenance["validation_rmse_over_noise"])
     figures["fit_s"] = float(provenance["fit_s"])
-    # the truth as the controller's model: what a perfect identification would reach (the
-    # boost's ceiling, single-fault safety, depends on the plant and may cap the rise)
+    # the truth as the controller's model: what a perfect identification would reach
     step = step_figures(STEP_PA, truth_plant, truth_plant)
     figures.update({f"truth_model_{key}": value for key, value in step.items()})
     for label, model in (("default", shipped), ("identified", identified)):
@@ -168,9 +167,9 @@ def markdown(rows: list, command: str, seconds: float) -> str:
               "path's flow is choked nearly all the way, so its critical ratio and the source's "
               "level trade off); the flag and the interval are in the written file. \"The truth "
               "as the model\": the controller given the truth itself, the best any identified "
-              "file can do; the boost's ceiling (a valve stuck open must stay within the limit, "
-              "control.pressure.boost_ceiling_pa) depends on the plant and can hold the rise "
-              "above 1.3x on a slow one.", ""]
+              "file can do. The boost's ceiling (a valve stuck open must stay within the limit, "
+              "control.pressure.boost_ceiling_pa) is simulated on the controller's model for the "
+              "target; a wrong model can make it too low (a slow rise) or too high.", ""]
     return "\n".join(lines)
 
 

@@ -6,8 +6,9 @@ import pytest
 
 from softgrip_ros.control.pressure import (Fault, PressureMode, PressureControlConfig,
                                            PressureController, Source)
-from softgrip_ros.model.pneumatics import Valve
-from softgrip_ros.devtools.closed_loop import rise_time_s, step_response
+from softgrip_ros.model.pneumatics import PneumaticPlant, Valve
+from softgrip_ros.devtools.closed_loop import rise_time_s, step_figures, step_response
+from softgrip_ros.devtools.identification_sim import SLOW_LARGE, drawn, scaled
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -21,6 +22,21 @@ def test_step_to_25_kpa_is_near_time_optimal(seed):
     assert ratio <= 1.3
     assert pressures.max() <= 25e3 * 1.03
     assert abs(pressures[-200:].mean() - 25e3) <= 200.0
+
+
+@pytest.mark.parametrize("truth", ["slow_large", 1, 2, 3, 4])
+def test_step_to_25_kpa_is_near_time_optimal_on_other_plants_given_their_model(truth):
+    """#23: the same targets on perturbed plants, the controller's model the plant itself (what an
+    identification gives). slow_large rose 1.44x: the boost's fixed ceiling (the one for a step to
+    the limit) and a settle that held the chamber 12 % short of the target for up to 0.2 s while
+    the regulator came down from the boost."""
+    description = scaled(SLOW_LARGE) if truth == "slow_large" else drawn(truth)
+    plant = PneumaticPlant(description.parameters)
+    for seed in range(2):
+        figures = step_figures(25e3, plant, plant, seed=seed)
+        assert figures["rise_time_ratio"] <= 1.3, figures
+        assert figures["overshoot_pct"] <= 3.0, figures
+        assert figures["steady_state_error_kpa"] <= 0.2, figures
 
 
 @pytest.mark.parametrize("target", [-20e3, -50e3])

@@ -13,6 +13,7 @@ from softgrip_ros.control.pressure import (Fault, PressureMode, PressureControlC
                                            PressureController, Source, boost_ceiling_pa)
 from softgrip_ros.control.safety import SAFETY_FAULTS, SafetyConfig
 from softgrip_ros.model.pneumatics import PneumaticPlant, Valve
+from softgrip_ros.devtools.identification_sim import SLOW_LARGE, scaled
 from tests.helpers.closed_loop import FaultyLoop
 
 LIMITS = (-65e3, 55e3)  # min - margin, max + margin
@@ -171,12 +172,48 @@ def test_a_valve_stuck_open_to_supply_keeps_the_chamber_inside_the_limit():
 
 
 def test_the_boost_ceiling_is_derived_from_the_plant():
-    ceiling = PressureController().config.boost_ceiling_pa
+    ceiling = PressureController().boost_ceiling_gauge_pa(50e3)
     assert 55e3 < ceiling < PressureControlConfig().regulator_max_gauge_pa
     slower = PneumaticPlant(
         dataclasses_replace(PneumaticPlant().parameters, regulator_rate_limit_pa_per_s=0.5e6))
     # falls slower: a lower ceiling
     assert boost_ceiling_pa(slower.parameters, PressureControlConfig()) < ceiling
+
+
+def test_a_lower_target_may_boost_harder():
+    """#23: the ceiling for a step to the limit held every boost, and slowed a 25 kPa step on a
+    slow plant to 1.44x the time-optimal rise. A stuck valve's peak rises with the target, so the
+    ceiling is found per target (tenths of the limit; a target between takes the next one up)."""
+    controller = PressureController()
+    ceilings = [controller.boost_ceiling_gauge_pa(5e3 * k) for k in range(1, 11)]
+    assert all(a >= b for a, b in zip(ceilings, ceilings[1:])), ceilings
+    assert controller.boost_ceiling_gauge_pa(25e3) > controller.boost_ceiling_gauge_pa(50e3)
+    assert controller.boost_ceiling_gauge_pa(45.5e3) == controller.boost_ceiling_gauge_pa(50e3)
+    assert controller.boost_ceiling_gauge_pa(0.0) == ceilings[0]
+    fixed = PressureController(PressureControlConfig(boost_ceiling_pa=70e3))
+    assert {fixed.boost_ceiling_gauge_pa(t) for t in (1e3, 25e3, 50e3)} == {70e3}
+
+
+@pytest.mark.parametrize("truth", ["default", "slow_large"])
+def test_a_valve_stuck_open_at_any_target_keeps_the_chamber_inside_the_limit(truth):
+    """#23: the per-target ceiling, on the plant and the controller's model of it: each tenth of
+    the limit, and a target raised from 10 kPa to the limit during the boost (the regulator is
+    then above the new ceiling)."""
+    plant = (PneumaticPlant() if truth == "default" else
+             PneumaticPlant(scaled(SLOW_LARGE).parameters))
+    cases = [(target, None) for target in np.arange(5e3, 50.1e3, 5e3)]
+    cases += [(10e3, raised_after_s) for raised_after_s in (0.01, 0.02, 0.04)]
+    for target, raised_after_s in cases:
+        loop = FaultyLoop(plant=plant)
+        loop.valve_stuck_open = True
+        loop.command(target)
+        if raised_after_s is not None:
+            loop.run_for(raised_after_s)
+            loop.command(50e3)
+        loop.run_for(1.5)
+        assert within_limits(loop), (target, raised_after_s, loop.true_extremes())
+        if target >= 45e3 or raised_after_s is not None:
+            assert loop.first_fault() is not None
 
 
 def dataclasses_replace(instance, **changes):

@@ -23,9 +23,10 @@ class FaultyLoop:
 
     def __init__(self, config=None, seed=0, plant=None):
         self.plant = plant or PneumaticPlant()
+        # the controller's model is the plant (what an identification gives)
         self.controller = PressureController(
-            config, sensor_noise_pa={n: s
-                                     for n, (s, _) in self.SENSORS.items()})
+            config, self.plant, sensor_noise_pa={n: s
+                                                 for n, (s, _) in self.SENSORS.items()})
         self.controller.active = True
         self.rng = np.random.default_rng(seed)
         self.state = self.plant.initial_state()

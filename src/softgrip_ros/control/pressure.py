@@ -11,10 +11,12 @@ Control law (source SUPPLY or VACUUM, target r* in Pa gauge):
   ``boost_band_pa`` below r, the
   regulator is driven towards its maximum (capped at the target + ``boost_headroom_pa``, and
   at the **boost ceiling**: the highest output with which even a valve stuck open keeps the
-  chamber within the limit plus margin, see :func:`boost_ceiling_pa`) with the valve open (the
-  time-optimal rise is the valve fully open to supply); ``boost_lead_s`` before the chamber
-  would reach r at its current rate the valve closes (**settle**) until the regulator's
-  reported output has come down to the regulated value, so its lag cannot overshoot the chamber;
+  chamber within the limit plus margin, found for the target, see :func:`boost_ceiling_pa`)
+  with the valve open (the time-optimal rise is the valve fully open to supply);
+  ``boost_lead_s`` before the chamber would reach r at its current rate the valve closes
+  (**settle**) until the regulator's reported output has come down to the regulated value, so
+  its lag cannot overshoot the chamber; meanwhile the valve opens for single periods while the
+  model says one cannot pass r (:meth:`PressureController._top_up`);
 - **regulation**: regulator setpoint = r (feed-forward) + PI trim on the feedback
   (the estimate when fresh, else the mean of the fresh sensors), the trim clamped to
   +-``trim_limit_pa``; the integral runs only within ``integral_band_pa`` of the setpoint
@@ -109,13 +111,13 @@ class PressureControlConfig:
     integral_band_pa: float = 1.5e3
     boost_band_pa: float = 1e3
     boost_min_step_pa: float = 5e3
-    boost_headroom_pa: float = 60e3
+    boost_headroom_pa: float = 90e3
     boost_lead_s: float = 0.005
     rate_filter_s: float = 0.01
     settle_timeout_s: float = 0.2
     valve_band_pa: float = 5e3
     channels: int = 1
-    boost_ceiling_pa: float = math.nan  # NaN: boost_ceiling_pa() of the plant
+    boost_ceiling_pa: float = math.nan  # NaN: per target, from the plant (boost_ceilings)
     hold_cycles: int = 3
     hold_cycle_window_s: float = 1.0
     safety: SafetyConfig = SafetyConfig()  # its limits are replaced by the ones above
@@ -187,12 +189,9 @@ class PressureController:
 
     def __init__(self, config: PressureControlConfig | None = None,
                  plant: PneumaticPlant | None = None, sensor_noise_pa: dict | None = None):
-        config = config or PressureControlConfig()
         self.plant = plant or PneumaticPlant()
-        if math.isnan(config.boost_ceiling_pa):
-            config = dataclasses.replace(
-                config, boost_ceiling_pa=boost_ceiling_pa(self.plant.parameters, config))
-        self._config = config
+        self._config = config or PressureControlConfig()
+        self._ceilings = boost_ceilings(self.plant.parameters, self._config)
         self.monitor = SafetyMonitor(self._config.safety, self.plant, sensor_noise_pa)
         self._sensors: dict = {}  # name -> (gauge_pa, time)
         self._estimate = (math.nan, -math.inf)
@@ -203,6 +202,7 @@ class PressureController:
         self._setpoint = 0.0
         self._integral = 0.0
         self._last_step = None
+        self._period_s = 0.0
         self._phase = "track"  # track | boost | settle
         self._settle_started = 0.0
         self._regulator_actual = 0.0
@@ -238,9 +238,7 @@ class PressureController:
     @config.setter
     def config(self, config: PressureControlConfig) -> None:
         """A new configuration (live parameters): the monitor's thresholds follow it."""
-        if math.isnan(config.boost_ceiling_pa):
-            config = dataclasses.replace(
-                config, boost_ceiling_pa=boost_ceiling_pa(self.plant.parameters, config))
+        self._ceilings = boost_ceilings(self.plant.parameters, config)
         self._config = config
         self.monitor.config = config.safety
 
@@ -365,6 +363,9 @@ class PressureController:
         c = self.config
         dt = 0.0 if self._last_step is None else max(0.0, now - self._last_step)
         self._last_step = now
+        # the period the valve state now sent will likely stand for: an extra step (a command,
+        # a reading beyond a limit) does not shorten the next one
+        self._period_s = max(dt, 0.9 * self._period_s)
         if not self.active:
             return self._output(0.0, False, Source.VENT, Valve.CLOSED, PressureMode.INACTIVE,
                                 self._latched, self.feedback(now), "inactive")
@@ -460,6 +461,13 @@ class PressureController:
             f"fault: {fault_names(self._latched & SAFETY_FAULTS)}: {self._fault_message}; "
             f"venting with the regulator disabled")
 
+    def boost_ceiling_gauge_pa(self, target_gauge_pa: float) -> float:
+        """The boost's ceiling on the way to ``target_gauge_pa`` (see :func:`boost_ceiling_pa`)."""
+        for up_to, ceiling in self._ceilings:
+            if target_gauge_pa <= up_to:
+                return ceiling
+        return self._ceilings[-1][1]
+
     def _regulation(self, error: float, feedback: float, dt: float, now: float) -> tuple:
         """(regulator setpoint, valve override or None) for one REGULATE period."""
         c = self.config
@@ -474,7 +482,7 @@ class PressureController:
                 # fill hard, but no harder than the headroom and the ceiling: a late or stuck
                 # valve then stays bounded
                 return min(c.regulator_max_gauge_pa, self._target + c.boost_headroom_pa,
-                           c.boost_ceiling_pa), Valve.SUPPLY
+                           self.boost_ceiling_gauge_pa(self._target)), Valve.SUPPLY
             self._phase, self._settle_started = "settle", now
         command = self._trimmed(error, dt, integrate=self._phase == "track")
         if self._phase == "settle":
@@ -483,8 +491,23 @@ class PressureController:
             if regulator_close or now - self._settle_started > c.settle_timeout_s:
                 self._phase = "track"
             else:
-                return command, Valve.CLOSED
+                return command, self._top_up(error, feedback)
         return command, None
+
+    def _top_up(self, error: float, feedback: float) -> Valve:
+        """The settle's valve: CLOSED, or SUPPLY for one period while the model's rate from the
+        regulator's reported output (stale, so high while it falls) through the open valve, over
+        two periods, stays below the error.
+
+        The boost stops ``boost_lead_s`` short of the setpoint (12 % of a 25 kPa step at a hard
+        boost), and a regulator falling from a hard boost takes several lags to come within
+        ``boost_band_pa``: waiting for it held the chamber short for up to ``settle_timeout_s``.
+        A pulse one period long cannot pass the setpoint on a plant up to twice the model's
+        rate, or a period stretched to twice its length."""
+        if error <= self.config.boost_band_pa:
+            return Valve.CLOSED
+        rate = self.plant.chamber_rate(P_ATM_PA + feedback, Valve.SUPPLY, self._regulator_actual)
+        return Valve.SUPPLY if rate * 2.0 * self._period_s < error else Valve.CLOSED
 
     def _count_correction(self, now: float, what: str) -> None:
         """A boost or an evacuation at the steady target; too many of them latch RESPONSE."""
@@ -564,29 +587,48 @@ class PressureController:
         return self.last_output
 
 
-@functools.lru_cache(maxsize=16)
-def boost_ceiling_pa(plant_parameters, config: PressureControlConfig,
-                     guard_pa: float = 1e3) -> float:
-    """The highest regulator output a boost may ask for, on this plant: with it, even a valve stuck
-    open to the supply keeps the chamber ``guard_pa`` (sensor noise) inside the limit plus margin.
+BOOST_CEILING_TARGETS = 10  # the targets a ceiling is computed for: the upper limit's tenths
 
-    Simulated, not assumed: this controller, on the plant, fills towards the upper limit with its
-    valve stuck open. Its settle then cannot close the valve, and only the trip's second path
-    (the regulator disabled, falling at its lag and rate limit) stops the chamber. The ceiling is
-    bisected between the limit and the regulator's maximum (about 0.2 s of computing, once per
-    plant and configuration)."""
+
+def boost_ceilings(plant_parameters, config: PressureControlConfig) -> tuple:
+    """((target, ceiling), ...) in Pa gauge, targets rising: the boost's ceiling for any target up
+    to each one. A finite ``config.boost_ceiling_pa`` is the ceiling for every target."""
+    if math.isfinite(config.boost_ceiling_pa):
+        return ((math.inf, config.boost_ceiling_pa),)
+    targets = [config.max_gauge_pa * k / BOOST_CEILING_TARGETS
+               for k in range(1, BOOST_CEILING_TARGETS + 1)]
+    return tuple((target, boost_ceiling_pa(plant_parameters, config, target))
+                 for target in targets[:-1]) + (
+        (math.inf, boost_ceiling_pa(plant_parameters, config, targets[-1])),)
+
+
+@functools.lru_cache(maxsize=256)
+def boost_ceiling_pa(plant_parameters, config: PressureControlConfig,
+                     target_gauge_pa: float | None = None, guard_pa: float = 1e3) -> float:
+    """The highest regulator output a boost towards ``target_gauge_pa`` (default: the upper limit)
+    may ask for, on this plant: with it, even a valve stuck open to the supply keeps the chamber
+    ``guard_pa`` (sensor noise) inside the limit plus margin.
+
+    Simulated, not assumed: this controller, on the plant, fills towards the target with its
+    valve stuck open. Its settle then cannot close the valve; the regulator, told the target,
+    falls at its lag and rate limit, and the monitor or the limit trip (the regulator disabled)
+    stops the chamber. The peak rises with the target, so a low target may boost harder: a
+    25 kPa step may use the regulator's whole range where a step to the limit may not. The
+    ceiling is bisected between the limit and the regulator's maximum (0.05-0.3 s of computing,
+    once per plant, configuration and target)."""
     plant = PneumaticPlant(plant_parameters)
     limit = config.max_gauge_pa + config.overpressure_margin_pa - guard_pa
+    target = config.max_gauge_pa if target_gauge_pa is None else target_gauge_pa
 
     def peak(ceiling_pa: float) -> float:
         controller = PressureController(dataclasses.replace(config, boost_ceiling_pa=ceiling_pa),
                                         plant)
         controller.active = True
         state = plant.initial_state()
-        controller.command(config.max_gauge_pa, Source.SUPPLY, math.nan, 0.0)
+        controller.command(target, Source.SUPPLY, math.nan, 0.0)
         inputs, highest = PlantInputs(valves=(Valve.SUPPLY,)), -math.inf
-        # 1 s at 1 kHz: the fill, the trip, the fall
-        for tick in range(1, 1000):
+        # 1.5 s at 1 kHz: the fill, the settle against the stuck valve, the trip, the fall
+        for tick in range(1, 1500):
             now, gauge = tick * 1e-3, float(state.chamber_pa[0] - P_ATM_PA)
             # sensors at 500 Hz, the regulator's report at 100 Hz
             if tick % 2 == 0:
