@@ -177,3 +177,23 @@ def test_a_valve_that_opens_and_closes_inside_a_step_acts_for_that_part_of_it(in
     # backward Euler on another grid: within 0.3 % of the fall; the old grid, off by 0.4 ms at
     # each edge (into_step 0.1 and 0.9), failed this
     assert np.all(np.abs(fitted - held) < 0.003 * abs(held)), (fitted[:3], held)
+
+
+def test_a_value_left_at_the_edge_of_the_range_and_its_partner_are_flagged():
+    """Live drawn_2: the vacuum path's critical ratio ended at the range's 0.95 (truth 0.3) with
+    the source at -54.5 kPa (truth -80), both inside +-1 % intervals and flagged by nothing."""
+    inside = identification._stage3_vector(plant_file.default_description().parameters)
+    names = identification.STAGE3
+    ratio, source = names.index("vacuum_critical_ratio"), names.index("vacuum_source_gauge_pa")
+    covariance = np.eye(len(inside))
+    covariance[ratio, source] = covariance[source, ratio] = 0.96
+    assert identification._pinned(inside, covariance) == {}
+    pinned = inside.copy()
+    pinned[ratio] = identification.STAGE3_BOUNDS[1][ratio]
+    reasons = identification._pinned(pinned, covariance)
+    assert set(reasons) == {ratio, source}
+    assert "edge of the fit's range" in reasons[ratio]
+    assert "trades off with vacuum_critical_ratio" in reasons[source]
+    # weakly coupled: only the value at the edge
+    covariance[ratio, source] = covariance[source, ratio] = 0.5
+    assert set(identification._pinned(pinned, covariance)) == {ratio}
