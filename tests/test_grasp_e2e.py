@@ -126,12 +126,12 @@ def test_the_composed_nodes_keep_fast_work_off_the_executor_and_serialise_only_w
 
 
 def test_pinch_a_sheet_by_action_with_feedback_and_result(suite):
-    from rclpy.action import ActionClient
+    from softgrip_ros.client import serial_action_client
     from softgrip_interfaces.action import Grasp
     from softgrip_interfaces.msg import GraspCommand, GripperState as S
     nodes, user, publisher, states = suite
     # destroyed with the user node, after the executor stops
-    client = ActionClient(user, Grasp, "grasp")
+    client = serial_action_client(user, Grasp, "grasp")
     assert client.wait_for_server(timeout_sec=5.0)
     feedback = []
     future = client.send_goal_async(
@@ -316,11 +316,11 @@ def test_an_envelop_clamp_goal_continued_by_a_clamp_on_the_topic_succeeds_holdin
     """#21.1: a CLAMP on grasp_command that continues the goal's ENVELOP_CLAMP aborted the goal as
     "superseded", although the gripper went on to HOLDING. It is part of the goal."""
     from action_msgs.msg import GoalStatus
-    from rclpy.action import ActionClient
+    from softgrip_ros.client import serial_action_client
     from softgrip_interfaces.action import Grasp
     from softgrip_interfaces.msg import GraspCommand, GripperState as S
     nodes, user, publisher, states = suite
-    client = ActionClient(user, Grasp, "grasp")
+    client = serial_action_client(user, Grasp, "grasp")
     assert client.wait_for_server(timeout_sec=5.0)
     handle = _envelop_goal(client, "act-cup")
     publisher.publish(grasp(GraspCommand.CLAMP, command_id="act-cup"))
@@ -334,11 +334,11 @@ def test_an_action_client_completes_the_grasp_with_a_clamp_goal(suite):
     """Without a side topic: ENVELOP_CLAMP, then a CLAMP goal once ENVELOPED; both goals
     succeed."""
     from action_msgs.msg import GoalStatus
-    from rclpy.action import ActionClient
+    from softgrip_ros.client import serial_action_client
     from softgrip_interfaces.action import Grasp
     from softgrip_interfaces.msg import GraspCommand, GripperState as S
     nodes, user, publisher, states = suite
-    client = ActionClient(user, Grasp, "grasp")
+    client = serial_action_client(user, Grasp, "grasp")
     assert client.wait_for_server(timeout_sec=5.0)
     envelop = _envelop_goal(client, "bt-cup")
     clamp = _goal(client, grasp(GraspCommand.CLAMP, command_id="bt-clamp"))
@@ -350,12 +350,12 @@ def test_an_action_client_completes_the_grasp_with_a_clamp_goal(suite):
 
 def test_a_different_command_supersedes_a_goal_and_a_cancel_vents(suite):
     from action_msgs.msg import GoalStatus
-    from rclpy.action import ActionClient
+    from softgrip_ros.client import serial_action_client
     from softgrip_interfaces.action import Grasp
     from softgrip_interfaces.msg import GraspCommand, GripperState as S
     nodes, user, publisher, states = suite
     device = nodes["sim_device"].device
-    client = ActionClient(user, Grasp, "grasp")
+    client = serial_action_client(user, Grasp, "grasp")
     assert client.wait_for_server(timeout_sec=5.0)
     first = _goal(
         client,

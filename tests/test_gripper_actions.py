@@ -59,10 +59,10 @@ def gripper_goal(position_m, max_effort_n=0.0):
 def test_gripper_command_opens_then_closes_with_its_effort(suite):
     from action_msgs.msg import GoalStatus
     from control_msgs.action import GripperCommand
-    from rclpy.action import ActionClient
+    from softgrip_ros.client import serial_action_client
     from softgrip_interfaces.msg import GripperState
     nodes, user, client = suite
-    action = ActionClient(user, GripperCommand, "gripper_cmd")
+    action = serial_action_client(user, GripperCommand, "gripper_cmd")
     assert action.wait_for_server(timeout_sec=5.0)
     feedback = []
     _, opened = send(action, gripper_goal(0.05), feedback.append)
@@ -90,9 +90,9 @@ def test_gripper_command_opens_then_closes_with_its_effort(suite):
 def test_parallel_gripper_command_carries_the_prefixed_tip_spacing_joint(suite):
     from action_msgs.msg import GoalStatus
     from control_msgs.action import ParallelGripperCommand
-    from rclpy.action import ActionClient
+    from softgrip_ros.client import serial_action_client
     nodes, user, client = suite
-    action = ActionClient(user, ParallelGripperCommand, "parallel_gripper_cmd")
+    action = serial_action_client(user, ParallelGripperCommand, "parallel_gripper_cmd")
     assert action.wait_for_server(timeout_sec=5.0)
     goal = ParallelGripperCommand.Goal()
     goal.command.name, goal.command.position = ["g1_tip_spacing"], [0.04]
@@ -113,9 +113,9 @@ def test_an_invalid_gripper_goal_is_aborted_at_once_and_nothing_moves(suite, pos
                                                                      effort_n):
     from action_msgs.msg import GoalStatus
     from control_msgs.action import GripperCommand
-    from rclpy.action import ActionClient
+    from softgrip_ros.client import serial_action_client
     nodes, user, client = suite
-    action = ActionClient(user, GripperCommand, "gripper_cmd")
+    action = serial_action_client(user, GripperCommand, "gripper_cmd")
     assert action.wait_for_server(timeout_sec=5.0)
     before = nodes["grasp_manager"].fsm.request
     _, refused = send(action, gripper_goal(position_m, effort_n))
@@ -128,10 +128,10 @@ def test_an_invalid_gripper_goal_is_aborted_at_once_and_nothing_moves(suite, pos
 def test_a_canceled_gripper_goal_holds_the_present_pressure(suite):
     from action_msgs.msg import GoalStatus
     from control_msgs.action import GripperCommand
-    from rclpy.action import ActionClient
+    from softgrip_ros.client import serial_action_client
     from softgrip_ros.control.pressure import Source
     nodes, user, client = suite
-    action = ActionClient(user, GripperCommand, "gripper_cmd")
+    action = serial_action_client(user, GripperCommand, "gripper_cmd")
     assert action.wait_for_server(timeout_sec=5.0)
     handle, result = send(action, gripper_goal(0.07))
     manager = nodes["grasp_manager"]

@@ -35,7 +35,7 @@ def peer_process():
 
 def test_every_message_type_round_trips_across_processes(peer_process, ros_node):
     import rclpy
-    from rclpy.action import ActionClient
+    from softgrip_ros.client import serial_action_client
     from rclpy.executors import SingleThreadedExecutor
     from softgrip_interfaces.action import Grasp
 
@@ -55,7 +55,7 @@ def test_every_message_type_round_trips_across_processes(peer_process, ros_node)
             assert sample_messages.differences(factory(), received[topic]) == [], topic
 
         # The action itself: goal out, feedback and result back.
-        client = ActionClient(ros_node, Grasp, "roundtrip/grasp")
+        client = serial_action_client(ros_node, Grasp, "roundtrip/grasp")
         assert client.wait_for_server(timeout_sec=20.0), "the peer's Grasp server never appeared"
         feedbacks = []
         send_future = client.send_goal_async(
