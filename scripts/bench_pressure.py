@@ -235,8 +235,8 @@ def main(argv=None) -> int:
         "bounded by GIL hand-over, not by the work per tick. The time-optimal rise is the same "
         "plant with the "
         "regulator commanded to its maximum and the valve open from t = 0; the controller's boost "
-        "is capped at "
-        "the target + 60 kPa so that a late close stays bounded, which costs rise time.")
+        "is capped at the target + 90 kPa and at the ceiling with which a valve stuck open stays "
+        "inside the limit (simulated for the target), which can cost rise time.")
     update_section(
         "bench_pressure", "## Pressure controller (`scripts/bench_pressure.py`)\n\n"
         f"Command: `python scripts/bench_pressure.py` ({machine_line()}; codec median of "
