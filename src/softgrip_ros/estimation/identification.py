@@ -35,9 +35,10 @@ the residuals' autocorrelation along each sensor's series (Newey-West, Bartlett 
 bandwidth). A value is flagged, and never written silently, when its 95 % interval is wider than
 +-25 %, when the data do not excite it (the interval is then wide, or its column of the Jacobian
 vanishes), when the fit left it at an edge of its range or it trades off with one so left
-(:func:`_pinned`: its interval is then the range); the whole fit, when a sensor's normalised residuals are clearly not white (lag-one
-autocorrelation above ``WHITENESS_LIMIT``), its residuals exceed 1.5x the noise, or the held-out
-excitation is predicted worse than ``VALIDATION_LIMIT`` times the noise.
+(:func:`_pinned`: its interval is then the range); the whole fit, when a sensor's normalised
+residuals are clearly not white (lag-one autocorrelation above ``WHITENESS_LIMIT``), its
+residuals exceed 1.5x the noise, or the held-out excitation is predicted worse than
+``VALIDATION_LIMIT`` times the noise.
 """
 from __future__ import annotations
 
