@@ -466,7 +466,7 @@ class PressureController:
         for up_to, ceiling in self._ceilings:
             if target_gauge_pa <= up_to:
                 return ceiling
-        return self._ceilings[-1][1]
+        return self._ceilings[-1][1]  # a NaN target: the lowest
 
     def _regulation(self, error: float, feedback: float, dt: float, now: float) -> tuple:
         """(regulator setpoint, valve override or None) for one REGULATE period."""
@@ -595,11 +595,17 @@ def boost_ceilings(plant_parameters, config: PressureControlConfig) -> tuple:
     to each one. A finite ``config.boost_ceiling_pa`` is the ceiling for every target."""
     if math.isfinite(config.boost_ceiling_pa):
         return ((math.inf, config.boost_ceiling_pa),)
-    targets = [config.max_gauge_pa * k / BOOST_CEILING_TARGETS
-               for k in range(1, BOOST_CEILING_TARGETS + 1)]
-    return tuple((target, boost_ceiling_pa(plant_parameters, config, target))
-                 for target in targets[:-1]) + (
-        (math.inf, boost_ceiling_pa(plant_parameters, config, targets[-1])),)
+    ceilings = []
+    # from the highest target down: the ceiling does not fall as the target does, so once one
+    # is the regulator's maximum, so is every one below it
+    for k in range(BOOST_CEILING_TARGETS, 0, -1):
+        target = config.max_gauge_pa * k / BOOST_CEILING_TARGETS
+        if ceilings and ceilings[-1][1] >= config.regulator_max_gauge_pa:
+            ceiling = config.regulator_max_gauge_pa
+        else:
+            ceiling = boost_ceiling_pa(plant_parameters, config, target)
+        ceilings.append((math.inf if k == BOOST_CEILING_TARGETS else target, ceiling))
+    return tuple(reversed(ceilings))
 
 
 @functools.lru_cache(maxsize=256)
