@@ -692,11 +692,10 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
             estimates[name].flag = "not excited: the fit does not depend on it"
             flags.append(f"{name}: not excited by this recording")
 
+    range_ends = [_stage3_parameters(bound, base) for bound in STAGE3_BOUNDS]
     for i, message in _pinned(stage3.x, _covariance(stage3.jac, stage3.fun)).items():
         name = STAGE3[i]
-        low, high = _stage3_parameters(STAGE3_BOUNDS[0], base), _stage3_parameters(
-            STAGE3_BOUNDS[1], base)
-        edges = sorted((getattr(low, name), getattr(high, name)))
+        edges = sorted(getattr(end, name) for end in range_ends)
         estimates[name].ci95 = (edges[0], edges[1])
         estimates[name].flag = message
         flags.append(f"{name}: {message}")
