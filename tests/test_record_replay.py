@@ -221,7 +221,15 @@ def test_the_raw_can_traffic_goes_to_a_python_can_log(tmp_path):
         [installed_executable("sim_device"), "--ros-args", "-p", "can.interface:=softgrip_ipc",
          "-p", f"can.channel:={channel}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        time.sleep(1.5)
+        # the device's first frame, not a fixed wait: a fresh-clone CI run logged 0 frames after
+        # 1.5 s (a device slow to start on a loaded host)
+        from softgrip_ros.canbus import open_bus
+        probe = open_bus("softgrip_ipc", channel, 500000)
+        try:
+            first = probe.recv(timeout=20.0)
+        finally:
+            probe.shutdown()
+        assert first is not None, "the simulated device sent nothing within 20 s"
         done = tool("softgrip_record", tmp_path / "bag", "--topics", "grasp_state", "--duration",
                     "2", "--can", tmp_path / "trial.blf", "--can-interface", "softgrip_ipc",
                     "--can-channel", channel)
