@@ -216,10 +216,13 @@ def test_the_raw_can_traffic_goes_to_a_python_can_log(tmp_path):
     """--can with the simulated device's frames on softgrip_ipc: a .blf that python-can reads."""
     import can
     from tests.helpers.ros import unique
-    channel = unique("reccan")
+    # a name ending in a number beyond 16 bits: python-can's BLF writer took it as the channel
+    # number and failed on every frame (2 of 2 CI runs logged nothing, by a unique()'s chance)
+    channel = f"{unique('reccan')}-70000"
+    device_log = (tmp_path / "device.log").open("w")
     device = subprocess.Popen(
         [installed_executable("sim_device"), "--ros-args", "-p", "can.interface:=softgrip_ipc",
-         "-p", f"can.channel:={channel}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+         "-p", f"can.channel:={channel}"], stdout=device_log, stderr=subprocess.STDOUT)
     try:
         # the device's first frame, not a fixed wait: a fresh-clone CI run logged 0 frames after
         # 1.5 s (a device slow to start on a loaded host)
@@ -235,9 +238,51 @@ def test_the_raw_can_traffic_goes_to_a_python_can_log(tmp_path):
                     "--can-channel", channel)
     finally:
         stop_process(device)
+        device_log.close()
     assert done.returncode == 0, done.stderr
     frames = list(can.BLFReader(str(tmp_path / "trial.blf")))
     # 2 s of sensor frames at 500 + 200 Hz (a quarter lost would still pass)
-    assert len(frames) > 1000
+    assert len(frames) > 1000, (done.stderr, (tmp_path / "device.log").read_text())
+    assert f"trial.blf: {len(frames)} CAN frames" in done.stderr
     assert {f.arbitration_id for f in frames} >= {0x210, 0x211, 0x200, 0x280}
     assert math.isfinite(np.mean([f.timestamp for f in frames]))
+
+
+@pytest.mark.ros
+def test_a_failing_can_log_stops_the_recording_with_a_message(tmp_path, monkeypatch, capsys):
+    """The CAN log's writer failing (here: a full disk) ends the recording early with status 1
+    and says why; the bag is closed and reads."""
+    import can
+    from softgrip_ros.canbus import open_bus
+    from softgrip_ros.canbus.sim_device import SimulatedDevice
+    from softgrip_ros.tools import bag as bags
+    from softgrip_ros.tools import record
+    from tests.helpers.ros import unique
+
+    class FullDisk(can.Listener):
+        def __init__(self, path):
+            self.frames = 0
+
+        def on_message_received(self, msg):
+            raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(can, "Logger", FullDisk)
+    channel = unique("recfail")
+    bus = open_bus("softgrip_ipc", channel, 500000)
+    device = SimulatedDevice(bus)
+    device.start()
+    try:
+        started = time.monotonic()
+        status = record.main([str(tmp_path / "bag"), "--topics", "grasp_state", "--duration",
+                              "60", "--can", str(tmp_path / "trial.blf"), "--can-interface",
+                              "softgrip_ipc", "--can-channel", channel])
+        elapsed_s = time.monotonic() - started
+    finally:
+        device.stop()
+        bus.shutdown()
+    err = capsys.readouterr().err
+    assert status == 1, err
+    assert "the CAN log failed: [Errno 28] No space left on device" in err
+    # stopped at the first check after the failure, not at --duration (a bound, not a timing)
+    assert elapsed_s < 50.0
+    assert list(bags.read(tmp_path / "bag")) == []

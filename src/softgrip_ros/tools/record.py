@@ -20,7 +20,7 @@ its player and viewer replay. The recording stops, keeping the bag readable, whe
 less than --min-free-mb left.
 
 Exit status: 0 recorded (until --duration, Ctrl-C or SIGTERM); 1 stopped early (disk full, a
-write failed); 2 bad arguments (OUTDIR exists, a bad CAN interface).
+write failed, the CAN log failed); 2 bad arguments (OUTDIR exists, a bad CAN interface).
 """
 from __future__ import annotations
 
@@ -42,6 +42,39 @@ FLUSH_PERIOD_S = 0.1
 PROGRESS_PERIOD_S = 5.0
 DRAIN_QUIET_S = 0.5
 DRAIN_MAX_S = 15.0
+
+
+class OneChannelLog:
+    """A python-can listener: every frame into ``logger`` on channel 1, the one bus logged, until
+    the first error (the writer's or the bus's), kept in ``error`` for the recording to stop on.
+
+    A frame's channel is its bus's name, and python-can's writers take the name's trailing digits
+    as the channel number: a softgrip_ipc channel such as ``trial-20261203`` would number beyond
+    BLF's 16 bits, and the writer would fail on every frame.
+    """
+
+    def __init__(self, logger):
+        self.logger = logger
+        self.error: Exception | None = None
+        self.frames = 0
+
+    def __call__(self, frame) -> None:
+        if self.error is not None:
+            return
+        frame.channel = 1
+        try:
+            self.logger(frame)
+        except Exception as error:  # the writers raise OSError, struct.error, ValueError, ...
+            self.error = error
+        else:
+            self.frames += 1
+
+    def on_error(self, error: Exception) -> None:
+        """The bus failed; the notifier carries on (and the recording stops on ``error``)."""
+        self.error = self.error or error
+
+    def stop(self) -> None:
+        self.logger.stop()
 
 
 def parser() -> argparse.ArgumentParser:
@@ -218,7 +251,8 @@ def main(argv=None) -> int:
             bus.shutdown()
             print(f"softgrip_record: --can {args.can}: {error}", file=sys.stderr)
             return 2
-        can_log = (bus, logger, can.Notifier(bus, [logger]))
+        log = OneChannelLog(logger)
+        can_log = (bus, log, can.Notifier(bus, [log]))
 
     import rclpy
     import yaml
@@ -262,6 +296,9 @@ def main(argv=None) -> int:
                             status, reason = 1, (f"the disk has {free_mb:.0f} MB left (below "
                                                  f"--min-free-mb {args.min_free_mb:g})")
                             break
+                    if can_log is not None and can_log[1].error is not None:
+                        status, reason = 1, f"the CAN log failed: {can_log[1].error}"
+                        break
                     try:
                         for message in recorder.take():
                             bag.write(*message)
@@ -285,9 +322,14 @@ def main(argv=None) -> int:
         node.destroy_node()
         rclpy.shutdown(context=context)
         if can_log is not None:
-            bus, _, notifier = can_log
-            notifier.stop()  # stops the logger too: the file is closed
+            bus, log, notifier = can_log
+            try:
+                notifier.stop()  # stops the logger too: the file is closed
+            except OSError as error:  # its last block could not be written
+                log.on_error(error)
             bus.shutdown()
+            if log.error is not None and not reason:
+                status, reason = 1, f"the CAN log failed: {log.error}"
     if reason:
         print(f"softgrip_record: recording stopped: {reason}; {args.outdir} holds everything "
               "recorded until then", file=sys.stderr)
@@ -299,6 +341,8 @@ def main(argv=None) -> int:
     counts = ", ".join(f"{t} {n}" for t, n in sorted(recorder.counts.items()))
     print(f"[record] {args.outdir}: {sum(recorder.counts.values())} messages in "
           f"{time.monotonic() - started:.1f} s ({counts or 'none'})", file=sys.stderr)
+    if can_log is not None:
+        print(f"[record] {args.can}: {can_log[1].frames} CAN frames", file=sys.stderr)
     return status
 
 
