@@ -385,3 +385,39 @@ def test_a_copy_of_an_applied_command_is_ignored_and_no_stamp_locks_out_the_next
     # unstamped: applies
     assert link.command(5e3, Source.SUPPLY, math.nan) == ""
     assert link.controller._target == 5e3
+
+
+def test_an_output_change_is_dated_when_its_frame_goes_out_not_after_the_send_returns():
+    """The identification dates each valve change by ``output_changed_time``; the device acts on
+    the frame. A send that returns late (a GIL wait after the socket call: here the clock moves
+    5 ms inside each send) must not make the change look later than the frame."""
+    from softgrip_ros.canbus.codec import FrameCodec
+    channel = f"softgrip-test-{uuid.uuid4().hex[:8]}"
+    controller_bus = can.Bus(interface="virtual", channel=channel)
+    now = [100.0]
+    sent_at = {}
+    codec = FrameCodec()
+    send = controller_bus.send
+
+    def late_returning_send(frame, timeout=None):
+        sent_at[frame.arbitration_id] = now[0]
+        send(frame, timeout)
+        now[0] += 0.005
+
+    controller_bus.send = late_returning_send
+    link = ControllerLink(controller_bus, PressureController(PressureControlConfig()), SENSORS,
+                          clock=lambda: now[0])
+    link.controller.active = True
+    try:
+        link.controller.update_sensor("chamber_a", 0.0, now[0])
+        link.step()
+        link.command(20e3, Source.SUPPLY, math.nan)
+        link.controller.update_sensor("chamber_a", 0.0, now[0])
+        link.step()
+        valve_frame = sent_at[codec.frame_ids["ValveCommand"]]
+        # the valve's frame went out last (after the regulator's): the change is dated by it
+        assert valve_frame > sent_at[codec.frame_ids["RegulatorSetpoint"]]
+        assert link.output_changed_time == pytest.approx(valve_frame, abs=1e-9)
+    finally:
+        link.close()
+        controller_bus.shutdown()

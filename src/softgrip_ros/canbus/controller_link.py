@@ -302,13 +302,16 @@ class ControllerLink:
         }), ("ValveCommand", self._valve_signals(valves))):
             last = self._last_command_frames.get(message)
             changed = last is None or last[0] != signals
+            if changed:
+                # when the frame goes out, not when the step began, nor after the send returns:
+                # this thread may wait for the GIL at either (a switch interval, 5 ms, when
+                # another thread computes), and the device acts on the frame (the stamp a send
+                # sets). Stamped after the send, one valve change in a live identification came
+                # out 4 ms late, and the chamber fit bent its critical ratios to match.
+                self.output_changed_time = self.clock()
             if changed or now - last[1] >= self.command_frame_period_s - 1e-9:
                 self._last_command_frames[message] = (signals, now)
                 self._send(message, signals)
-            if changed:
-                # when the frame went out, not when the step began: the thread may wait for the
-                # GIL between the two (a switch interval, 5 ms), and the device acts on the frame
-                self.output_changed_time = self.clock()
 
     def _valve_signals(self, valves) -> dict:
         signals = {f"Channel{i}": int(v) for i, v in enumerate(valves)}
