@@ -105,3 +105,48 @@ def test_the_interface_is_named_as_python_can_names_its_own_and_a_failed_send_is
     finally:
         peer.shutdown()
         bus._path.unlink(missing_ok=True)
+
+
+def test_a_frame_is_stamped_as_it_goes_out_not_before_the_peers_are_looked_up(channel,
+                                                                               monkeypatch):
+    """A receiver acts on a frame's stamp (the simulated device switches a valve at it). The
+    look-up of the peers (system calls: another thread may take the GIL there, for up to 5 ms)
+    must not come between the stamp and the sending: here the clock moves 1 s inside each
+    look-up, and every frame carries the time it went to the socket."""
+    import time
+    import types
+    sender, receiver = (can.Bus(interface="softgrip_ipc", channel=channel) for _ in range(2))
+    clock = [1000.0]
+    monkeypatch.setattr(softgrip_ipc, "time", types.SimpleNamespace(
+        time=lambda: clock[0], monotonic=time.monotonic))
+    look_up = sender._refresh_peers
+
+    def slow_look_up():
+        look_up()
+        clock[0] += 1.0
+
+    sender._refresh_peers = slow_look_up
+    sent_at = []
+
+    class WatchedSocket:
+        def __init__(self, inner):
+            self.inner = inner
+
+        def sendto(self, *args):
+            sent_at.append(clock[0])
+            return self.inner.sendto(*args)
+
+        def __getattr__(self, name):
+            return getattr(self.inner, name)
+
+    sender._socket = WatchedSocket(sender._socket)
+    try:
+        sender.send(can.Message(arbitration_id=1, data=b"\1", is_extended_id=False))
+        sender._peers_read = time.monotonic() - 1.0  # known, and due for a look-up again
+        sender.send(can.Message(arbitration_id=2, data=b"\2", is_extended_id=False))
+        frames = drain(receiver)
+        assert [f.arbitration_id for f in frames] == [1, 2]
+        assert [f.timestamp for f in frames] == sent_at
+    finally:
+        sender.shutdown()
+        receiver.shutdown()

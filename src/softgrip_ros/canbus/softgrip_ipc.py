@@ -100,11 +100,17 @@ class SoftgripIpcBus(can.BusABC):
         if len(data) > 8:
             raise can.CanOperationError(
                 "softgrip_ipc carries classic CAN frames of at most 8 bytes")
-        payload = FRAME.pack(time.time(), msg.arbitration_id, len(data), msg.is_extended_id,
-                             msg.is_remote_frame, data.ljust(8, b"\0"))
+        fields = (msg.arbitration_id, len(data), msg.is_extended_id, msg.is_remote_frame,
+                  data.ljust(8, b"\0"))
         with self._send_lock:
-            self._refresh_peers()
+            if self._peers_read < 0.0:
+                self._refresh_peers()
             for peer in self._peers:
+                # stamped as it goes to this peer: each system call lets another thread take the
+                # GIL (up to a switch interval, 5 ms), and a receiver acts on the stamp (the
+                # simulated device switches a valve at it: a stamp taken before such a wait let a
+                # live identification see valve pulses ~1 ms longer than the device made them)
+                payload = FRAME.pack(time.time(), *fields)
                 try:
                     self._socket.sendto(payload, socket.MSG_DONTWAIT, peer)
                 except BlockingIOError:  # its queue is full
@@ -113,7 +119,10 @@ class SoftgripIpcBus(can.BusABC):
                 except OSError as error:
                     raise can.CanOperationError(f"softgrip_ipc send failed: {error}") from error
             if self._receive_own:
-                self._own.append(payload)
+                self._own.append(FRAME.pack(time.time(), *fields))
+            # after the frame, not between its stamp and its sending (the directory's system
+            # calls); a peer that joins gets frames from the next send after the refresh
+            self._refresh_peers()
 
     @staticmethod
     def _unlink(path) -> None:
