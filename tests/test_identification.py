@@ -58,6 +58,31 @@ def test_volume_and_conductances_cannot_be_told_apart_by_pressure_alone():
     assert np.max(np.abs(both[0] - both[1])) <= 1e-9 * P_ATM_PA
 
 
+def test_a_segment_fits_only_the_start_of_a_closed_hold_and_the_whole_of_a_vent():
+    """A hold with the valves closed repeats one level, which the next segment starts from:
+    fitted whole, it weighed that level (and a valve's timing error, live ~1 ms on a 40 ms
+    evacuation) hundreds of times over. A vent's decay is the vent path's response: fitted
+    whole."""
+    truth = plant_file.default_description()
+    steps = [identification.Step("VENT", 0.0, 1.0), identification.Step("VACUUM", -30e3, 0.8),
+             identification.Step("HOLD", math.nan, 0.5), identification.Step("SUPPLY", 20e3, 0.4),
+             identification.Step("VENT", 0.0, 1.0)]
+    recording = identification_sim.record(truth, steps, seed=0)
+    rests = identification.vented_rests(recording)
+    biases = {name: 0.0 for name in recording.sensors}
+    episodes = identification.episodes_of(recording, biases, rests)
+    changes = recording.inputs
+    closes = [c.time_s for before, c in zip(changes, changes[1:])
+              if before.valve == Valve.VACUUM and c.valve == Valve.CLOSED]
+    assert len(closes) == 1 and len(episodes) == 2
+    # the evacuation's segment: from the first vent's tail to 50 ms into the closed hold
+    assert episodes[0].end_s == pytest.approx(closes[0] + identification.HOLD_FITTED_S, abs=1e-9)
+    # the fill's: from the hold's tail through the whole final vent
+    fill = next(c.time_s for c in changes if c.valve == Valve.SUPPLY)
+    assert episodes[1].start_s == pytest.approx(fill - identification.REST_TAIL_S, abs=1e-9)
+    assert episodes[1].end_s == pytest.approx(recording.end_s, abs=1e-9)
+
+
 # what the pressure limits leave unexcited: within [-60, 50] kPa the vacuum path's flow is
 # choked nearly all the way, and where it is not, its critical ratio and the source's level
 # trade off; the fit must then say so (a flag and an interval that holds the truth)

@@ -55,6 +55,7 @@ from softgrip_ros.model.pneumatics import (P_ATM_PA, RHO0_KG_PER_M3, T0_K, Pneum
 DT_S = 1e-3  # the simulation step (the simulated device's plant runs at 1 kHz too)
 REST_S = 0.5  # a vent this long ends an episode: the chamber is at 0 Pa gauge
 HOLD_S = 0.2  # valves closed this long: the chamber rests where it is (a segment may start)
+HOLD_FITTED_S = 0.05  # of a hold that ends a segment, the part fitted
 REST_TAIL_S = 0.1  # the last part of a rest: the readings averaged for the bias and the start
 WHITENESS_LIMIT = 0.5  # |lag-one autocorrelation| of a sensor's normalised residuals
 RELATIVE_CI_LIMIT = 0.25  # a 95 % interval wider than +-25 % of the value is flagged
@@ -298,11 +299,17 @@ def episodes_of(recording: Recording, biases: dict, rests: list | None = None) -
     if len(rests) < 2:
         raise ValueError("the recording needs two vented rests of 0.5 s or more, one before and "
                          "one after the excitation")
-    every = sorted(rests + _rests(recording, Valve.CLOSED, HOLD_S))
+    holds = _rests(recording, Valve.CLOSED, HOLD_S)
+    every = sorted(rests + holds)
     change_times = np.array([c.time_s for c in recording.inputs])
     episodes = []
-    for (rest_start, rest_end), (_, next_end) in zip(every[:-1], every[1:]):
+    for (rest_start, rest_end), (next_start, next_end) in zip(every[:-1], every[1:]):
         start = rest_end - _tail(rest_start, rest_end)
+        if (next_start, next_end) in holds:
+            # a closed hold only repeats the level its valve left, and the next segment starts
+            # from it: its whole length would weigh that level, and with it the valve's timing
+            # (live, a 40 ms evacuation's frames ~1 ms off), hundreds of times over
+            next_end = min(next_end, next_start + HOLD_FITTED_S)
         inside = recording.inputs[int(np.searchsorted(change_times, rest_end)):
                                   int(np.searchsorted(change_times, next_end))]
         if not any(c.valve in (Valve.SUPPLY, Valve.VACUUM, Valve.VENT) for c in inside):
