@@ -86,6 +86,30 @@ def test_regulator_lag_and_rate_limit():
     assert abs(state.regulator_gauge_pa) < 100.0  # disabled: back to 0 gauge
 
 
+@pytest.mark.parametrize("start_pa, target_pa", [(0.0, 100e3), (60e3, -50e3), (10e3, 11e3)])
+def test_the_regulator_step_is_exact_at_any_step_size(start_pa, target_pa):
+    """One step of 20 ms or 0.1 s lands where a tight ODE solve of the lag with its rate limit
+    does, and where many small steps do: the identification steps between reports 20 ms apart,
+    the device at its tick. (A step that clamps its whole lag step to rate * dt does not: the
+    identification's rate limit came out 4-6 % low.) Its derivative by the start value is the
+    finite difference's."""
+    tau, rate = 0.03, 3e5
+    params = PneumaticParameters(regulator_time_constant_s=tau, regulator_rate_limit_pa_per_s=rate)
+    plant = PneumaticPlant(params)
+    inputs = PlantInputs(regulator_setpoint_gauge_pa=target_pa, valves=(Valve.CLOSED,))
+    reference = solve_ivp(lambda t, x: plant.derivative(np.array([x[0], P_ATM_PA]), inputs)[:1],
+                          (0.0, 0.5), [start_pa], method="LSODA", rtol=1e-11, atol=1e-6,
+                          dense_output=True, max_step=1e-4)
+    for dt in (0.001, 0.02, 0.1):
+        value, t = start_pa, 0.0
+        while t < 0.5 - 1e-12:
+            value, t = plant.regulator_step(value, inputs, dt)[0], t + dt
+            assert value == pytest.approx(reference.sol(t)[0], abs=0.05), (dt, t)
+    value, slope = plant.regulator_step(start_pa, inputs, 0.05)
+    shifted = plant.regulator_step(start_pa + 1.0, inputs, 0.05)[0]
+    assert slope == pytest.approx(shifted - value, rel=1e-6, abs=1e-9)
+
+
 def test_choked_fill_time_matches_the_closed_form():
     plant = PneumaticPlant(PneumaticParameters(supply_gauge_pa=500e3))
     source = P_ATM_PA + 500e3

@@ -50,7 +50,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from softgrip_ros.model.pneumatics import (P_ATM_PA, RHO0_KG_PER_M3, T0_K, PneumaticParameters,
-                                           Valve)
+                                           Valve, regulator_after)
 
 DT_S = 1e-3  # the simulation step (the simulated device's plant runs at 1 kHz too)
 REST_S = 0.5  # a vent this long ends an episode: the chamber is at 0 Pa gauge
@@ -224,10 +224,7 @@ def regulator_trajectory(times, inputs, tau_s, rate_pa_per_s, vacuum_gauge_pa, s
                 if change is not None and change.regulator_enabled:
                     target = min(max(change.regulator_setpoint_pa, vacuum_gauge_pa),
                                  supply_gauge_pa)
-                dt = until - now
-                step = (target - value) * (1.0 - math.exp(-dt / tau_s))
-                limit = rate_pa_per_s * dt
-                value += max(-limit, min(limit, step))
+                value = regulator_after(value, target, until - now, tau_s, rate_pa_per_s)[0]
                 now = until
             if next_change <= t:
                 index += 1

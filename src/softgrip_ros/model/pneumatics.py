@@ -48,6 +48,23 @@ RHO0_KG_PER_M3 = 1.185  # ISO 6358 reference density
 T0_K = 293.15  # ISO 6358 reference temperature
 
 
+def regulator_after(value_pa: float, target_pa: float, dt: float, tau_s: float,
+                    rate_limit_pa_per_s: float) -> tuple[float, float]:
+    """The regulator's output after ``dt`` at a fixed target, and its derivative by ``value_pa``:
+    d value/dt = (target - value) / tau, limited to +-rate_limit, solved exactly. The output slews
+    at the limit while the gap exceeds rate_limit * tau, then relaxes with tau. Exact, so that
+    one step of 20 ms (the identification between two regulator reports) gives what twenty of
+    1 ms give (the simulated device): a step that clamps its whole lag step to rate_limit * dt
+    does not, and the identification's rate limit came out 6 % low."""
+    gap = target_pa - value_pa
+    knee = rate_limit_pa_per_s * tau_s  # the gap below which the lag is slower than the limit
+    slewing_s = max(abs(gap) - knee, 0.0) / rate_limit_pa_per_s
+    if dt <= slewing_s:
+        return value_pa + math.copysign(rate_limit_pa_per_s * dt, gap), 1.0
+    decay = math.exp(-(dt - slewing_s) / tau_s)
+    return target_pa - math.copysign(min(abs(gap), knee), gap) * decay, decay
+
+
 class Valve(enum.IntEnum):
     """Valve-block state of one channel (the CAN ValveCommand values)."""
 
@@ -342,13 +359,8 @@ class PneumaticPlant:
         """The regulator after dt, exactly (lag and rate limit), and its derivative by the start
         value."""
         par = self.parameters
-        target = self.regulator_target_gauge_pa(inputs)
-        decay = math.exp(-dt / par.regulator_time_constant_s)
-        change = (target - regulator_gauge_pa) * (1.0 - decay)
-        max_change = par.regulator_rate_limit_pa_per_s * dt
-        if abs(change) > max_change:
-            return regulator_gauge_pa + math.copysign(max_change, change), 1.0
-        return regulator_gauge_pa + change, decay
+        return regulator_after(regulator_gauge_pa, self.regulator_target_gauge_pa(inputs), dt,
+                               par.regulator_time_constant_s, par.regulator_rate_limit_pa_per_s)
 
     def _valves(self, inputs: PlantInputs) -> tuple:
         valves = tuple(Valve(v) for v in inputs.valves)
