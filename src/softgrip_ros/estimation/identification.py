@@ -27,7 +27,10 @@ the conductances and compliances are only as right as that volume.
    least squares (scipy's trf and dogbox, restarted, see :func:`fit`) over every sensor
    reading, weighted by its noise. The chamber rests wherever its valves stay closed or vented a
    while; each segment, from one rest to the next, is simulated from the measured pressure at
-   its rest, all segments at once.
+   its rest, all segments at once. A segment takes in the whole of a vent that ends it (the
+   vent path's decay) but only the first ``HOLD_FITTED_S`` of a closed hold: the hold repeats
+   one level, set by when the valve closed, and a millisecond's error in that time (a 40 ms
+   evacuation) weighed over the whole hold outweighed every flow the excitation measures.
 
 Confidence intervals come from the Jacobian at the optimum: per value the wider of the
 Gauss-Newton covariance (scaled by the residual variance) and the sandwich covariance that keeps
