@@ -272,3 +272,28 @@ def test_the_plant_keeps_real_time_through_a_stall_of_its_thread(bench):
     actual = [s.signals["ActualGaugePressure"] for s in statuses
               if s is not None and s.name == "RegulatorStatus"]
     assert actual and actual[-1] == pytest.approx(30e3, abs=100.0)
+
+
+def test_a_reading_is_the_plant_at_most_0_2_ms_before_it_goes_out(bench):
+    """A reading is stamped when its frame goes out; the value must be the plant at that time.
+    Each send here takes 0.5 ms of the clock (a GIL wait on a loaded host): at a 1 ms catch-up
+    threshold the tick's later frames carried a plant 0.5-1 ms old, and the live identification
+    fitted its critical ratios to that lag."""
+    from softgrip_ros.canbus.sim_device import SEND_LAG_S
+    device, clock, _, codec = bench
+    staleness = []
+    send = device.bus.send
+
+    def slow_send(frame, timeout=None):
+        if codec.frame_ids.get("PressureSensor1") == frame.arbitration_id or \
+                codec.frame_ids.get("PressureSensor2") == frame.arbitration_id:
+            staleness.append(clock.now - device._last_tick)
+        send(frame, timeout)
+        clock.now += 0.0005
+
+    device.bus.send = slow_send
+    command(device, codec, Valve.SUPPLY, setpoint_pa=40e3, lifetime_s=0.25)
+    tick_for(device, clock, 0.1, period_s=1e-3)
+    assert len(staleness) > 50
+    assert max(staleness) <= 2e-4 + 1e-9, max(staleness)
+    assert SEND_LAG_S <= 2e-4
