@@ -224,8 +224,7 @@ def test_the_raw_can_traffic_goes_to_a_python_can_log(tmp_path):
         [installed_executable("sim_device"), "--ros-args", "-p", "can.interface:=softgrip_ipc",
          "-p", f"can.channel:={channel}"], stdout=device_log, stderr=subprocess.STDOUT)
     try:
-        # the device's first frame, not a fixed wait: a fresh-clone CI run logged 0 frames after
-        # 1.5 s (a device slow to start on a loaded host)
+        # the device's first frame, not a fixed wait (a device slow to start on a loaded host)
         from softgrip_ros.canbus import open_bus
         probe = open_bus("softgrip_ipc", channel, 500000)
         try:
@@ -261,7 +260,7 @@ def test_a_failing_can_log_stops_the_recording_with_a_message(tmp_path, monkeypa
 
     class FullDisk(can.Listener):
         def __init__(self, path):
-            self.frames = 0
+            pass
 
         def on_message_received(self, msg):
             raise OSError(28, "No space left on device")

@@ -235,7 +235,7 @@ def main(argv=None) -> int:
     if not args.outdir.parent.resolve().is_dir():
         print(f"softgrip_record: {args.outdir.parent} is not a directory", file=sys.stderr)
         return 2
-    can_log = None
+    can_log, can_listener = None, None
     if args.can is not None:
         import can
         from softgrip_ros.canbus import open_bus
@@ -251,8 +251,8 @@ def main(argv=None) -> int:
             bus.shutdown()
             print(f"softgrip_record: --can {args.can}: {error}", file=sys.stderr)
             return 2
-        log = OneChannelLog(logger)
-        can_log = (bus, log, can.Notifier(bus, [log]))
+        can_listener = OneChannelLog(logger)
+        can_log = (bus, can.Notifier(bus, [can_listener]))
 
     import rclpy
     import yaml
@@ -296,8 +296,8 @@ def main(argv=None) -> int:
                             status, reason = 1, (f"the disk has {free_mb:.0f} MB left (below "
                                                  f"--min-free-mb {args.min_free_mb:g})")
                             break
-                    if can_log is not None and can_log[1].error is not None:
-                        status, reason = 1, f"the CAN log failed: {can_log[1].error}"
+                    if can_listener is not None and can_listener.error is not None:
+                        status, reason = 1, f"the CAN log failed: {can_listener.error}"
                         break
                     try:
                         for message in recorder.take():
@@ -322,14 +322,14 @@ def main(argv=None) -> int:
         node.destroy_node()
         rclpy.shutdown(context=context)
         if can_log is not None:
-            bus, log, notifier = can_log
+            bus, notifier = can_log
             try:
                 notifier.stop()  # stops the logger too: the file is closed
             except OSError as error:  # its last block could not be written
-                log.on_error(error)
+                can_listener.on_error(error)
             bus.shutdown()
-            if log.error is not None and not reason:
-                status, reason = 1, f"the CAN log failed: {log.error}"
+            if can_listener.error is not None and not reason:
+                status, reason = 1, f"the CAN log failed: {can_listener.error}"
     if reason:
         print(f"softgrip_record: recording stopped: {reason}; {args.outdir} holds everything "
               "recorded until then", file=sys.stderr)
@@ -341,8 +341,8 @@ def main(argv=None) -> int:
     counts = ", ".join(f"{t} {n}" for t, n in sorted(recorder.counts.items()))
     print(f"[record] {args.outdir}: {sum(recorder.counts.values())} messages in "
           f"{time.monotonic() - started:.1f} s ({counts or 'none'})", file=sys.stderr)
-    if can_log is not None:
-        print(f"[record] {args.can}: {can_log[1].frames} CAN frames", file=sys.stderr)
+    if can_listener is not None:
+        print(f"[record] {args.can}: {can_listener.frames} CAN frames", file=sys.stderr)
     return status
 
 
