@@ -138,6 +138,24 @@ def test_step_agrees_with_an_lsoda_reference():
     assert ours[-1] == pytest.approx(reference.y[1][-1] - P_ATM_PA, abs=1.0)
 
 
+@pytest.mark.parametrize("chunk_s", [1e-3, 5e-3])
+def test_advance_follows_the_law_however_its_caller_chops_the_time(chunk_s):
+    """A simulated device advances its truth by whatever time its ticks took (1 ms, or 5 ms on a
+    loaded host). In one backward-Euler step each, the fill lagged LSODA by 67 and 285 Pa: the
+    truth moved with the host's load, and live identification fitted that. ``advance`` steps at
+    most TRUTH_STEP_S: within 20 Pa either way."""
+    inputs = PlantInputs(regulator_setpoint_gauge_pa=25e3, valves=(Valve.SUPPLY,))
+    reference = solve_ivp(lambda t, y: PLANT.derivative(y, inputs), (0.0, 0.3), [0.0, P_ATM_PA],
+                          method="LSODA", rtol=1e-10, atol=1e-6,
+                          t_eval=np.arange(1, 301) * 1e-3).y[1] - P_ATM_PA
+    every = int(round(chunk_s / 1e-3))
+    for stepper, low, high in ((PLANT.advance, 0.0, 20.0), (PLANT.step, 60.0, math.inf)):
+        ours = simulate(PLANT, stepper, inputs, chunk_s, 0.3,
+                        state=PlantState(0.0, np.array([P_ATM_PA])))
+        worst = np.max(np.abs(ours - reference[every - 1::every]))
+        assert low < worst < high, (stepper.__name__, worst)
+
+
 @pytest.mark.parametrize("valve, regulator_gauge_pa, source_gauge_pa",
                          [(Valve.VENT, 0.0, 0.0), (Valve.SUPPLY, 30e3, 30e3),
                           (Valve.VACUUM, 0.0, PLANT.parameters.vacuum_source_gauge_pa)])

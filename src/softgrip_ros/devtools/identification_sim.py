@@ -98,5 +98,5 @@ def record(truth: plant_file.PlantDescription, steps: list, held_out_s: float = 
                     last = key
                 if out.mode.name == "FAULT":
                     raise RuntimeError(f"the excitation faulted the controller: {out.message}")
-            state = plant.step(state, inputs, PLANT_DT_S)
+            state = plant.advance(state, inputs, PLANT_DT_S)
     return Recording(sensors, reports, changes, held_out_from_s=held_out_s)
