@@ -1,7 +1,7 @@
 """softgrip_identify: fit the plant file (config/plant.yaml) to your gripper, through the running
 pressure controller over DDS and CAN, as on hardware; or again from the log it recorded.
 
-    softgrip_identify --output my_gripper --volume-m3 21e-6     # live: ~35 s of excitation
+    softgrip_identify --output my_gripper --volume-m3 21e-6     # live: ~34 s of excitation
     softgrip_identify --from-log my_gripper/recording --output refit
 
 Live, it deactivates the pressure controller (which vents), sets its identification_mode,
@@ -69,7 +69,7 @@ def parser() -> argparse.ArgumentParser:
                      "measured (default: the base file's, said to be inherited)")
     top.add_argument("--base", type=pathlib.Path, help="the plant file for what the data cannot "
                      "give (default: the controller's own)")
-    top.add_argument("--quick", action="store_true", help="a shorter excitation (~22 s)")
+    top.add_argument("--quick", action="store_true", help="a shorter excitation (~19 s)")
     top.add_argument("--seed", type=int, default=0, help="the PRBS's seed")
     top.add_argument("--timeout", type=float, default=15.0,
                      help="seconds to wait for the controller's services")
