@@ -34,6 +34,9 @@ the conductances and compliances are only as right as that volume.
    vent path's decay) but only the first ``HOLD_FITTED_S`` of a closed hold: the hold repeats
    one level, set by when the valve closed, and a millisecond's error in that time (a 40 ms
    evacuation) weighed over the whole hold outweighed every flow the excitation measures.
+   Then once more with each valve switch's time as a value too, dated by the readings about it
+   (its effect on them linearised, with a prior of ``SWITCH_PRIOR_MS``): switches dated a few
+   tenths of a ms off blurred every transient, which the fit took for the critical ratios.
 
 Confidence intervals come from the Jacobian at the optimum: per value the wider of the
 Gauss-Newton covariance (scaled by the residual variance) and the sandwich covariance that keeps
@@ -67,6 +70,9 @@ WHITENESS_LIMIT = 0.5  # |lag-one autocorrelation| of a sensor's normalised resi
 RELATIVE_CI_LIMIT = 0.25  # a 95 % interval wider than +-25 % of the value is flagged
 VALIDATION_LIMIT = 1.5  # the held-out excitation's RMSE over the noise above this is flagged
 NEWTON_ITERATIONS = 40
+SWITCH_STEP_S = 2e-4  # the finite-difference step of a valve switch's time
+SWITCH_PRIOR_MS = 1.0  # a valve switch's time is known to about this, before the fit
+SWITCH_LIMIT_MS = 5.0  # and the fit moves it at most this far
 REPEATS = 3  # the excitation's extra vents from the top and the bottom, and refills
 STAGE3_METHODS = ("trf", "dogbox", "trf")  # the chamber fit's passes, at most (see fit)
 RATIOS = slice(3, 6)  # the critical ratios in the stage-3 vector
@@ -152,6 +158,8 @@ class Identification:
     fit_s: float
     flags: list
     trace: dict  # times, measured and fitted pressures per sensor, for the report's plot
+    # {index in the recording's inputs: how much later the fit put that valve switch, s}
+    switch_shifts_s: dict = dataclasses.field(default_factory=dict)
 
 
 # ---- the model, vectorised ----------------------------------------------------------------------
@@ -468,6 +476,35 @@ STAGE3_BOUNDS = (np.array([math.log(1e-12)] * 3 + [0.02] * 3 + [0.0, 0.0, -100.0
 STAGE3_STEPS = np.array([1e-3] * 3 + [1e-3] * 3 + [1e-3, 1e-3, 1e-2])
 
 
+def _switch_sensitivities(recording: Recording, episodes: list, regulator_at, biases: dict,
+                          weights: dict, until_s: float, parameters: PneumaticParameters):
+    """(columns [readings, switches]: each fitted reading's change, Pa per ms that one valve
+    switch comes later; the switches' indices in ``recording.inputs``), at ``parameters``.
+
+    The k-th switch of every segment moves in one simulation (the segments are independent), so
+    this takes as many as the busiest segment has switches."""
+    changes = recording.inputs
+    per_episode = [[i for i in range(1, len(changes)) if changes[i].valve != changes[i - 1].valve
+                    and episode.start_s < changes[i].time_s < episode.end_s]
+                   for episode in episodes]
+    reference_grid = _Grid(recording, episodes, regulator_at, biases, weights, until_s=until_s)
+    reference = reference_grid.simulate([parameters])[0]
+    columns, switches = [], []
+    for k in range(max(len(switched) for switched in per_episode)):
+        moved = {switched[k] for switched in per_episode if len(switched) > k}
+        later = dataclasses.replace(recording, inputs=[
+            dataclasses.replace(c, time_s=c.time_s + SWITCH_STEP_S) if i in moved else c
+            for i, c in enumerate(changes)])
+        grid = _Grid(later, episodes, regulator_at, biases, weights, until_s=until_s)
+        change = (grid.simulate([parameters])[0] - reference) / (SWITCH_STEP_S * 1e3)
+        for e, switched in enumerate(per_episode):
+            column = np.where(reference_grid.episode == e, change, 0.0)
+            if len(switched) > k and np.any(column != 0.0):
+                columns.append(column)
+                switches.append(switched[k])
+    return np.array(columns).T.reshape(len(reference), len(columns)), switches
+
+
 def _covariance(jacobian: np.ndarray, residuals: np.ndarray) -> np.ndarray:
     dof = max(len(residuals) - jacobian.shape[1], 1)
     variance = float(residuals @ residuals) / dof
@@ -484,22 +521,25 @@ def _bartlett_lags(residuals: np.ndarray) -> int:
                    max(len(residuals) - 1, 0)))
 
 
-def _robust_covariance(jacobian: np.ndarray, residuals: np.ndarray, series: list) -> np.ndarray:
+def _robust_covariance(jacobian: np.ndarray, residuals: np.ndarray, series: list,
+                       keep: int | None = None) -> np.ndarray:
     """The sandwich covariance with the scores' autocorrelation (Newey-West, Bartlett weights)
     within each time-ordered ``series`` of row indices: what the Gauss-Newton covariance assumes
     away. A model that misses part of the response leaves residuals correlated over tens of
     readings; the Gauss-Newton intervals then come out several times too narrow (live: a
-    critical ratio 211 % off inside +-2 %)."""
-    bread = np.linalg.pinv(jacobian.T @ jacobian)
-    meat = np.zeros((jacobian.shape[1],) * 2)
+    critical ratio 211 % off inside +-2 %). Of the first ``keep`` values only (all by default):
+    their scores are projected through the bread first, which is the same product."""
+    keep = jacobian.shape[1] if keep is None else keep
+    bread = np.linalg.pinv(jacobian.T @ jacobian)[:, :keep]
+    covariance = np.zeros((keep, keep))
     for rows in series:
-        scores = jacobian[rows] * residuals[rows, None]
-        meat += scores.T @ scores
+        scores = (jacobian[rows] @ bread) * residuals[rows, None]
+        covariance += scores.T @ scores
         lags = _bartlett_lags(residuals[rows])
         for lag in range(1, lags + 1):
             cross = scores[lag:].T @ scores[:-lag]
-            meat += (1.0 - lag / (lags + 1.0)) * (cross + cross.T)
-    return bread @ meat @ bread
+            covariance += (1.0 - lag / (lags + 1.0)) * (cross + cross.T)
+    return covariance
 
 
 def _pinned(x: np.ndarray, covariance: np.ndarray, weak=(), edge: float = 1e-3,
@@ -522,11 +562,14 @@ def _pinned(x: np.ndarray, covariance: np.ndarray, weak=(), edge: float = 1e-3,
     reasons.update({i: "" for i in weak if i not in reasons})
     scale = np.sqrt(np.maximum(np.diag(covariance), 1e-300))
     correlation = covariance / np.outer(scale, scale)
-    for i in list(reasons):
+    # a value the fit does not depend on at all (its Jacobian column vanishes) has no variance
+    # to trade: nothing trades off with it
+    varies = np.diag(covariance) > 0.0
+    for i in [i for i in reasons if varies[i]]:
         why = "the fit left at the edge of its range" if i in at_edge else \
             "the data do not determine"
         for j in range(len(x)):
-            if j not in reasons and abs(correlation[i, j]) > coupling:
+            if j not in reasons and varies[j] and abs(correlation[i, j]) > coupling:
                 reasons[j] = (f"trades off with {STAGE3[i]}, which {why}: the data do not "
                               "determine it (its interval is the range)")
     return reasons
@@ -644,13 +687,46 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
     trial = solve(restart, "trf")
     if trial.cost < stage3.cost:
         stage3 = trial
-    fitted = _stage3_parameters(stage3.x, base)
-    # the wider of the two per value: the sandwich alone can come out narrower by chance
+    # Then again with each valve switch's time as a value too, fitted to the readings about it
+    # (a prior of SWITCH_PRIOR_MS keeps one the readings do not tell near its record). A switch
+    # is dated to a few tenths of a ms live (to a ms or more for a solenoid valve), and a small
+    # chamber's fill moves 600 Pa in one: twice a sensor's noise. Each such error shifts one
+    # transient, and together they blur every one, which the fit took for the critical ratios'
+    # shape (switches moved by N(0, 0.3 ms) offline: drawn_1's vent ratio +27 %, outside its
+    # +-10 % interval). The readings near a switch date it; the switches' uncertainty then
+    # enters every interval through the joint Jacobian.
+    columns, switches = _switch_sensitivities(recording, episodes, regulator_at, biases, weights,
+                                              fitted_until, _stage3_parameters(stage3.x, base))
+    progress(f"stage 3 again, with the times of {len(switches)} valve switches")
+    chamber, sensitivity = len(STAGE3), columns * grid.weight[:, None]
+
+    def joint_residuals(z):
+        return np.concatenate([residuals(z[:chamber]) + sensitivity @ z[chamber:],
+                               z[chamber:] / SWITCH_PRIOR_MS])
+
+    def joint_jacobian(z):
+        prior = np.hstack([np.zeros((len(switches), chamber)),
+                           np.eye(len(switches)) / SWITCH_PRIOR_MS])
+        return np.vstack([np.hstack([jacobian(z[:chamber]), sensitivity]), prior])
+
+    limits = np.full(len(switches), SWITCH_LIMIT_MS)
+    inside = np.clip(stage3.x, STAGE3_BOUNDS[0] + 1e-6, STAGE3_BOUNDS[1] - 1e-6)
+    stage3 = least_squares(joint_residuals, np.concatenate([inside, np.zeros(len(switches))]),
+                           jac=joint_jacobian, method="trf", x_scale="jac", ftol=1e-8,
+                           xtol=1e-8, max_nfev=40,
+                           bounds=(np.concatenate([STAGE3_BOUNDS[0], -limits]),
+                                   np.concatenate([STAGE3_BOUNDS[1], limits])))
+    readings = len(grid.measured)
+    x3, shifts_ms = stage3.x[:chamber], stage3.x[chamber:]
+    fitted = _stage3_parameters(x3, base)
+    # the wider of the two per value: the sandwich alone can come out narrower by chance; each
+    # the chamber values' part of the joint covariance (the switches' uncertainty marginalised)
     series = [np.flatnonzero(grid.names == name)[np.argsort(grid.times[grid.names == name])]
               for name in recording.sensors]
-    variances = np.maximum(np.diag(_covariance(stage3.jac, stage3.fun)),
-                           np.diag(_robust_covariance(stage3.jac, stage3.fun, series)))
-    residual_pa = stage3.fun / grid.weight
+    joint_covariance = _covariance(stage3.jac, stage3.fun)
+    variances = np.maximum(np.diag(joint_covariance)[:chamber],
+                           np.diag(_robust_covariance(stage3.jac, stage3.fun, series, chamber)))
+    residual_pa = stage3.fun[:readings] / grid.weight
 
     estimates = {}
     names_x = {"supply_conductance": (0, "log"), "vacuum_conductance": (1, "log"),
@@ -717,7 +793,7 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
             estimate.flag = (f"its 95 % interval is +-{100 * width / abs(estimate.value):.0f} %: "
                              "the data do not excite it enough")
             flags.append(f"{name}: {estimate.flag}")
-    column_norms = np.linalg.norm(stage3.jac, axis=0)
+    column_norms = np.linalg.norm(stage3.jac[:readings, :chamber], axis=0)
     for name, (i, _) in names_x.items():
         if column_norms[i] < 1e-6 * max(column_norms.max(), 1e-30):
             estimates[name].ci95 = (-math.inf, math.inf)
@@ -725,8 +801,9 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
             flags.append(f"{name}: not excited by this recording")
 
     range_ends = [_stage3_parameters(bound, base) for bound in STAGE3_BOUNDS]
-    weak = [i for i, name in enumerate(STAGE3) if estimates[name].flag]
-    for i, message in _pinned(stage3.x, _covariance(stage3.jac, stage3.fun), weak).items():
+    weak = [i for i, name in enumerate(STAGE3)
+            if estimates[name].flag and not estimates[name].flag.startswith("not excited")]
+    for i, message in _pinned(x3, joint_covariance[:chamber, :chamber], weak).items():
         name = STAGE3[i]
         edges = sorted(getattr(end, name) for end in range_ends)
         estimates[name].ci95 = (edges[0], edges[1])
@@ -750,7 +827,7 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
         flags.append(f"the held-out excitation is predicted at {validation_over_noise:.1f}x the "
                      f"sensors' noise (at most {VALIDATION_LIMIT:g}): the fitted model does not "
                      "generalise; do not use it as it stands")
-    predicted = stage3.fun / grid.weight + grid.measured
+    predicted = residual_pa + grid.measured
     for name in recording.sensors:
         mine = grid.names == name
         order = np.argsort(grid.times[mine])
@@ -758,7 +835,8 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
                        predicted[mine][order])
     return Identification(fitted, estimates, dict(noises), biases, residual_rms,
                           whiteness, validation, validation_over_noise,
-                          time.perf_counter() - started, flags, trace)
+                          time.perf_counter() - started, flags, trace,
+                          {i: 1e-3 * float(shift) for i, shift in zip(switches, shifts_ms)})
 
 
 # ---- the excitation -----------------------------------------------------------------------------

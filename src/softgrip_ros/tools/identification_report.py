@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 import pathlib
 
+import numpy as np
+
 from softgrip_ros.estimation.identification import Identification
 from softgrip_ros.model import plant_file
 
@@ -94,6 +96,11 @@ def markdown(result: Identification, base: plant_file.PlantDescription, provenan
     lines += ["", "Validation on the held-out excitation: RMSE "
               f"{result.validation_rmse_pa:.0f} Pa, {result.validation_rmse_over_noise:.2f}x the "
               "sensors' noise (target <= 1.5).", ""]
+    shifts_ms = 1e3 * np.array(list(result.switch_shifts_s.values()) or [0.0])
+    lines += [f"Valve switches: the fit dated {len(result.switch_shifts_s)} of them from the "
+              f"readings about each, moving them by {np.sqrt(np.mean(shifts_ms**2)):.2f} ms rms "
+              f"(at most {np.abs(shifts_ms).max():.2f} ms) from their recorded times. Much more "
+              "than a millisecond says the log's or the valves' timing is off.", ""]
     if result.flags:
         lines += ["**Flagged** (written, but not to be trusted as it stands):", ""]
         lines += [f"- {flag}" for flag in result.flags] + [""]
