@@ -309,6 +309,26 @@ def test_a_valve_that_opens_and_closes_inside_a_step_acts_for_that_part_of_it(in
     assert np.all(np.abs(fitted - held) < 0.003 * abs(held)), (fitted[:3], held)
 
 
+def test_an_evacuation_choked_nearly_all_along_cannot_tell_the_ratio_from_the_pump():
+    """Choked flow is C rho p_upstream whatever the critical ratio and the pump's level, so only
+    an evacuation's subsonic part tells them apart. Live drawn_2 fitted 0.92 and -55 kPa (truth
+    0.3 and -80 kPa, subsonic over 39 % of the evacuations' readings): subsonic over 5 % of
+    them, inside +-15 % and +-7 % intervals. Below SUBSONIC_LIMIT the fit flags the pair."""
+    truth = plant_file.default_description()
+    steps = [identification.Step("VENT", 0.0, 1.0), identification.Step("VACUUM", -52e3, 0.9),
+             identification.Step("HOLD", math.nan, 0.3), identification.Step("VENT", 0.0, 1.0)]
+    recording = identification_sim.record(truth, steps, seed=0)
+    biases = {name: truth.sensor(name).bias_pa for name in recording.sensors}
+    grid = identification._Grid(recording, identification.episodes_of(recording, biases),
+                                lambda t: np.zeros(len(t)), biases,
+                                {name: 1.0 for name in recording.sensors})
+    share = identification.vacuum_subsonic_share
+    assert share(recording, grid, truth.parameters) > 0.3
+    valley = dataclasses.replace(truth.parameters, vacuum_critical_ratio=0.92,
+                                 vacuum_source_gauge_pa=-55.2e3)
+    assert share(recording, grid, valley) < 0.1 < identification.SUBSONIC_LIMIT
+
+
 def test_a_value_left_at_the_edge_of_the_range_and_its_partner_are_flagged():
     """Live drawn_2: the vacuum path's critical ratio ended at the range's 0.95 (truth 0.3) with
     the source at -54.5 kPa (truth -80), both inside +-1 % intervals and flagged by nothing."""

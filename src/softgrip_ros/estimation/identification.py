@@ -70,6 +70,7 @@ WHITENESS_LIMIT = 0.5  # |lag-one autocorrelation| of a sensor's normalised resi
 RELATIVE_CI_LIMIT = 0.25  # a 95 % interval wider than +-25 % of the value is flagged
 VALIDATION_LIMIT = 1.5  # the held-out excitation's RMSE over the noise above this is flagged
 NEWTON_ITERATIONS = 40
+SUBSONIC_LIMIT = 0.25  # below this share of subsonic evacuation, the vacuum pair is flagged
 SWITCH_STEP_S = 2e-4  # the finite-difference step of a valve switch's time
 SWITCH_PRIOR_MS = 1.0  # a valve switch's time is known to about this, before the fit
 SWITCH_LIMIT_MS = 5.0  # and the fit moves it at most this far
@@ -505,6 +506,21 @@ def _switch_sensitivities(recording: Recording, episodes: list, regulator_at, bi
     return np.array(columns).T.reshape(len(reference), len(columns)), switches
 
 
+def vacuum_subsonic_share(recording: Recording, grid: "_Grid",
+                          parameters: PneumaticParameters) -> float:
+    """The share of the fitted readings taken with the valve open to a running pump at which,
+    under ``parameters``, the vacuum path's flow is subsonic (pump over chamber above its
+    critical ratio); 1 without such readings."""
+    change_times = np.array([c.time_s for c in recording.inputs])
+    index = np.clip(np.searchsorted(change_times, grid.times, side="right") - 1, 0, None)
+    pumping = np.array([recording.inputs[i].valve == Valve.VACUUM and
+                        recording.inputs[i].regulator_enabled for i in index], bool)
+    if not pumping.any():
+        return 1.0
+    ratio = (P_ATM_PA + parameters.vacuum_source_gauge_pa) / (P_ATM_PA + grid.measured[pumping])
+    return float(np.mean(ratio > parameters.vacuum_critical_ratio))
+
+
 def _covariance(jacobian: np.ndarray, residuals: np.ndarray) -> np.ndarray:
     dof = max(len(residuals) - jacobian.shape[1], 1)
     variance = float(residuals @ residuals) / dof
@@ -803,6 +819,19 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
     range_ends = [_stage3_parameters(bound, base) for bound in STAGE3_BOUNDS]
     weak = [i for i, name in enumerate(STAGE3)
             if estimates[name].flag and not estimates[name].flag.startswith("not excited")]
+    subsonic = vacuum_subsonic_share(recording, grid, fitted)
+    if subsonic < SUBSONIC_LIMIT:
+        # choked flow is C rho p_upstream whatever the ratio and the pump's level: only the
+        # subsonic part of an evacuation tells them apart (live drawn_2: 0.92 and -55 kPa for
+        # 0.3 and -80, inside +-15 % and +-7 % intervals and unflagged)
+        for name in ("vacuum_critical_ratio", "vacuum_source_gauge_pa"):
+            if not estimates[name].flag:
+                estimates[name].flag = (
+                    f"the fitted vacuum flow is subsonic over {100 * subsonic:.0f} % of the "
+                    "evacuations' readings: the data hardly tell the path's critical ratio from "
+                    "the pump's level (its interval is the range)")
+                flags.append(f"{name}: {estimates[name].flag}")
+                weak.append(STAGE3.index(name))
     for i, message in _pinned(x3, joint_covariance[:chamber, :chamber], weak).items():
         name = STAGE3[i]
         edges = sorted(getattr(end, name) for end in range_ends)
