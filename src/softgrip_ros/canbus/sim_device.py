@@ -139,8 +139,9 @@ SEND_LAG_S = 0.0002
 # a device keeps real time through a stall of its host thread up to this long (beyond it, a
 # suspended process say, the plant resumes from where it stopped) ...
 MAX_STALL_S = 1.0
-# ... in spans no longer than this, each sub-stepped by PneumaticPlant.advance (its truth then
-# follows the law whatever the ticks' timing)
+# ... integrated in steps no longer than this (the regulator is exact at any step; a chamber's
+# backward Euler, stable at any step, follows a moving regulator to well within a sensor's noise;
+# 1 ms steps, tried for identification, raised the estimator's NIS in fault-free grasps)
 MAX_PLANT_STEP_S = 0.005
 
 
@@ -366,12 +367,12 @@ class SimulatedDevice:
             expires = open_for < dt and not stuck and not self._faults["ignore_valve_lifetime"]
             if expires and any(v in SOURCE_VALVES for v in inputs.valves):
                 if open_for > 0.0:
-                    self._state = self.plant.advance(self._state, inputs, open_for)
+                    self._state = self.plant.step(self._state, inputs, open_for)
                     dt -= open_for
                 valves = tuple(Valve.CLOSED if v in SOURCE_VALVES else v for v in inputs.valves)
                 inputs = dataclasses.replace(inputs, valves=valves)
                 self._inputs = dataclasses.replace(self._inputs, valves=valves)
-            self._state = self.plant.advance(self._state, inputs, dt)
+            self._state = self.plant.step(self._state, inputs, dt)
             if stuck:
                 # what the valves really do
                 self._inputs = dataclasses.replace(self._inputs, valves=inputs.valves)
