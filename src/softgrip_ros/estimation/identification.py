@@ -114,6 +114,13 @@ class Recording:
         self.regulator = tuple(np.asarray(a, float) for a in self.regulator)
         self.inputs = sorted(self.inputs, key=lambda change: change.time_s)
 
+    def input_index(self, times) -> np.ndarray:
+        """The index in ``inputs`` of the change in force at each of ``times`` (the first one
+        before it)."""
+        change_times = np.array([c.time_s for c in self.inputs])
+        index = np.searchsorted(change_times, times, side="right") - 1
+        return np.clip(index, 0, len(self.inputs) - 1)
+
     @property
     def start_s(self) -> float:
         return self.inputs[0].time_s
@@ -360,11 +367,9 @@ class _Grid:
         # for that part only (the plant's flow is proportional to C, so a backward-Euler step
         # over the whole step with C scaled by the part is the device's step split at the frame)
         self.open_part = np.ones((count, steps))
-        change_times = np.array([c.time_s for c in recording.inputs])
         for e, episode in enumerate(episodes):
             grid_times = episode.start_s + DT_S * (np.arange(steps) + 0.5)  # each step's middle
-            index = np.searchsorted(change_times, grid_times, side="right") - 1
-            index = np.clip(index, 0, len(change_times) - 1)
+            index = recording.input_index(grid_times)
             self.valve[e] = [recording.inputs[i].valve for i in index]
             self.enabled[e] = [recording.inputs[i].regulator_enabled for i in index]
             for before, change in zip(recording.inputs[:-1], recording.inputs[1:]):
@@ -477,29 +482,29 @@ STAGE3_BOUNDS = (np.array([math.log(1e-12)] * 3 + [0.02] * 3 + [0.0, 0.0, -100.0
 STAGE3_STEPS = np.array([1e-3] * 3 + [1e-3] * 3 + [1e-3, 1e-3, 1e-2])
 
 
-def _switch_sensitivities(recording: Recording, episodes: list, regulator_at, biases: dict,
+def _switch_sensitivities(recording: Recording, grid: "_Grid", regulator_at, biases: dict,
                           weights: dict, until_s: float, parameters: PneumaticParameters):
-    """(columns [readings, switches]: each fitted reading's change, Pa per ms that one valve
-    switch comes later; the switches' indices in ``recording.inputs``), at ``parameters``.
+    """(columns [readings, switches]: each of ``grid``'s readings' change, Pa per ms that one
+    valve switch comes later; the switches' indices in ``recording.inputs``), at
+    ``parameters``; the other arguments are those ``grid`` was built with.
 
     The k-th switch of every segment moves in one simulation (the segments are independent), so
     this takes as many as the busiest segment has switches."""
     changes = recording.inputs
     per_episode = [[i for i in range(1, len(changes)) if changes[i].valve != changes[i - 1].valve
                     and episode.start_s < changes[i].time_s < episode.end_s]
-                   for episode in episodes]
-    reference_grid = _Grid(recording, episodes, regulator_at, biases, weights, until_s=until_s)
-    reference = reference_grid.simulate([parameters])[0]
+                   for episode in grid.episodes]
+    reference = grid.simulate([parameters])[0]
     columns, switches = [], []
     for k in range(max(len(switched) for switched in per_episode)):
         moved = {switched[k] for switched in per_episode if len(switched) > k}
         later = dataclasses.replace(recording, inputs=[
             dataclasses.replace(c, time_s=c.time_s + SWITCH_STEP_S) if i in moved else c
             for i, c in enumerate(changes)])
-        grid = _Grid(later, episodes, regulator_at, biases, weights, until_s=until_s)
-        change = (grid.simulate([parameters])[0] - reference) / (SWITCH_STEP_S * 1e3)
+        moved_grid = _Grid(later, grid.episodes, regulator_at, biases, weights, until_s=until_s)
+        change = (moved_grid.simulate([parameters])[0] - reference) / (SWITCH_STEP_S * 1e3)
         for e, switched in enumerate(per_episode):
-            column = np.where(reference_grid.episode == e, change, 0.0)
+            column = np.where(grid.episode == e, change, 0.0)
             if len(switched) > k and np.any(column != 0.0):
                 columns.append(column)
                 switches.append(switched[k])
@@ -511,10 +516,9 @@ def vacuum_subsonic_share(recording: Recording, grid: "_Grid",
     """The share of the fitted readings taken with the valve open to a running pump at which,
     under ``parameters``, the vacuum path's flow is subsonic (pump over chamber above its
     critical ratio); 1 without such readings."""
-    change_times = np.array([c.time_s for c in recording.inputs])
-    index = np.clip(np.searchsorted(change_times, grid.times, side="right") - 1, 0, None)
     pumping = np.array([recording.inputs[i].valve == Valve.VACUUM and
-                        recording.inputs[i].regulator_enabled for i in index], bool)
+                        recording.inputs[i].regulator_enabled
+                        for i in recording.input_index(grid.times)], bool)
     if not pumping.any():
         return 1.0
     ratio = (P_ATM_PA + parameters.vacuum_source_gauge_pa) / (P_ATM_PA + grid.measured[pumping])
@@ -673,12 +677,14 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
         predictions = batch(x)
         return ((predictions[1:] - predictions[0]) * grid.weight / STAGE3_STEPS[:, None]).T
 
-    def solve(x0, method: str):
-        return least_squares(residuals, x0, jac=jacobian, method=method, bounds=STAGE3_BOUNDS,
-                             x_scale="jac", ftol=1e-8, xtol=1e-8, max_nfev=40)
+    def solve(x0, method: str, fun=residuals, jac=jacobian, bounds=STAGE3_BOUNDS):
+        return least_squares(fun, x0, jac=jac, method=method, bounds=bounds, x_scale="jac",
+                             ftol=1e-8, xtol=1e-8, max_nfev=40)
 
-    # the start strictly inside the bounds, as least_squares needs
-    start = np.clip(_stage3_vector(base), STAGE3_BOUNDS[0] + 1e-6, STAGE3_BOUNDS[1] - 1e-6)
+    def inside(x):  # strictly inside the bounds, as least_squares needs a start
+        return np.clip(x, STAGE3_BOUNDS[0] + 1e-6, STAGE3_BOUNDS[1] - 1e-6)
+
+    start = inside(_stage3_vector(base))
     x3 = start
     # Restarted while a pass stops on its step size (xtol) or its evaluation budget rather than
     # on the cost (ftol, gtol): the trust region had shrunk away from a minimum, in the valley
@@ -711,7 +717,7 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
     # shape (switches moved by N(0, 0.3 ms) offline: drawn_1's vent ratio +27 %, outside its
     # +-10 % interval). The readings near a switch date it; the switches' uncertainty then
     # enters every interval through the joint Jacobian.
-    columns, switches = _switch_sensitivities(recording, episodes, regulator_at, biases, weights,
+    columns, switches = _switch_sensitivities(recording, grid, regulator_at, biases, weights,
                                               fitted_until, _stage3_parameters(stage3.x, base))
     progress(f"stage 3 again, with the times of {len(switches)} valve switches")
     chamber, sensitivity = len(STAGE3), columns * grid.weight[:, None]
@@ -726,17 +732,15 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
         return np.vstack([np.hstack([jacobian(z[:chamber]), sensitivity]), prior])
 
     limits = np.full(len(switches), SWITCH_LIMIT_MS)
-    inside = np.clip(stage3.x, STAGE3_BOUNDS[0] + 1e-6, STAGE3_BOUNDS[1] - 1e-6)
-    stage3 = least_squares(joint_residuals, np.concatenate([inside, np.zeros(len(switches))]),
-                           jac=joint_jacobian, method="trf", x_scale="jac", ftol=1e-8,
-                           xtol=1e-8, max_nfev=40,
-                           bounds=(np.concatenate([STAGE3_BOUNDS[0], -limits]),
-                                   np.concatenate([STAGE3_BOUNDS[1], limits])))
+    stage3 = solve(np.concatenate([inside(stage3.x), np.zeros(len(switches))]), "trf",
+                   joint_residuals, joint_jacobian,
+                   (np.concatenate([STAGE3_BOUNDS[0], -limits]),
+                    np.concatenate([STAGE3_BOUNDS[1], limits])))
     readings = len(grid.measured)
     x3, shifts_ms = stage3.x[:chamber], stage3.x[chamber:]
     fitted = _stage3_parameters(x3, base)
-    # the wider of the two per value: the sandwich alone can come out narrower by chance; each
-    # the chamber values' part of the joint covariance (the switches' uncertainty marginalised)
+    # the wider of the two per value (the sandwich alone can come out narrower by chance), each
+    # the chamber values' block of the joint covariance: the switches' uncertainty marginalised
     series = [np.flatnonzero(grid.names == name)[np.argsort(grid.times[grid.names == name])]
               for name in recording.sensors]
     joint_covariance = _covariance(stage3.jac, stage3.fun)
