@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from softgrip_ros.canbus.codec import FrameCodec
-from softgrip_ros.canbus.sim_device import (REPLAY_AGE_FRAMES, REPLAY_BURST_FRAMES,
-                                            STUCK_READINGS_PA, SimDeviceConfig, SimulatedDevice)
+from softgrip_ros.canbus.sim_device import (MAX_PLANT_STEP_S, REPLAY_AGE_FRAMES,
+                                            REPLAY_BURST_FRAMES, STUCK_READINGS_PA,
+                                            SimDeviceConfig, SimulatedDevice)
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 
 
@@ -91,7 +92,7 @@ def test_the_plant_integrates_exactly_the_real_elapsed_time_even_when_ticks_come
     state = plant.initial_state()
     inputs = PlantInputs(40e3, True, (Valve.SUPPLY,))
     for _ in range(20):
-        state = plant.step(state, inputs, 3e-3)
+        state = plant.advance(state, inputs, 3e-3)
     assert device.chamber_gauge_pa() == pytest.approx(state.chamber_pa[0] - P_ATM_PA, rel=1e-6)
 
 
@@ -297,3 +298,39 @@ def test_a_reading_is_the_plant_at_most_0_2_ms_before_it_goes_out(bench):
     assert len(staleness) > 50
     assert max(staleness) <= 2e-4 + 1e-9, max(staleness)
     assert SEND_LAG_S <= 2e-4
+
+
+@pytest.mark.parametrize("period_s", [1e-3, 5e-3])
+def test_the_truth_does_not_depend_on_how_the_ticks_fall(bench, period_s):
+    """Each tick integrates the time since the last. In one backward-Euler step each, ticks 1 ms
+    and 5 ms apart (a loaded host) put the fill 76 and 332 Pa ahead of the law, and the live
+    identification fitted the host's load. Sub-stepped (PneumaticPlant.advance), both stay within
+    30 Pa of a 10 us reference."""
+    device, clock, _, codec = bench
+    command(device, codec, Valve.SUPPLY, setpoint_pa=40e3, lifetime_s=0.25)
+    tick_for(device, clock, 0.06, period_s=period_s)
+    plant = PneumaticPlant()
+    reference = plant.advance(plant.initial_state(), PlantInputs(40e3, True, (Valve.SUPPLY,)),
+                              0.06, max_step_s=1e-5)
+    assert device.chamber_gauge_pa() == pytest.approx(reference.chamber_pa[0] - P_ATM_PA,
+                                                      abs=30.0)
+
+
+def test_a_stalls_catch_up_costs_one_plant_step_per_span(bench, monkeypatch):
+    """A tick sub-steps its span at 0.2 ms; catching up a stall that way cost 25 plant steps per
+    5 ms span, all under the device's lock. Beyond CATCH_UP_S the catch-up takes one step per
+    span: a 0.2 s stall costs 40 steps (41 with the clock's rounding), and the chamber still
+    fills over the whole stall."""
+    device, clock, _, codec = bench
+    steps = []
+    real_step = device.plant.step
+    monkeypatch.setattr(device.plant, "step",
+                        lambda *args: steps.append(args[2]) or real_step(*args))
+    command(device, codec, Valve.SUPPLY, setpoint_pa=40e3, lifetime_s=0.25)
+    tick_for(device, clock, 1e-3)
+    assert len(steps) == 5 and max(steps) == pytest.approx(2e-4)
+    steps.clear()
+    before = device.chamber_gauge_pa()
+    tick_for(device, clock, 0.2, period_s=0.2)
+    assert 40 <= len(steps) <= 41 and max(steps) == pytest.approx(MAX_PLANT_STEP_S)
+    assert device.chamber_gauge_pa() > before + 20e3

@@ -313,13 +313,10 @@ class PneumaticPlant:
     def advance(self, state: PlantState, inputs: PlantInputs, dt: float,
                 max_step_s: float = TRUTH_STEP_S) -> PlantState:
         """Advance by dt (s) in equal :meth:`step` s of at most ``max_step_s``: the plant as a
-        truth close to the continuous law whatever its caller's step (the identification's
-        offline recordings). A single step strays from the law by up to half a step's worth of
-        the response (backward Euler, with the regulator taken at the step's end; 1 ms: up to
-        210 Pa in a fill of a small chamber). The simulated device does not use it: its tick
-        then cost five plant steps, and on the composed fault rig fault-free grasps faulted
-        ("the chamber does not respond to the CLOSED valve" in most of 20; with single steps,
-        none), for a cause not yet found."""
+        truth close to the continuous law whatever its caller's step (the simulated device, the
+        identification's offline recordings). A single step strays from the law by up to half a
+        step's worth of the response (backward Euler, with the regulator taken at the step's
+        end; 1 ms: up to 210 Pa in a fill of a small chamber)."""
         count = max(1, math.ceil(dt / max_step_s - 1e-9))
         for _ in range(count):
             state = self.step(state, inputs, dt / count)
