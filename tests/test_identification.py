@@ -211,7 +211,9 @@ def test_valve_switches_dated_tenths_of_a_millisecond_off_are_re_timed_by_the_fi
     dates each switch from the readings about it, and recovers the values within the targets.
     A vent's opening starts a transient, and is dated to within 0.12 ms rms of where it was; a
     supply valve closing on a chamber already at the regulator's level tells nothing, and is
-    left where it was recorded."""
+    left where it was recorded. One pass, which linearises the switches' effect about their
+    records, left the vent ratio +5.2 % off and the conductances 0.7 %; the passes on the
+    re-dated recording take them to -0.4 % and 0.2 %."""
     truth = identification_sim.drawn(1)
     steps, held_out = identification.excitation()
     recording = identification_sim.record(truth, steps, held_out, seed=5)
@@ -232,6 +234,10 @@ def test_valve_switches_dated_tenths_of_a_millisecond_off_are_re_timed_by_the_fi
         Valve.SUPPLY, Valve.CLOSED) and changes[i].time_s - changes[i - 1].time_s > 0.5]
     assert len(untold) >= 4 and max(map(abs, untold)) < 1e-5, untold
     _assert_recovered(result, truth.parameters)
+    fitted, true = result.parameters, truth.parameters
+    assert fitted.vent_critical_ratio == pytest.approx(true.vent_critical_ratio, rel=0.025)
+    for name in ("supply_conductance", "vent_conductance"):
+        assert getattr(fitted, name) == pytest.approx(getattr(true, name), rel=0.005), name
     assert result.validation_rmse_over_noise <= 1.1
 
 
