@@ -101,6 +101,7 @@ def test_a_log_reads_back_and_is_fitted_into_a_plant_file_with_its_report(tmp_pa
     assert written.parameters.supply_conductance == pytest.approx(1e-9, rel=0.05)
     report = (tmp_path / "out" / "identification.md").read_text()
     assert "| `supply_conductance` |" in report and "identification.png" in report
+    assert "Valve switches: the fit dated" in report and "Sensor latency" in report
     assert (tmp_path / "out" / "identification.png").stat().st_size > 10_000
     again = _run("--from-log", str(log), "--output", str(tmp_path / "out"))
     assert again.returncode == 2 and "exists" in again.stderr

@@ -34,10 +34,12 @@ the conductances and compliances are only as right as that volume.
    vent path's decay) but only the first ``HOLD_FITTED_S`` of a closed hold: the hold repeats
    one level, set by when the valve closed, and a millisecond's error in that time (a 40 ms
    evacuation) weighed over the whole hold outweighed every flow the excitation measures.
-   Then once more with each valve switch's time as a value too, dated by the readings about it
-   (its effect on them linearised, with a prior of ``SWITCH_PRIOR_MS``), repeated on the
-   re-dated recording until the switches settle (``REDATE_PASSES``): switches dated a few
-   tenths of a ms off blurred every transient, which the fit took for the critical ratios.
+   Then once more with each valve switch's time and each sensor's latency as values too,
+   dated by the readings about them (their effect on them linearised, with a prior of
+   ``SWITCH_PRIOR_MS``), repeated on the re-dated recording until they settle
+   (``REDATE_PASSES``): switches dated a few tenths of a ms off blurred every transient, and
+   readings a tenth of a ms older than their stamps skewed every fill, which the fit took for
+   the critical ratios.
 
 Confidence intervals come from the Jacobian at the optimum: per value the wider of the
 Gauss-Newton covariance (scaled by the residual variance) and the sandwich covariance that keeps
@@ -52,6 +54,7 @@ predicted worse than ``VALIDATION_LIMIT`` times the noise (each reading over its
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import time
@@ -171,6 +174,8 @@ class Identification:
     trace: dict  # times, measured and fitted pressures per sensor, for the report's plot
     # {index in the recording's inputs: how much later the fit put that valve switch, s}
     switch_shifts_s: dict = dataclasses.field(default_factory=dict)
+    # {sensor: how long before its stamp the fit took each of its readings, s}
+    sensor_delay_s: dict = dataclasses.field(default_factory=dict)
 
 
 # ---- the model, vectorised ----------------------------------------------------------------------
@@ -407,12 +412,21 @@ class _Grid:
                              np.full(mask.sum(), weights[name]), times[mask]))
         self.names = np.concatenate([np.full(len(r[1]), r[0]) for r in rows])
         self.episode = np.concatenate([r[1] for r in rows]).astype(int)
-        position = np.concatenate([r[2] for r in rows])
-        self.before = np.clip(np.floor(position).astype(int), 0, steps - 2)
-        self.fraction = np.clip(position - self.before, 0.0, 1.0)
+        self.position = np.concatenate([r[2] for r in rows])
+        self.set_delays({})
         self.measured = np.concatenate([r[3] for r in rows])
         self.weight = np.concatenate([r[4] for r in rows])
         self.times = np.concatenate([r[5] for r in rows])
+
+    def set_delays(self, delays_s: dict) -> None:
+        """Each reading taken as the chamber was ``delays_s[its sensor]`` (s) before its stamp (the
+        readings fitted stay the same)."""
+        self.delays_s = dict(delays_s)
+        position = self.position.copy()
+        for name, delay in delays_s.items():
+            position[self.names == name] -= delay / DT_S
+        self.before = np.clip(np.floor(position).astype(int), 0, self.steps - 2)
+        self.fraction = np.clip(position - self.before, 0.0, 1.0)
 
     def simulate(self, parameter_sets: list) -> np.ndarray:
         """Every reading's predicted gauge pressure under each parameter set: [sets, readings]."""
@@ -485,41 +499,51 @@ STAGE3_BOUNDS = (np.array([math.log(1e-12)] * 3 + [0.02] * 3 + [0.0, 0.0, -100.0
 STAGE3_STEPS = np.array([1e-3] * 3 + [1e-3] * 3 + [1e-3, 1e-3, 1e-2])
 
 
-def _switch_sensitivities(recording: Recording, grid: "_Grid", regulator_at, biases: dict,
+def _timing_sensitivities(recording: Recording, grid: "_Grid", regulator_at, biases: dict,
                           weights: dict, until_s: float, parameters: PneumaticParameters):
-    """(columns [readings, switches]: each of ``grid``'s readings' change, Pa per ms that one
-    valve switch comes later; the switches' indices in ``recording.inputs``), at
+    """(columns [readings, timings]: each of ``grid``'s readings' change, Pa per ms that one
+    timing comes later; the timings: a valve switch's index in ``recording.inputs``, or a
+    sensor's name, for its readings taken that much longer before their stamps), at
     ``parameters``; the other arguments are those ``grid`` was built with.
 
     The k-th switch of every segment moves in one simulation (the segments are independent), so
-    this takes as many as the busiest segment has switches."""
+    this takes as many as the busiest segment has switches, and one more for the sensors."""
     changes = recording.inputs
     per_episode = [[i for i in range(1, len(changes)) if changes[i].valve != changes[i - 1].valve
                     and episode.start_s < changes[i].time_s < episode.end_s]
                    for episode in grid.episodes]
     reference = grid.simulate([parameters])[0]
-    columns, switches = [], []
+    columns, timings = [], []
     for k in range(max(len(switched) for switched in per_episode)):
         moved = {switched[k] for switched in per_episode if len(switched) > k}
         later = dataclasses.replace(recording, inputs=[
             dataclasses.replace(c, time_s=c.time_s + SWITCH_STEP_S) if i in moved else c
             for i, c in enumerate(changes)])
         moved_grid = _Grid(later, grid.episodes, regulator_at, biases, weights, until_s=until_s)
+        moved_grid.set_delays(grid.delays_s)
         change = (moved_grid.simulate([parameters])[0] - reference) / (SWITCH_STEP_S * 1e3)
         for e, switched in enumerate(per_episode):
             column = np.where(grid.episode == e, change, 0.0)
             if len(switched) > k and np.any(column != 0.0):
                 columns.append(column)
-                switches.append(switched[k])
-    return np.array(columns).T.reshape(len(reference), len(columns)), switches
+                timings.append(switched[k])
+    # every sensor's readings older at once: each column keeps its own sensor's
+    older = copy.copy(grid)
+    sensors = list(dict.fromkeys(grid.names))
+    older.set_delays({name: grid.delays_s.get(name, 0.0) + SWITCH_STEP_S for name in sensors})
+    change = (older.simulate([parameters])[0] - reference) / (SWITCH_STEP_S * 1e3)
+    for name in sensors:
+        columns.append(np.where(grid.names == name, change, 0.0))
+        timings.append(str(name))
+    return np.array(columns).T.reshape(len(reference), len(columns)), timings
 
 
 def _joint_pass(solve, residuals, jacobian, x0: np.ndarray, sensitivity: np.ndarray,
                 already_ms: np.ndarray):
-    """(the solve's result, each switch's further shift, ms): the chamber values and one time
-    shift per valve switch fitted together, the shifts' effect linearised (``sensitivity``
-    [readings, switches], weighted residual per ms later); each switch's prior of
-    SWITCH_PRIOR_MS and its bound of SWITCH_LIMIT_MS apply to its whole shift, ``already_ms``
+    """(the solve's result, each timing's further shift, ms): the chamber values and the
+    timings (:func:`_timing_sensitivities`) fitted together, the timings' effect linearised
+    (``sensitivity`` [readings, timings], weighted residual per ms later); each timing's prior
+    of SWITCH_PRIOR_MS and its bound of SWITCH_LIMIT_MS apply to its whole shift, ``already_ms``
     plus this one."""
     chamber, count = len(x0), sensitivity.shape[1]
     prior = np.hstack([np.zeros((count, chamber)), np.eye(count) / SWITCH_PRIOR_MS])
@@ -748,23 +772,30 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
     # where it starts, so it is repeated on the recording re-dated by the shifts so far until
     # they settle (live drawn_1, one pass: supply ratio +21 %, vent ratio +17 %; settled after
     # three, +8 % and +11 %).
-    x3, chamber, shifts_ms = stage3.x, len(STAGE3), {}
+    # Each sensor's latency is dated the same way, as one more timing: a reading is the chamber
+    # some time before its stamp (a sensor's filter; live, the simulated device's readings up to
+    # 0.2 ms), and the supply path's critical ratio took that in (offline, drawn_1 with every
+    # reading 0.2 ms stale: -11.6 %).
+    x3, chamber, timing_ms = stage3.x, len(STAGE3), {}
     redated = recording
     for joint_pass in range(1, REDATE_PASSES + 1):
-        columns, switches = _switch_sensitivities(redated, grid, regulator_at, biases, weights,
-                                                  fitted_until, _stage3_parameters(x3, base))
+        columns, timings = _timing_sensitivities(redated, grid, regulator_at, biases, weights,
+                                                 fitted_until, _stage3_parameters(x3, base))
         progress(f"stage 3 again ({joint_pass}/{REDATE_PASSES}), with the times of "
-                 f"{len(switches)} valve switches")
+                 f"{sum(isinstance(t, int) for t in timings)} valve switches and the sensors' "
+                 "latencies")
         stage3, moved = _joint_pass(solve, residuals, jacobian, inside(x3),
                                     columns * grid.weight[:, None],
-                                    np.array([shifts_ms.get(i, 0.0) for i in switches]))
+                                    np.array([timing_ms.get(t, 0.0) for t in timings]))
         x3 = stage3.x[:chamber]
-        for i, more in zip(switches, moved):
-            shifts_ms[i] = shifts_ms.get(i, 0.0) + float(more)
+        for timing, more in zip(timings, moved):
+            timing_ms[timing] = timing_ms.get(timing, 0.0) + float(more)
         redated = dataclasses.replace(recording, inputs=[
-            dataclasses.replace(c, time_s=c.time_s + 1e-3 * shifts_ms.get(i, 0.0))
+            dataclasses.replace(c, time_s=c.time_s + 1e-3 * timing_ms.get(i, 0.0))
             for i, c in enumerate(recording.inputs)])
         grid = _Grid(redated, episodes, regulator_at, biases, weights, until_s=fitted_until)
+        delays_s = {t: 1e-3 * ms for t, ms in timing_ms.items() if isinstance(t, str)}
+        grid.set_delays(delays_s)
         cache.clear()
         if not len(moved) or np.max(np.abs(moved)) < REDATE_SETTLED_MS:
             break
@@ -881,6 +912,7 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
         progress("validation: the held-out excitation, predicted")
         held = _Grid(redated, episodes, regulator_at, biases, weights,
                      since_s=recording.held_out_from_s)
+        held.set_delays(delays_s)
         if len(held.measured):
             error = held.simulate([fitted])[0] - held.measured
             validation = float(np.sqrt(np.mean(error**2)))
@@ -900,7 +932,8 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
     return Identification(fitted, estimates, dict(noises), biases, residual_rms,
                           whiteness, validation, validation_over_noise,
                           time.perf_counter() - started, flags, trace,
-                          {i: 1e-3 * shift for i, shift in shifts_ms.items()})
+                          {t: 1e-3 * ms for t, ms in timing_ms.items() if isinstance(t, int)},
+                          delays_s)
 
 
 # ---- the excitation -----------------------------------------------------------------------------

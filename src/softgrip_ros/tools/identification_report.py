@@ -101,6 +101,12 @@ def markdown(result: Identification, base: plant_file.PlantDescription, provenan
               f"readings about each, moving them by {np.sqrt(np.mean(shifts_ms**2)):.2f} ms rms "
               f"(at most {np.abs(shifts_ms).max():.2f} ms) from their recorded times. Much more "
               "than a millisecond says the log's or the valves' timing is off.", ""]
+    if result.sensor_delay_s:
+        delays = ", ".join(f"`{name}` {1e3 * delay:+.2f} ms"
+                           for name, delay in sorted(result.sensor_delay_s.items()))
+        lines += [f"Sensor latency (each reading taken as the chamber that long before its "
+                  f"stamp, fitted with the switches): {delays}. A negative one is a stamp "
+                  "earlier than the reading, against the valve switches' clock.", ""]
     if result.flags:
         lines += ["**Flagged** (written, but not to be trusted as it stands):", ""]
         lines += [f"- {flag}" for flag in result.flags] + [""]
