@@ -39,12 +39,12 @@ Safety (design.md), independent of the grasp manager:
   and said to be unconfirmed;
 - no command for ``command_timeout_s`` while regulating: the configured safe action
   (``hold`` or ``vent``).
-- **identification mode** (:attr:`PressureController.identification`, for ``softgrip_identify``):
-  no control law. A SUPPLY command's target is the regulator setpoint, with the valve open to it; a
-  VACUUM command opens the valve to the pump until the chamber would reach its target within
-  ``boost_lead_s`` at its measured rate, then closes it; a HOLD command with a finite target sets
-  the regulator there with the valves closed (its own response, alone); VENT as always. Targets are
-  clamped to the limits, and the limit trip, the sensor cross-checks and the safe state stay: it is
+- **identification mode** (:attr:`PressureController.identification`, for
+  ``softgrip_identify``): no control law. A SUPPLY command's target is the regulator setpoint,
+  with the valve open to it; a VACUUM command opens the valve to the pump until the chamber
+  reaches its target, then closes it; a HOLD command with a finite target sets the regulator
+  there with the valves closed (its own response, alone); VENT as always. Targets are clamped
+  to the limits, and the limit trip, the sensor cross-checks and the safe state stay: it is
   open-loop access, not a way around them. The monitor's checks against the plant model are
   suspended, since that model is what is being measured;
 - at a steady target, ``hold_cycles`` boosts or evacuations within ``hold_cycle_window_s``
@@ -274,10 +274,6 @@ class PressureController:
                                                          Source.VACUUM) else math.nan
         if source != self._source:
             self._integral = 0.0
-            if self.identification:
-                # its rate estimate starts afresh: a HOLD or VENT step in between does not update
-                # it, and a stale one could close an evacuation as it opens
-                self._previous_feedback, self._rate_estimate = None, 0.0
         self._source = source
         self._command_time = now
         cleared = self.monitor.clearable(self._latched & SAFETY_FAULTS, now)
@@ -422,7 +418,7 @@ class PressureController:
             return self._output(self._setpoint, True, Source.HOLD, Valve.CLOSED, PressureMode.HOLD,
                                 faults, feedback, "holding: valves closed")
         if self.identification:
-            return self._open_loop(faults, feedback, dt)
+            return self._open_loop(faults, feedback)
 
         # slew the setpoint towards the target
         step_limit = self._rate * dt if dt > 0 else math.inf
@@ -438,17 +434,10 @@ class PressureController:
                             PressureMode.REGULATE, faults, feedback,
                             self._phase if self._phase != "track" else "")
 
-    def _open_loop(self, faults: Fault, feedback: float, dt: float) -> ControlOutput:
+    def _open_loop(self, faults: Fault, feedback: float) -> ControlOutput:
         """Identification: the regulator at the target with the valve open to it (SUPPLY), or
-        the valve open to the pump until the chamber reaches the target (VACUUM; then HOLD).
-
-        A VACUUM closes ``boost_lead_s`` before the chamber would reach the target at its
-        measured rate (as the clamp hands back to the regulator): a small chamber falls 550 kPa/s
-        there, and a host stall of 15 ms after the crossing took it 9 kPa past the target, which
-        the safety monitor rightly stopped ("would pass the limit -65 kPa within 10 ms")."""
-        rate = self._update_rate(feedback, dt)
-        crossing_soon = rate < 0.0 and feedback - self._target <= -rate * self.config.boost_lead_s
-        if self._source == Source.VACUUM and (feedback <= self._target or crossing_soon):
+        the valve open to the pump until the chamber reaches the target (VACUUM; then HOLD)."""
+        if self._source == Source.VACUUM and feedback <= self._target:
             self._source = Source.HOLD
             return self._output(self._setpoint, True, Source.HOLD, Valve.CLOSED,
                                 PressureMode.IDENTIFY, faults, feedback,
