@@ -78,8 +78,8 @@ SUBSONIC_LIMIT = 0.25  # below this share of subsonic evacuation, the vacuum pai
 SWITCH_STEP_S = 2e-4  # the finite-difference step of a valve switch's time
 SWITCH_PRIOR_MS = 1.0  # a valve switch's time is known to about this, before the fit
 SWITCH_LIMIT_MS = 5.0  # and the fit moves it at most this far
-REDATE_PASSES = 4  # at most this many joint passes, each on the switches the last one re-dated
-REDATE_SETTLED_MS = 0.02  # ... until no switch moves further than this
+REDATE_PASSES = 4  # at most this many joint passes, each on the timings the last one re-dated
+REDATE_SETTLED_MS = 0.02  # ... until no timing (a switch, a sensor's latency) moves further
 REPEATS = 3  # the excitation's extra vents from the top and the bottom, and refills
 STAGE3_METHODS = ("trf", "dogbox", "trf")  # the chamber fit's passes, at most (see fit)
 RATIOS = slice(3, 6)  # the critical ratios in the stage-3 vector
@@ -126,6 +126,13 @@ class Recording:
         change_times = np.array([c.time_s for c in self.inputs])
         index = np.searchsorted(change_times, times, side="right") - 1
         return np.clip(index, 0, len(self.inputs) - 1)
+
+    def moved(self, shifts_s: dict) -> "Recording":
+        """This recording with each change ``i`` in ``shifts_s`` dated ``shifts_s[i]`` (s) later
+        (the readings and reports as they are)."""
+        return dataclasses.replace(self, inputs=[
+            dataclasses.replace(c, time_s=c.time_s + shifts_s[i]) if i in shifts_s else c
+            for i, c in enumerate(self.inputs)])
 
     @property
     def start_s(self) -> float:
@@ -515,10 +522,8 @@ def _timing_sensitivities(recording: Recording, grid: "_Grid", regulator_at, bia
     reference = grid.simulate([parameters])[0]
     columns, timings = [], []
     for k in range(max(len(switched) for switched in per_episode)):
-        moved = {switched[k] for switched in per_episode if len(switched) > k}
-        later = dataclasses.replace(recording, inputs=[
-            dataclasses.replace(c, time_s=c.time_s + SWITCH_STEP_S) if i in moved else c
-            for i, c in enumerate(changes)])
+        later = recording.moved({switched[k]: SWITCH_STEP_S for switched in per_episode
+                                 if len(switched) > k})
         moved_grid = _Grid(later, grid.episodes, regulator_at, biases, weights, until_s=until_s)
         moved_grid.set_delays(grid.delays_s)
         change = (moved_grid.simulate([parameters])[0] - reference) / (SWITCH_STEP_S * 1e3)
@@ -790,9 +795,8 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
         x3 = stage3.x[:chamber]
         for timing, more in zip(timings, moved):
             timing_ms[timing] = timing_ms.get(timing, 0.0) + float(more)
-        redated = dataclasses.replace(recording, inputs=[
-            dataclasses.replace(c, time_s=c.time_s + 1e-3 * timing_ms.get(i, 0.0))
-            for i, c in enumerate(recording.inputs)])
+        redated = recording.moved({t: 1e-3 * ms for t, ms in timing_ms.items()
+                                   if isinstance(t, int)})
         grid = _Grid(redated, episodes, regulator_at, biases, weights, until_s=fitted_until)
         delays_s = {t: 1e-3 * ms for t, ms in timing_ms.items() if isinstance(t, str)}
         grid.set_delays(delays_s)
