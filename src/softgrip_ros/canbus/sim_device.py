@@ -266,7 +266,11 @@ class SimulatedDevice:
                 return
             if frame is None:
                 return
-            arrived = min(max(now - frame_age_s(frame), self._last_tick), now)
+            # when it was sent, on this clock: its age and this clock's time read together (the
+            # tick's start minus an age read later put a frame taken after a GIL wait, or after
+            # the plant was advanced for the frames before it, that long before it was sent)
+            sent = self.clock() - frame_age_s(frame)
+            arrived = min(max(sent, self._last_tick), now)
             self._advance_to(arrived)
             self._on_frame(frame)
 
