@@ -781,7 +781,7 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
     # some time before its stamp (a sensor's filter; live, the simulated device's readings up to
     # 0.2 ms), and the supply path's critical ratio took that in (offline, drawn_1 with every
     # reading 0.2 ms stale: -11.6 %).
-    x3, chamber, timing_ms = stage3.x, len(STAGE3), {}
+    x3, chamber, timing_ms, delays_s = stage3.x, len(STAGE3), {}, {}
     redated = recording
     for joint_pass in range(1, REDATE_PASSES + 1):
         columns, timings = _timing_sensitivities(redated, grid, regulator_at, biases, weights,
