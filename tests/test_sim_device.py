@@ -254,9 +254,8 @@ def test_a_frame_taken_late_in_a_tick_acts_when_it_was_sent(bench, monkeypatch):
     """A tick takes its frames one after the other; one may be taken ms after the tick began
     (a GIL wait, or the plant advanced for the frames before it). It acts when it was sent: its
     age read against the clock of the same moment. Against the tick's start it acted that long
-    before it was sent (live, valve switches up to ms early at random: the identification's
-    fitted switch times and critical ratios took them in, slow_large's vent ratio +22 % in one
-    run)."""
+    before it was sent (here 4 ms; live, up to the ms a loaded host's tick spent before taking
+    it), and the switches an identification dates from its log were off by as much."""
     import softgrip_ros.canbus.sim_device as sim_device
     device, clock, _, codec = bench
     command(device, codec, Valve.SUPPLY, setpoint_pa=40e3, lifetime_s=0.25)

@@ -36,10 +36,10 @@ the conductances and compliances are only as right as that volume.
    evacuation) weighed over the whole hold outweighed every flow the excitation measures.
    Then once more with each valve switch's time and each sensor's latency as values too,
    dated by the readings about them (their effect on them linearised, with a prior of
-   ``SWITCH_PRIOR_MS``), repeated on the re-dated recording until they settle
-   (``REDATE_PASSES``): switches dated a few tenths of a ms off blurred every transient, and
-   readings a tenth of a ms older than their stamps skewed every fill, which the fit took for
-   the critical ratios.
+   ``SWITCH_PRIOR_MS``), repeated on the re-dated recording until they settle or a pass no
+   longer gains ``REDATE_GAIN`` (``REDATE_PASSES``): switches dated a few tenths of a ms off
+   blurred every transient, and readings a tenth of a ms older than their stamps skewed every
+   fill, which the fit took for the critical ratios.
 
 Confidence intervals come from the Jacobian at the optimum: per value the wider of the
 Gauss-Newton covariance (scaled by the residual variance) and the sandwich covariance that keeps
