@@ -20,6 +20,7 @@ Each fault's evidence (status flags or diagnostic text) and documented end state
 from __future__ import annotations
 
 import dataclasses
+import gc
 import math
 import statistics
 import threading
@@ -148,7 +149,7 @@ class Rig:
         from rclpy.parameter import Parameter
         from softgrip_interfaces.msg import (ControllerStatus, GraspCommand, GripperState,
                                              PressureCommand)
-        from softgrip_ros.nodes.common import spinning
+        from softgrip_ros.nodes.common import freeze_start_up_heap, spinning
         from softgrip_ros.nodes.controller import make_nodes
 
         channel = f"faults-{uuid.uuid4().hex[:8]}"
@@ -178,6 +179,8 @@ class Rig:
         if not self.states:
             self.__exit__(None, None, None)
             raise RuntimeError("the composed suite did not come up")
+        # as the controller executable's own process has it (run_node)
+        freeze_start_up_heap()
         return self
 
     def __exit__(self, *exc):
@@ -185,6 +188,7 @@ class Rig:
         self._spin.__exit__(None, None, None)
         close_all(list(self.nodes.values()))
         self.user.destroy_node()
+        gc.unfreeze()
 
     def _keep(self, history, message, when):
         with self.lock:
