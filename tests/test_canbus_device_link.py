@@ -14,6 +14,7 @@ from softgrip_ros.canbus.sim_device import SimDeviceConfig, SimulatedDevice
 from softgrip_ros.control.pressure import (Fault, PressureMode, PressureControlConfig,
                                            PressureController, Source)
 from softgrip_ros.model.pneumatics import Valve
+from softgrip_ros.realtime import freeze_start_up_heap
 
 from tests.helpers.ros import wait_for
 
@@ -31,8 +32,7 @@ def rig():
     process running this file alone (the control loop held for a sensor timeout; 4-8 ms with the
     heap frozen), and one CI run ended a 10 kPa step 0.5 kPa low and recovering, as after such a
     hold. The heap as it stands is frozen out of those passes."""
-    gc.collect()
-    gc.freeze()
+    freeze_start_up_heap()
     channel = f"softgrip-test-{uuid.uuid4().hex[:8]}"
     device_bus = can.Bus(interface="virtual", channel=channel)
     controller_bus = can.Bus(interface="virtual", channel=channel)

@@ -4,10 +4,12 @@
 controller's control loop and the simulated device's plant. An rclpy timer shares the executor
 (and the GIL) with every callback of the process and loses ticks under load; these loops must
 not. :class:`TimerThread` runs the composed nodes' slower periodic callbacks.
+:func:`freeze_start_up_heap` keeps the garbage collector's full passes from stopping them.
 """
 from __future__ import annotations
 
 import collections
+import gc
 import sys
 import threading
 import time
@@ -15,6 +17,15 @@ import time
 # CPython hands the GIL over every 5 ms by default, so a woken loop thread can wait several
 # periods behind busy threads; 0.2 ms keeps a 500 Hz loop's period p99 near 2.5 ms.
 GIL_SWITCH_INTERVAL_S = 2e-4
+
+
+def freeze_start_up_heap() -> None:
+    """What start-up built (rclpy, the models, the DBC) lives as long as the process: it is
+    collected once and frozen out of the garbage collector's full passes, which scanned it all
+    and stopped every thread (the composed controller at run time: 92 ms, against the 50 ms
+    sensor timeout and the safety trip's 10 ms reaction time; frozen, 1.5 ms)."""
+    gc.collect()
+    gc.freeze()
 
 
 class PeriodicThread:

@@ -27,6 +27,8 @@ import threading
 import time
 import uuid
 
+from softgrip_ros.realtime import freeze_start_up_heap
+
 NAN = math.nan
 PHASES = ("IDLE", "OPENING", "ENVELOPED", "CLAMPING", "HOLDING", "RELEASING")
 HOLD_S = 0.5  # how long the scripted grasp holds before its RELEASE
@@ -149,7 +151,7 @@ class Rig:
         from rclpy.parameter import Parameter
         from softgrip_interfaces.msg import (ControllerStatus, GraspCommand, GripperState,
                                              PressureCommand)
-        from softgrip_ros.nodes.common import freeze_start_up_heap, spinning
+        from softgrip_ros.nodes.common import spinning
         from softgrip_ros.nodes.controller import make_nodes
 
         channel = f"faults-{uuid.uuid4().hex[:8]}"

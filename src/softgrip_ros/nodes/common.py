@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import faulthandler
-import gc
 import signal
 import sys
 import threading
@@ -16,7 +15,7 @@ from rclpy.executors import (ExternalShutdownException, MultiThreadedExecutor,
 from rclpy.time import Time
 
 from softgrip_ros.nodes.rclpy_compat import RCLError, SHUTDOWN_ERRORS, shutdown_executor
-from softgrip_ros.realtime import TimerThread
+from softgrip_ros.realtime import TimerThread, freeze_start_up_heap
 
 # longest wait for a SIGINT/SIGTERM whose wake the executor missed (see run_node)
 SHUTDOWN_POLL_S = 0.5
@@ -105,15 +104,6 @@ def _try_shutdown() -> None:
     except Exception:
         if rclpy.ok():
             raise
-
-
-def freeze_start_up_heap() -> None:
-    """What start-up built (rclpy, the models, the DBC) lives as long as the process: it is
-    collected once and frozen out of the garbage collector's full passes, which scanned it all
-    and stopped every thread (the composed controller at run time: 92 ms, against the 50 ms
-    sensor timeout and the safety trip's 10 ms reaction time; frozen, 1.5 ms)."""
-    gc.collect()
-    gc.freeze()
 
 
 def run_node(node_factory, args=None, executor_factory=None) -> int:
