@@ -786,7 +786,8 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
     # some time before its stamp (a sensor's filter; live, the simulated device's readings up to
     # 0.2 ms), and the supply path's critical ratio took that in (offline, drawn_1 with every
     # reading 0.2 ms stale: -11.6 %).
-    x3, chamber, timing_ms, delays_s = stage3.x, len(STAGE3), {}, {}
+    x3, chamber, timing_ms = stage3.x, len(STAGE3), {}
+    shifts_s, delays_s = {}, {}  # timing_ms split: the switches' (by index), the sensors'
     redated, previous_cost = recording, math.inf
     for joint_pass in range(1, REDATE_PASSES + 1):
         columns, timings = _timing_sensitivities(redated, grid, regulator_at, biases, weights,
@@ -800,10 +801,10 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
         x3 = stage3.x[:chamber]
         for timing, more in zip(timings, moved):
             timing_ms[timing] = timing_ms.get(timing, 0.0) + float(more)
-        redated = recording.moved({t: 1e-3 * ms for t, ms in timing_ms.items()
-                                   if isinstance(t, int)})
-        grid = _Grid(redated, episodes, regulator_at, biases, weights, until_s=fitted_until)
+        shifts_s = {t: 1e-3 * ms for t, ms in timing_ms.items() if isinstance(t, int)}
         delays_s = {t: 1e-3 * ms for t, ms in timing_ms.items() if isinstance(t, str)}
+        redated = recording.moved(shifts_s)
+        grid = _Grid(redated, episodes, regulator_at, biases, weights, until_s=fitted_until)
         grid.set_delays(delays_s)
         cache.clear()
         if (not len(moved) or np.max(np.abs(moved)) < REDATE_SETTLED_MS
@@ -942,9 +943,7 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
                        predicted[mine][order])
     return Identification(fitted, estimates, dict(noises), biases, residual_rms,
                           whiteness, validation, validation_over_noise,
-                          time.perf_counter() - started, flags, trace,
-                          {t: 1e-3 * ms for t, ms in timing_ms.items() if isinstance(t, int)},
-                          delays_s)
+                          time.perf_counter() - started, flags, trace, shifts_s, delays_s)
 
 
 # ---- the excitation -----------------------------------------------------------------------------
