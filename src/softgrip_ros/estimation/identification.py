@@ -439,6 +439,12 @@ class _Grid:
             position[self.names == name] -= delay / DT_S
         self.before = np.clip(np.floor(position).astype(int), 0, self.steps - 2)
         self.fraction = np.clip(position - self.before, 0.0, 1.0)
+        # the steps each episode's readings need (the one after the last reading's), and so the
+        # episodes still stepping at each step, longest first
+        needed = np.zeros(len(self.episodes), int)
+        np.maximum.at(needed, self.episode, self.before + 2)
+        self.longest_first = np.argsort(-needed, kind="stable")
+        self.alive = (needed[None, :] > np.arange(self.steps)[:, None]).sum(axis=1)
 
     def simulate(self, parameter_sets: list) -> np.ndarray:
         """Every reading's predicted gauge pressure under each parameter set: [sets, readings]."""
@@ -463,24 +469,37 @@ class _Grid:
         pumped = ((self.valve == Valve.VACUUM) & self.enabled)[None]
         source_all = np.where(supply, P_ATM_PA + self.regulator[None],
                               np.where(pumped, vacuum[:, :, None], P_ATM_PA))
+        # the episodes longest first, and each stepped only as far as its readings need: the
+        # grid is as long as the longest, and most end well before it
+        order, alive = self.longest_first, self.alive
+        c_all, b_all, source_all = c_all[:, order], b_all[:, order], source_all[:, order]
+        fresh_all = self.fresh[order]
         # BDF2, p = (4 p_n - p_n-1) / 3 + (2 dt / 3) f(p): the backward-Euler solve from the
         # extrapolated start with two thirds of the step
         trajectory = np.empty((sets, len(self.episodes), self.steps))
-        p = np.broadcast_to(self.start, (sets, len(self.episodes))).copy()
+        p = np.broadcast_to(self.start[order], (sets, len(self.episodes))).copy()
         trajectory[:, :, 0] = p
-        previous = p
+        previous = p.copy()
         for k in range(1, self.steps):
-            source = source_all[:, :, k - 1]
-            fresh = self.fresh[:, k - 1]
-            start = np.where(fresh, p, (4.0 * p - previous) / 3.0)
+            n = alive[k]
+            if n == 0:
+                break
+            now, before_now = p[:, :n], previous[:, :n]
+            source = source_all[:, :n, k - 1]
+            fresh = fresh_all[:n, k - 1]
+            start = np.where(fresh, now, (4.0 * now - before_now) / 3.0)
             # the extrapolation may pass the source, which the flow never does
-            start = np.where((source - p) * (source - start) < 0.0, source, start)
+            start = np.where((source - now) * (source - start) < 0.0, source, start)
             step = np.where(fresh, DT_S, 2.0 * DT_S / 3.0)
-            previous, p = p, chamber_steps(start, source, c_all[:, :, k - 1],
-                                           b_all[:, :, k - 1], par, step, tolerance_pa=1e-6)
-            trajectory[:, :, k] = p
-        before = trajectory[:, self.episode, self.before]
-        after = trajectory[:, self.episode, self.before + 1]
+            new = chamber_steps(start, source, c_all[:, :n, k - 1], b_all[:, :n, k - 1], par,
+                                step, tolerance_pa=1e-6)
+            previous[:, :n] = now
+            p[:, :n] = new
+            trajectory[:, :n, k] = new
+        rank = np.empty_like(order)
+        rank[order] = np.arange(len(order))
+        before = trajectory[:, rank[self.episode], self.before]
+        after = trajectory[:, rank[self.episode], self.before + 1]
         return before + (after - before) * self.fraction - P_ATM_PA
 
 
