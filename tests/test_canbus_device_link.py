@@ -395,6 +395,42 @@ def test_a_copy_of_an_applied_command_is_ignored_and_no_stamp_locks_out_the_next
     assert link.controller._target == 5e3
 
 
+def test_an_output_change_is_dated_by_the_stamp_the_bus_put_on_its_frame():
+    """A bus that stamps its frames as they go out (softgrip_ipc: the stamp the simulated device
+    switches its valve at) dates the change. Here each send waits 20 ms before it stamps, as a
+    thread waits for the GIL: dated before the send, the change would look 20 ms early (live,
+    evacuations started 5 ms after their logged times, and the fit bent its critical ratios)."""
+    import time
+    from softgrip_ros.canbus.codec import FrameCodec
+    channel = f"softgrip-test-{uuid.uuid4().hex[:8]}"
+    controller_bus = can.Bus(interface="virtual", channel=channel)
+    stamped_at = {}
+    send = controller_bus.send
+
+    def stamping_late(frame, timeout=None):
+        time.sleep(0.02)
+        frame.timestamp = time.time()
+        stamped_at[frame.arbitration_id] = time.monotonic()
+        send(frame, timeout)
+
+    controller_bus.send = stamping_late
+    link = ControllerLink(controller_bus, PressureController(PressureControlConfig()), SENSORS)
+    link.controller.active = True
+    try:
+        link.controller.update_sensor("chamber_a", 0.0, time.monotonic())
+        link.step()
+        link.command(20e3, Source.SUPPLY, math.nan)
+        link.controller.update_sensor("chamber_a", 0.0, time.monotonic())
+        before = time.monotonic()
+        link.step()
+        valve_frame = stamped_at[FrameCodec().frame_ids["ValveCommand"]]
+        assert valve_frame > before + 0.035  # after both frames' waits
+        assert link.output_changed_time == pytest.approx(valve_frame, abs=2e-3)
+    finally:
+        link.close()
+        controller_bus.shutdown()
+
+
 def test_an_output_change_is_dated_when_its_frame_goes_out_not_after_the_send_returns():
     """The identification dates each valve change by ``output_changed_time``; the device acts on
     the frame. A send that returns late (a GIL wait after the socket call: here the clock moves

@@ -150,3 +150,24 @@ def test_a_frame_is_stamped_as_it_goes_out_not_before_the_peers_are_looked_up(ch
     finally:
         sender.shutdown()
         receiver.shutdown()
+
+
+def test_the_sender_s_frame_carries_the_stamp_its_receiver_gets(channel):
+    """The sender dates what it sent by the stamp a receiver acts on (the controller dates its
+    valve changes so, and the simulated device switches at it); a stamp the sender set stays."""
+    sender, receiver = (can.Bus(interface="softgrip_ipc", channel=channel) for _ in range(2))
+    try:
+        sender._refresh_peers()
+        frame = can.Message(arbitration_id=0x101, data=b"\x01", is_extended_id=False)
+        sender.send(frame)
+        received = receiver.recv(2.0)
+        assert received is not None and frame.timestamp > 0.0
+        assert received.timestamp == frame.timestamp
+        preset = can.Message(arbitration_id=0x102, data=b"\x02", is_extended_id=False,
+                             timestamp=123.5)
+        sender.send(preset)
+        assert preset.timestamp == 123.5
+        assert receiver.recv(2.0).timestamp != 123.5
+    finally:
+        sender.shutdown()
+        receiver.shutdown()

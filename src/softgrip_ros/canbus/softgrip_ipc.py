@@ -110,7 +110,12 @@ class SoftgripIpcBus(can.BusABC):
                 # GIL (up to a switch interval, 5 ms), and a receiver acts on the stamp (the
                 # simulated device switches a valve at it: a stamp taken before such a wait let a
                 # live identification see valve pulses ~1 ms longer than the device made them)
-                payload = FRAME.pack(time.time(), *fields)
+                stamp = time.time()
+                if not msg.timestamp:
+                    # the sender's copy says when it went out (to the first peer), as a frame's
+                    # stamp says when it was received: the sender dates what it sent by it
+                    msg.timestamp = stamp
+                payload = FRAME.pack(stamp, *fields)
                 try:
                     self._socket.sendto(payload, socket.MSG_DONTWAIT, peer)
                 except BlockingIOError:  # its queue is full
