@@ -126,11 +126,10 @@ def test_the_fits_simulation_follows_the_law_at_its_1_ms_steps():
 def test_the_excitation_fits_its_budget_in_short_segments_within_the_limits(quick):
     """At most 60 s of gripper time, every level inside the limits, and every fitted segment
     under 1.2 s: the fit simulates all of them for as long as the longest takes (one 2.8 s PRBS
-    made every fit 2.8x slower, up to 72 s of its 60 s budget). The full excitation vents seven
-    times from the bottom (and more from the top) and refills from the bottom seven times: the
-    vent path's critical ratio shows only in the curvature of those decays, mostly in the first
-    200 ms of those from the bottom (drawn_1: +-15 % with one of each, +-13 % with four, +-10 %
-    with seven from the bottom), the supply's mostly in those refills."""
+    made every fit 2.8x slower, up to 72 s of its 60 s budget). The full excitation vents four
+    times from the top and four from the bottom, and refills from the bottom four times: the vent
+    path's critical ratio shows only in the curvature of those decays (drawn_1: +-15 % with one
+    of each, +-13 % with four), the supply's mostly in those refills."""
     steps, held_out = identification.excitation(quick=quick)
     assert sum(step.duration_s for step in steps) <= 60.0
     assert all(-55e3 <= step.target_pa <= 45e3 for step in steps
@@ -144,8 +143,8 @@ def test_the_excitation_fits_its_budget_in_short_segments_within_the_limits(quic
                   == ("VACUUM", 0.95 * -55e3, "HOLD", "SUPPLY", 0.95 * 45e3))
     if not quick:
         assert vents_from[("SUPPLY", 0.95 * 45e3)] >= 4, vents_from
-        assert vents_from[("VACUUM", 0.95 * -55e3)] >= 7, vents_from
-        assert refills >= 7, refills
+        assert vents_from[("VACUUM", 0.95 * -55e3)] >= 4, vents_from
+        assert refills >= 4, refills
     recording = identification_sim.record(plant_file.default_description(), steps, held_out)
     episodes = identification.episodes_of(recording, {name: 0.0 for name in recording.sensors})
     fitted = [e.end_s - e.start_s for e in episodes if e.start_s < held_out]

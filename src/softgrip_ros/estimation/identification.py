@@ -86,7 +86,6 @@ REDATE_SETTLED_MS = 0.02  # ... until no timing (a switch, a sensor's latency) m
 # +9.5, +12, +14.5, +19.5 %), and costs a tenth of the fit's time budget
 REDATE_GAIN = 1.92
 REPEATS = 3  # the excitation's extra vents from the top and the bottom, and refills
-BOTTOM_ROUNDS = 3  # and rounds from the bottom only: a vent, and a refill to the top
 STAGE3_METHODS = ("trf", "dogbox", "trf")  # the chamber fit's passes, at most (see fit)
 RATIOS = slice(3, 6)  # the critical ratios in the stage-3 vector
 STAGE3 = ("supply_conductance", "vacuum_conductance", "vent_conductance", "supply_critical_ratio",
@@ -986,10 +985,10 @@ def excitation(max_pa: float = 45e3, min_pa: float = -55e3, seed: int = 0,
     as the limits allow (the ratio, not the level, is what tells a path's critical ratio from its
     conductance): filled, evacuated from the top, refilled from the bottom, vented from the
     bottom; evacuations to two depths; REPEATS more fills to the top and evacuations to the
-    bottom, each vented, and refills from the bottom; BOTTOM_ROUNDS more vents and refills from
-    the bottom; a PRBS of the regulator with the valve open, in blocks between holds. Then a
-    held-out part (other levels, an evacuation, a PRBS) for validation. About 57 s (``quick``:
-    about 19 s, without the repeats and rounds). Levels stay inside [min_pa, max_pa]."""
+    bottom, each vented, and refills from the bottom; a PRBS of the regulator with the valve
+    open, in blocks between holds. Then a held-out part (other levels, an evacuation, a PRBS) for
+    validation. About 42 s (``quick``: about 19 s, without the repeats). Levels stay inside
+    [min_pa, max_pa]."""
     rng = np.random.default_rng(seed)
     rest = Step("VENT", 0.0, 0.7)
     hold = Step("HOLD", math.nan, 0.3)
@@ -1020,16 +1019,6 @@ def excitation(max_pa: float = 45e3, min_pa: float = -55e3, seed: int = 0,
         for _ in range(REPEATS):
             steps += [Step("SUPPLY", top, 0.6), hold, Step("VENT", 0.0, 0.9),
                       Step("VACUUM", bottom, 0.9), hold, Step("VENT", 0.0, 0.9),
-                      Step("VACUUM", bottom, 0.9), hold, Step("SUPPLY", top, 0.6), hold, rest]
-        # Of what the data say of the vent path's critical ratio, about 60 % came from the vents
-        # from the bottom (slow_large, drawn_1; the influence of each reading on the fitted
-        # ratio, the timings marginalised), nearly all of it in their first 200 ms; of the
-        # supply's, the most from the refills from the bottom. Rounds of only those two cost
-        # 5.1 s each against a repeat's 6.7 s: three narrowed the 95 % intervals at the truth
-        # from +-11 % and +-13 % to +-9 % and +-10 % (vent) and drawn_1's supply one from +-7 %
-        # to +-3 %
-        for _ in range(BOTTOM_ROUNDS):
-            steps += [Step("VACUUM", bottom, 0.9), hold, Step("VENT", 0.0, 0.9),
                       Step("VACUUM", bottom, 0.9), hold, Step("SUPPLY", top, 0.6), hold, rest]
     # in blocks under a second, between holds: the fit simulates every segment for as many steps
     # as the longest takes (one PRBS of 2 s made the whole fit 2.8x slower)
