@@ -445,6 +445,9 @@ class _Grid:
         np.maximum.at(needed, self.episode, self.before + 2)
         self.longest_first = np.argsort(-needed, kind="stable")
         self.alive = (needed[None, :] > np.arange(self.steps)[:, None]).sum(axis=1)
+        rank = np.empty_like(self.longest_first)
+        rank[self.longest_first] = np.arange(len(rank))
+        self.row = rank[self.episode]  # each reading's episode in that order
 
     def simulate(self, parameter_sets: list) -> np.ndarray:
         """Every reading's predicted gauge pressure under each parameter set: [sets, readings]."""
@@ -484,22 +487,20 @@ class _Grid:
             n = alive[k]
             if n == 0:
                 break
-            now, before_now = p[:, :n], previous[:, :n]
+            p_now, p_before = p[:, :n], previous[:, :n]
             source = source_all[:, :n, k - 1]
             fresh = fresh_all[:n, k - 1]
-            start = np.where(fresh, now, (4.0 * now - before_now) / 3.0)
+            start = np.where(fresh, p_now, (4.0 * p_now - p_before) / 3.0)
             # the extrapolation may pass the source, which the flow never does
-            start = np.where((source - now) * (source - start) < 0.0, source, start)
+            start = np.where((source - p_now) * (source - start) < 0.0, source, start)
             step = np.where(fresh, DT_S, 2.0 * DT_S / 3.0)
             new = chamber_steps(start, source, c_all[:, :n, k - 1], b_all[:, :n, k - 1], par,
                                 step, tolerance_pa=1e-6)
-            previous[:, :n] = now
+            previous[:, :n] = p_now
             p[:, :n] = new
             trajectory[:, :n, k] = new
-        rank = np.empty_like(order)
-        rank[order] = np.arange(len(order))
-        before = trajectory[:, rank[self.episode], self.before]
-        after = trajectory[:, rank[self.episode], self.before + 1]
+        before = trajectory[:, self.row, self.before]
+        after = trajectory[:, self.row, self.before + 1]
         return before + (after - before) * self.fraction - P_ATM_PA
 
 
