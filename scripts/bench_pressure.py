@@ -60,7 +60,9 @@ def can_step(seed: int) -> dict:
     """One 0 -> 25 kPa step through CAN: controller link + loop thread + device on a virtual
     bus."""
     channel = f"bench-{uuid.uuid4().hex[:8]}"
-    buses = [can.Bus(interface="virtual", channel=channel) for _ in range(3)]
+    # the device's bus keeps its frames' sampling stamps, as the sim_device node opens it
+    buses = [can.Bus(interface="virtual", channel=channel, preserve_timestamps=index == 0)
+             for index in range(3)]
     device = SimulatedDevice(buses[0], SimDeviceConfig(seed=seed))
     link = ControllerLink(buses[1], PressureController(), [
         SensorBinding("chamber_a", "PressureSensor1"),

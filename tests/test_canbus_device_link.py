@@ -34,7 +34,8 @@ def rig():
     hold. The heap as it stands is frozen out of those passes."""
     freeze_start_up_heap()
     channel = f"softgrip-test-{uuid.uuid4().hex[:8]}"
-    device_bus = can.Bus(interface="virtual", channel=channel)
+    # the device's frames keep their sampling stamps, as the sim_device node opens its bus
+    device_bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
     controller_bus = can.Bus(interface="virtual", channel=channel)
     device = SimulatedDevice(device_bus, SimDeviceConfig(seed=1))
     link = ControllerLink(controller_bus, PressureController(PressureControlConfig()), SENSORS)

@@ -2,6 +2,7 @@
 also when a receiver reads late; buses that are gone are forgotten."""
 import subprocess
 import sys
+import time
 
 import can
 import pytest
@@ -168,6 +169,27 @@ def test_the_sender_s_frame_carries_the_stamp_its_receiver_gets(channel):
         sender.send(preset)
         assert preset.timestamp == 123.5
         assert receiver.recv(2.0).timestamp != 123.5
+    finally:
+        sender.shutdown()
+        receiver.shutdown()
+
+
+def test_a_bus_that_preserves_timestamps_delivers_the_senders_stamp(channel):
+    """As python-can's virtual bus with ``preserve_timestamps``: the simulated device stamps a
+    reading when it samples it, and its receivers must see that instant, not when a held-up thread
+    got to send it; a frame without a stamp still gets the time it went out."""
+    sender = can.Bus(interface="softgrip_ipc", channel=channel, preserve_timestamps=True,
+                     receive_own_messages=True)
+    receiver = can.Bus(interface="softgrip_ipc", channel=channel)
+    try:
+        sender._refresh_peers()
+        sender.send(can.Message(arbitration_id=0x102, data=b"\x02", is_extended_id=False,
+                                timestamp=123.5))
+        assert receiver.recv(2.0).timestamp == 123.5
+        assert sender.recv(2.0).timestamp == 123.5  # its own copy too
+        before = time.time()
+        sender.send(can.Message(arbitration_id=0x103, data=b"\x03", is_extended_id=False))
+        assert before <= receiver.recv(2.0).timestamp <= time.time()
     finally:
         sender.shutdown()
         receiver.shutdown()

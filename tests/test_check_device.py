@@ -27,7 +27,7 @@ TRUE_MARGIN_PA = 2e3
 @pytest.fixture
 def device_and_bus():
     channel = f"check-{uuid.uuid4().hex[:8]}"
-    device_bus = can.Bus(interface="virtual", channel=channel)
+    device_bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
     checker_bus = can.Bus(interface="virtual", channel=channel)
     device = SimulatedDevice(device_bus, SimDeviceConfig(seed=2))
     device.start()

@@ -267,7 +267,7 @@ def test_a_failing_can_log_stops_the_recording_with_a_message(tmp_path, monkeypa
 
     monkeypatch.setattr(can, "Logger", FullDisk)
     channel = unique("recfail")
-    bus = open_bus("softgrip_ipc", channel, 500000)
+    bus = open_bus("softgrip_ipc", channel, 500000, preserve_timestamps=True)
     device = SimulatedDevice(bus)
     device.start()
     try:

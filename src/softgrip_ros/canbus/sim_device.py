@@ -5,6 +5,12 @@ and sends PressureSensorN, RegulatorStatus and DeviceHeartbeat frames at their r
 with sensor noise, quantisation and bias. Faults can be injected at any time
 (:meth:`SimulatedDevice.set_fault`), which the ``sim_device`` node maps to ROS parameters.
 
+Each sensor samples the plant on its own period in the plant's time (see BACKFILL_S), and every
+frame carries the instant it describes as its timestamp. On a bus that keeps a sender's stamps
+(``preserve_timestamps``: python-can's virtual bus, softgrip_ipc; the ``sim_device`` node opens
+its bus so) a receiver sees when a reading was taken, as a real device's frames arrive within
+microseconds of their sampling, however late this host runs the thread that sends them.
+
 Like a real device it has a watchdog: without a valid ValveCommand for
 ``command_watchdog_s`` it closes its valves and drives the regulator to 0. Before that, a
 channel in SUPPLY or VACUUM closes when the OpenLifetime of the last ValveCommand runs out
@@ -130,11 +136,8 @@ FAULT_RANGES = {
 }
 
 
-# a frame sent later than this after the plant's time: catch up first. A reading is the plant at
-# its last step, stamped when it goes out. At 1 ms, GIL waits between the frames of one tick left
-# a live identification's readings ~0.4 ms older than their stamps (the truth fitted best with
-# them moved 0.4 ms earlier), and its fit, for which 0.5 ms costs as much as the whole gap
-# between the truth and the optimum, put the critical ratios 19-35 % off
+# a status frame sent later than this after the plant's time: catch up first (it reports the
+# regulator as the plant has it when it goes out)
 SEND_LAG_S = 0.0002
 # a device keeps real time through a stall of its host thread up to this long (beyond it, a
 # suspended process say, the plant resumes from where it stopped) ...
@@ -146,6 +149,15 @@ MAX_PLANT_STEP_S = 0.005
 # ... except when catching up more than this: one step per span, as the accuracy of a stall's
 # catch-up matters little and its cost (25 plant steps per span, under the lock) delays the frames
 CATCH_UP_S = 0.02
+# a sensor samples on its own period in the plant's time, however the thread that simulates it is
+# held up, and its frame carries the sampling instant, as a device with its own processor does:
+# read when its tick came and stamped when it went out, a reading held up between the two by this
+# host (a GIL wait, a stalled virtual CPU: up to 35 ms in a fault-free grasp on a 2-core host with
+# 14-24 % steal) was older than its stamp by that, and the response check and the estimator took
+# a chamber closed 36 ms earlier for one still moving (a false RESPONSE fault, NIS 4-10). Samples
+# due more than this long before the plant's time are not taken (a stall longer than that looks
+# like the silence it is; the controller has dropped readings that old anyway)
+BACKFILL_S = 0.1
 
 
 class SimulatedDevice:
@@ -318,14 +330,7 @@ class SimulatedDevice:
                 self._next_replay = now + 1.0 / rate_hz if rate_hz > 0.0 else math.inf
                 self.replay_burst()
             with self._lock:
-                rate_override_hz = self._faults["sensor_rate_hz"]
                 heartbeat_off = self._faults["heartbeat_off"]
-            for sensor in self.config.sensors:
-                if sim_time >= self._next_sensor[sensor.name]:
-                    self._next_sensor[sensor.name] = max(
-                        self._next_sensor[sensor.name] + 1.0 / (rate_override_hz or
-                                                                sensor.rate_hz), sim_time)
-                    self._send_sensor(sensor)
             if sim_time >= self._next_status:
                 self._next_status += 1.0 / self.config.regulator_status_hz
                 self._send_status()
@@ -339,7 +344,7 @@ class SimulatedDevice:
                     self._next_heartbeat = sim_time + period
                 if not heartbeat_off:
                     self._send("DeviceHeartbeat",
-                               {"DeviceState": 1, "Uptime": min(sim_time, 167772.15)})
+                               {"DeviceState": 1, "Uptime": min(sim_time, 167772.15)}, now)
         except can.CanError as error:  # a closed or failing bus: keep simulating, report it
             LOG.warning("sim device: CAN send failed: %s", error)
 
@@ -353,10 +358,38 @@ class SimulatedDevice:
         """The plant from the last tick's time to ``when``, in spans of at most MAX_PLANT_STEP_S,
         each sub-stepped (one step each when catching up more than CATCH_UP_S)."""
         integrate = self.plant.step if when - self._last_tick > CATCH_UP_S else self.plant.advance
+        self._skip_samples_before(when - BACKFILL_S)
         while when > self._last_tick:
-            step_end = min(when, self._last_tick + MAX_PLANT_STEP_S)
-            self._advance(step_end - self._last_tick, step_end, integrate)
-            self._last_tick = step_end
+            sample_at = min(self._next_sample_times())
+            step_end = min(when, self._last_tick + MAX_PLANT_STEP_S, max(sample_at,
+                                                                        self._last_tick))
+            if step_end > self._last_tick:
+                self._advance(step_end - self._last_tick, step_end, integrate)
+                self._last_tick = step_end
+            self._sample_due(step_end)
+
+    def _period_s(self, sensor: SensorSpec) -> float:
+        with self._lock:
+            override_hz = self._faults["sensor_rate_hz"]
+        return 1.0 / (override_hz or sensor.rate_hz)
+
+    def _next_sample_times(self) -> list:
+        return [self._started_at + self._next_sensor[s.name] for s in self.config.sensors]
+
+    def _skip_samples_before(self, when: float) -> None:
+        """Samples due before ``when`` are not taken (a stall beyond BACKFILL_S)."""
+        for sensor in self.config.sensors:
+            missed = when - (self._started_at + self._next_sensor[sensor.name])
+            if missed > 0.0:
+                period = self._period_s(sensor)
+                self._next_sensor[sensor.name] += math.ceil(missed / period) * period
+
+    def _sample_due(self, now: float) -> None:
+        """Every sensor due at or before ``now`` (the plant's time) read and sent."""
+        for sensor in self.config.sensors:
+            if self._started_at + self._next_sensor[sensor.name] <= now + 1e-9:
+                self._next_sensor[sensor.name] += self._period_s(sensor)
+                self._send_sensor(sensor, now)
 
     def _advance(self, dt: float, now: float, integrate) -> None:
         with self._lock:
@@ -390,16 +423,13 @@ class SimulatedDevice:
 
     def _catch_up(self) -> None:
         """The plant brought to the present (frames that arrived meanwhile taken at their
-        arrival), when this thread was held up since its tick: python-can stamps a frame when it
-        is sent, so a reading of the tick's time sent late would carry a late stamp, and the next
-        tick's readings, a whole wait apart, would look one period apart (a false jump for the
-        safety checks, a large NIS for the estimator; a real device samples as it sends)."""
+        arrival, the samples due meanwhile taken), when this thread was held up since its tick."""
         now = self.clock()
         if now - self._last_tick > SEND_LAG_S:
             self._bring_to(now)
 
-    def _send_sensor(self, sensor: SensorSpec) -> None:
-        self._catch_up()
+    def _send_sensor(self, sensor: SensorSpec, sampled_at: float) -> None:
+        """The reading of the plant at ``sampled_at`` (its time now), its frame stamped then."""
         with self._lock:
             faults = self._faults
             if faults["sensor_dropout"] in (sensor.name, "all"):
@@ -420,7 +450,8 @@ class SimulatedDevice:
             low, high = self.codec.signal_range(sensor.message, "GaugePressure")
             reading = min(max(reading, low), high)
             self._stuck_values[sensor.name] = reading
-        frame = self._send(sensor.message, {"GaugePressure": reading, "SensorStatus": 0})
+        frame = self._send(sensor.message, {"GaugePressure": reading, "SensorStatus": 0},
+                           sampled_at)
         if frame is not None:
             with self._lock:
                 self._sent_history[sensor.message].append(frame)
@@ -450,29 +481,35 @@ class SimulatedDevice:
             actual = self._state.regulator_gauge_pa
         low, high = self.codec.signal_range("RegulatorStatus", "ActualGaugePressure")
         self._send("RegulatorStatus",
-                   {"ActualGaugePressure": min(max(actual, low), high), "FaultBits": 0})
+                   {"ActualGaugePressure": min(max(actual, low), high), "FaultBits": 0},
+                   self._last_tick)
 
-    def _send(self, message: str, signals: dict) -> can.Message | None:
-        """Encode and send; the frame as encoded (before any corruption), None when the bus is
-        silent."""
+    def _wall_time(self, when: float) -> float:
+        """``when`` on this device's clock as a python-can timestamp (wall-clock seconds)."""
+        return time.time() - (self.clock() - when)
+
+    def _send(self, message: str, signals: dict, when: float) -> can.Message | None:
+        """Encode and send, stamped with ``when`` (this clock: the instant the frame describes);
+        the frame as encoded (before any corruption), None when the bus is silent."""
         with self._lock:
             silent, corrupt_rate = self._faults["bus_silent"], self._faults["corrupt_rate"]
             crc_corrupt, counter_stuck = self._faults["crc_corrupt"], self._faults["counter_stuck"]
         if silent:
             return None
         frame = sent = self.codec.encode(message, signals, counter=0 if counter_stuck else None)
+        frame.timestamp = self._wall_time(when)
         if crc_corrupt > 0.0 and self._corrupt_rng.random() < crc_corrupt:
             data = bytearray(frame.data)
             data[CRC_BYTE] ^= 0xFF
             sent = can.Message(arbitration_id=frame.arbitration_id, data=bytes(data),
-                               is_extended_id=False)
+                               is_extended_id=False, timestamp=frame.timestamp)
         if corrupt_rate > 0.0 and self._corrupt_rng.random() < corrupt_rate:
             data = bytearray(frame.data)
             if self._corrupt_rng.random() < 0.5:
                 # bad CRC
                 data[self._corrupt_rng.randrange(7)] ^= 1 << self._corrupt_rng.randrange(8)
                 sent = can.Message(arbitration_id=frame.arbitration_id, data=bytes(data),
-                                   is_extended_id=False)
+                                   is_extended_id=False, timestamp=frame.timestamp)
             else:
                 # repeated counter
                 self.bus.send(frame)
@@ -486,5 +523,5 @@ class SimulatedDevice:
         if not silent:
             self.bus.send(
                 can.Message(arbitration_id=frame.arbitration_id, data=frame.data,
-                            is_extended_id=False))
+                            is_extended_id=False, timestamp=time.time()))
             self.frames_sent += 1

@@ -52,10 +52,15 @@ def _alive(pid: int) -> bool:
 
 
 class SoftgripIpcBus(can.BusABC):
-    """A bus on ``channel`` shared by every process of this user on this machine."""
+    """A bus on ``channel`` shared by every process of this user on this machine.
+    ``preserve_timestamps``: a frame sent with a timestamp reaches the receivers with it, as on
+    python-can's virtual bus (a simulated device's sampling instants); otherwise, and for a frame
+    without one, the stamp is the time it went out."""
 
-    def __init__(self, channel: str = "softgrip", receive_own_messages: bool = False, **kwargs):
+    def __init__(self, channel: str = "softgrip", receive_own_messages: bool = False,
+                 preserve_timestamps: bool = False, **kwargs):
         self._directory = channel_directory(str(channel))
+        self._preserve_timestamps = preserve_timestamps
         self._directory.mkdir(parents=True, exist_ok=True)
         self._socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._socket.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
@@ -110,7 +115,8 @@ class SoftgripIpcBus(can.BusABC):
                 # GIL (up to a switch interval, 5 ms), and a receiver acts on the stamp (the
                 # simulated device switches a valve at it: a stamp taken before such a wait let a
                 # live identification see valve pulses ~1 ms longer than the device made them)
-                stamp = time.time()
+                stamp = msg.timestamp if self._preserve_timestamps and msg.timestamp \
+                    else time.time()
                 if not msg.timestamp:
                     # the sender's copy says when it went out (to the first peer), as a frame's
                     # stamp says when it was received: the sender dates what it sent by it
@@ -124,7 +130,9 @@ class SoftgripIpcBus(can.BusABC):
                 except OSError as error:
                     raise can.CanOperationError(f"softgrip_ipc send failed: {error}") from error
             if self._receive_own:
-                self._own.append(FRAME.pack(time.time(), *fields))
+                self._own.append(FRAME.pack(
+                    msg.timestamp if self._preserve_timestamps and msg.timestamp else time.time(),
+                    *fields))
             # after the frame, not between its stamp and its sending (the directory's system
             # calls); a peer that joins gets frames from the next send after the refresh
             self._refresh_peers()

@@ -71,8 +71,9 @@ class SimDeviceNode(Node):
         self.specs = {s.name: s for s in SPECS}
         values = declare(self, SPECS)
         self._own_bus = bus is None
+        # its frames reach the controller stamped when their readings were taken
         self.bus = bus or open_bus(values["can.interface"], values["can.channel"],
-                                   values["can.bitrate"])
+                                   values["can.bitrate"], preserve_timestamps=True)
         truth = load_plant(values)
         sensors = tuple(dataclasses.replace(s, noise_std_pa=truth.sensor(s.name).noise_std_pa,
                                             bias_pa=truth.sensor(s.name).bias_pa)
