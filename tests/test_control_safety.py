@@ -346,27 +346,46 @@ def test_control_steps_spaced_by_a_loaded_host_raise_no_regulator_fault(step_per
     assert output.fault_flags & (Fault.REGULATOR | Fault.OVERPRESSURE) and when - 2.1 < 0.2
 
 
-@pytest.mark.parametrize("target_pa", [25e3, -50e3])
+@pytest.mark.parametrize("target_pa", [25e3, -50e3, -30e3])
 def test_readings_that_reach_a_starved_controller_late_raise_no_response_fault(target_pa):
     """bench_faults on a 2-core host with 14-24 % steal, fault-free grasps: 'the chamber does not
     respond to the CLOSED valve as the plant predicts: +3.2 kPa in 37 ms'. The readings reached
     the controller 30-70 ms after their stamps, and the check carried each sensor's low-passed
     value to its own time at the low-passed rate, still high while the low-pass settled after the
-    close. It now judges up to the newest instant every sensor has reported. A valve stuck in a
-    boost is still named through the same delay."""
+    close. It now judges up to the newest instant every sensor has reported (here the readings
+    arrive 20 ms late). A valve stuck in a boost is still named through the same delay."""
     loop = FaultyLoop()
-    loop.reading_delay_ms = 30
+    loop.reading_delay_ms = 20
     loop.command(target_pa)
     loop.run_for(1.0)
     loop.command(19e3)
     loop.run_for(0.8)
     assert loop.first_fault() is None, loop.first_fault()[1].message
     stuck = FaultyLoop()
-    stuck.reading_delay_ms = 30
+    stuck.reading_delay_ms = 20
     stuck.command(25e3)
-    stuck.run_for(0.06)  # the boost under way (its readings 30 ms behind)
+    stuck.run_for(0.06)  # the boost under way (its readings 20 ms behind)
     stuck.valve_stuck = True  # stuck in the boost's SUPPLY
     stuck.run_for(0.5)
     _, output = stuck.first_fault()
     assert Fault.RESPONSE in output.fault_flags and "CLOSED valve" in output.message
     assert within_limits(stuck)
+
+
+def test_the_limit_trip_looks_ahead_from_when_the_readings_were_true():
+    """The quick fault matrix on a starved host, regulator_overshoot: the true chamber reached
+    58.9 kPa, past the 55 kPa limit, while the trip extrapolated readings that had reached the
+    controller ~20 ms late over its 10 ms reaction time from the check's time. It now extrapolates
+    over the time the newest reading is older than its sensor's usual period as well. A ramp at
+    450 kPa/s read up to 46 kPa: fresh, no trip (46 + 4.5 < 55); 18 ms later with nothing newer,
+    a trip (the chamber is at ~54 kPa by then)."""
+    monitor = PressureController().monitor
+    for tick in range(101):
+        stamp = 0.1 + tick * 1e-3
+        if tick % 2 == 0:
+            monitor.add_reading("chamber_a", 450e3 * (stamp - 0.1) + 1e3, stamp)
+        if tick % 5 == 0:
+            monitor.add_reading("chamber_b", 450e3 * (stamp - 0.1) + 1e3, stamp)
+    assert monitor.trip(0.201, timeout_s=0.05) is None
+    finding = monitor.trip(0.218, timeout_s=0.05)
+    assert finding is not None and finding.flag == Fault.OVERPRESSURE
