@@ -213,7 +213,7 @@ class _Sensor:
                 self.second_differences.append(abs(value - 2.0 * self.value + self.previous))
             step = value - self.value
             self.periods.append(dt)
-            span = max(dt, self.usual_period_s()) + STAMP_JITTER_S
+            span = max(dt, sorted(self.periods)[len(self.periods) // 2]) + STAMP_JITTER_S
             if (abs(step) > max_rate(self.value, step > 0.0) * span +
                     jump_sigmas * math.sqrt(2.0) * self.rated_noise_pa):
                 self.last_jump = (stamp, step)
@@ -229,10 +229,6 @@ class _Sensor:
         # a median costs ~10 us
         if len(self.second_differences) == NOISE_SAMPLES and self.samples % 16 == 0:
             self.noise_pa = statistics.median(self.second_differences) * _MAD_TO_SIGMA
-
-    def usual_period_s(self) -> float:
-        """The median of the recent sample intervals (0 before two samples)."""
-        return sorted(self.periods)[len(self.periods) // 2] if self.periods else 0.0
 
     def lowpass_at(self, when: float) -> float:
         """The low-passed value at ``when`` (linear between the samples kept; NaN outside them)."""
@@ -439,14 +435,8 @@ class SafetyMonitor:
         falling = min([0.0] + [s.rate for s in fresh] +
                       [self.plant.chamber_rate(P_ATM_PA + low, valve, regulator, enabled)])
         upper, lower = c.max_gauge_pa + c.margin_pa, c.min_gauge_pa - c.margin_pa
-        # and over the time the newest reading is older than its sensor's usual period: readings
-        # reaching a starved process 20 ms late let the chamber rise 9 kPa more than the trip
-        # foresaw (the quick fault matrix, regulator_overshoot: 58.9 kPa true, past the 55 kPa
-        # limit)
-        stale_s = min((now - s.stamp - s.usual_period_s() for s in fresh), default=0.0)
-        horizon_s = c.reaction_time_s + max(0.0, stale_s)
-        ahead_high = high + rising * horizon_s
-        ahead_low = low + falling * horizon_s
+        ahead_high = high + rising * c.reaction_time_s
+        ahead_low = low + falling * c.reaction_time_s
         if ahead_high > upper or high > upper:
             return Finding(
                 Fault.OVERPRESSURE,
