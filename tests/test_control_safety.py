@@ -371,3 +371,26 @@ def test_readings_that_reach_a_starved_controller_late_raise_no_response_fault(t
     assert Fault.RESPONSE in output.fault_flags and "CLOSED valve" in output.message
     assert within_limits(stuck)
 
+
+
+@pytest.mark.parametrize("sent_late_s", [0.0, 0.022])
+def test_the_response_check_settles_from_when_the_close_went_out(sent_late_s):
+    """A close decided at 0.2 s that went out (and acted) only 22 ms later, after a fill at
+    450 kPa/s: the chamber rises 10 kPa after the step that closed it. Counted from the step, the
+    response check judged that rise 'with the valves closed' (traced in the quick fault matrix); it
+    counts from when the ValveCommand went out."""
+    monitor = PressureController().monitor
+    closed_at = 0.2 + sent_late_s
+    findings = []
+    for tick in range(1, 501):
+        now = tick * 1e-3
+        gauge = 450e3 * min(now, closed_at)
+        if tick % 2 == 0:
+            monitor.add_reading("chamber_a", gauge, now)
+            monitor.record_output(now, Valve.SUPPLY if now < 0.2 else Valve.CLOSED, 40e3, True)
+            if abs(now - closed_at) < 1e-9 and sent_late_s:
+                monitor.valves_sent(now)
+            findings += [f for f in monitor.check(now, 0.05) if f.flag == Fault.RESPONSE]
+        if tick % 5 == 0:
+            monitor.add_reading("chamber_b", gauge, now)
+    assert not findings, findings[0].message

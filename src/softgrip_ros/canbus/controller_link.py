@@ -310,6 +310,9 @@ class ControllerLink:
                 sent = self._send(message, signals)
                 if changed:
                     self.output_changed_time = sent
+                    if message == "ValveCommand":
+                        with self._lock:
+                            self.controller.valves_sent(self.clock())
 
     def _valve_signals(self, valves) -> dict:
         signals = {f"Channel{i}": int(v) for i, v in enumerate(valves)}

@@ -315,6 +315,10 @@ class PressureController:
                                        (self._last_step or 0.0))
         self._regulator_faults = int(fault_bits)
 
+    def valves_sent(self, now: float) -> None:
+        """The valve state of the last step went out at ``now`` (see SafetyMonitor.valves_sent)."""
+        self.monitor.valves_sent(now)
+
     def update_consistency(self, name: str, mean_nis: float, bound: float, now: float) -> None:
         """The estimator's windowed NIS of a sensor and its upper bound (see SafetyMonitor)."""
         self.monitor.update_consistency(name, mean_nis, bound, now)

@@ -382,6 +382,15 @@ class SafetyMonitor:
         if valve != self._valve_since[0]:
             self._valve_since = (valve, now)
 
+    def valves_sent(self, when: float) -> None:
+        """The valve state recorded last went out at ``when``, after the step that decided it: the
+        response check's settle counts from then. A thread held up between the two (21.7 ms,
+        traced on a loaded host) let the check judge a chamber still filling through a valve not
+        yet closed (a false RESPONSE fault, +4.9 kPa "with the valves closed")."""
+        valve, since = self._valve_since
+        if valve is not None and when > since:
+            self._valve_since = (valve, when)
+
     # ---- what the checks see --------------------------------------------------------------------
     def fresh(self, now: float, timeout_s: float) -> list:
         return [s for s in self.sensors.values() if now - s.stamp <= timeout_s]
