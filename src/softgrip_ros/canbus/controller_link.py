@@ -311,6 +311,8 @@ class ControllerLink:
                 if changed:
                     self.output_changed_time = sent
                     if message == "ValveCommand":
+                        # once the send has returned, not ``sent``: a safety check's settle may
+                        # start late, never before the device can have acted
                         with self._lock:
                             self.controller.valves_sent(self.clock())
 

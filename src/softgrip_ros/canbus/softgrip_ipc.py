@@ -100,6 +100,10 @@ class SoftgripIpcBus(can.BusABC):
                 self._unlink(entry.path)  # a process that died without cleaning up
         self._peers = peers
 
+    def _stamp(self, msg: can.Message) -> float:
+        """The stamp a receiver gets: the sender's, where this bus preserves it, else now."""
+        return msg.timestamp if self._preserve_timestamps and msg.timestamp else time.time()
+
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         data = bytes(msg.data)
         if len(data) > 8:
@@ -115,8 +119,7 @@ class SoftgripIpcBus(can.BusABC):
                 # GIL (up to a switch interval, 5 ms), and a receiver acts on the stamp (the
                 # simulated device switches a valve at it: a stamp taken before such a wait let a
                 # live identification see valve pulses ~1 ms longer than the device made them)
-                stamp = msg.timestamp if self._preserve_timestamps and msg.timestamp \
-                    else time.time()
+                stamp = self._stamp(msg)
                 if not msg.timestamp:
                     # the sender's copy says when it went out (to the first peer), as a frame's
                     # stamp says when it was received: the sender dates what it sent by it
@@ -130,9 +133,7 @@ class SoftgripIpcBus(can.BusABC):
                 except OSError as error:
                     raise can.CanOperationError(f"softgrip_ipc send failed: {error}") from error
             if self._receive_own:
-                self._own.append(FRAME.pack(
-                    msg.timestamp if self._preserve_timestamps and msg.timestamp else time.time(),
-                    *fields))
+                self._own.append(FRAME.pack(self._stamp(msg), *fields))
             # after the frame, not between its stamp and its sending (the directory's system
             # calls); a peer that joins gets frames from the next send after the refresh
             self._refresh_peers()
