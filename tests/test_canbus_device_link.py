@@ -498,3 +498,36 @@ def test_each_frame_of_a_batch_is_dated_with_its_own_age():
         assert max(stamps) - min(stamps) < 2e-3, stamps  # one instant (15 ms apart before)
     finally:
         bus.shutdown()
+
+
+def test_a_regulator_command_held_up_after_its_step_is_dated_when_it_went_out():
+    """A step that starts a boost, its thread held up 30 ms before the frames went out (a loaded
+    host): the controller hears when the RegulatorSetpoint went out, from which its regulator
+    model runs (see test_the_regulator_model_follows_a_command_from_when_it_went_out)."""
+    bus = can.Bus(interface="virtual", channel=f"x-{uuid.uuid4().hex[:6]}")
+    try:
+        controller = PressureController()
+        controller.active = True
+        link = ControllerLink(bus, controller, SENSORS, codec=FrameCodec(sync_frames=0))
+        now = time.monotonic()
+        controller.update_sensor("chamber_a", 0.0, now)
+        controller.command(25e3, Source.SUPPLY, math.nan, now)
+        steps, sent = [], []
+        step = controller.step
+
+        def held_up(when):
+            steps.append(when)
+            output = step(when)
+            time.sleep(0.03)
+            return output
+
+        controller.step = held_up
+        controller.regulator_sent = sent.append
+        output = link.step()
+        assert output.mode == PressureMode.REGULATE and output.regulator_setpoint_gauge_pa > 25e3
+        assert len(sent) == 1 and sent[0] - steps[0] >= 0.03
+        link.step()  # the same command again: nothing to re-date
+        assert len(sent) == 1
+    finally:
+        link.close()
+        bus.shutdown()

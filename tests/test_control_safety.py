@@ -12,7 +12,7 @@ import pytest
 from softgrip_ros.control.pressure import (Fault, PressureMode, PressureControlConfig,
                                            PressureController, Source, boost_ceiling_pa)
 from softgrip_ros.control.safety import SAFETY_FAULTS, SafetyConfig
-from softgrip_ros.model.pneumatics import PneumaticPlant, Valve
+from softgrip_ros.model.pneumatics import PlantInputs, PneumaticPlant, Valve
 from softgrip_ros.devtools.identification_sim import SLOW_LARGE, scaled
 from tests.helpers.closed_loop import FaultyLoop
 
@@ -371,6 +371,32 @@ def test_readings_that_reach_a_starved_controller_late_raise_no_response_fault(t
     assert Fault.RESPONSE in output.fault_flags and "CLOSED valve" in output.message
     assert within_limits(stuck)
 
+
+
+@pytest.mark.parametrize("sent_late_s", [0.0, 0.15])
+def test_the_regulator_model_follows_a_command_from_when_it_went_out(sent_late_s):
+    """A boost's end (90 -> 25 kPa) decided at 0.3 s whose step was held up ``sent_late_s`` before
+    its frames went out: the regulator fell only from then, while a model that fell from the step
+    put it tens of kPa below the reports (CI, fault-free grasps: 'the regulator reports 60.2 kPa
+    where its model gives 30.3 kPa'). The link tells the controller when the command went out."""
+    monitor = PressureController().monitor
+    plant, sent_at = monitor.plant, 0.3 + sent_late_s
+    actual, findings = 0.0, []
+    monitor.add_regulator(actual, 0.0)
+    for tick in range(1, 901):
+        now = tick * 1e-3
+        told = 90e3 if now <= sent_at else 25e3  # what the device has
+        actual = plant.regulator_step(actual, PlantInputs(told, True, (Valve.SUPPLY,)), 1e-3)[0]
+        if tick % 10 == 0:
+            monitor.add_regulator(actual, now)
+        stalled = 0.3 < now < sent_at
+        if sent_late_s and abs(now - sent_at) < 1e-9:
+            monitor.regulator_sent(now)  # the held-up step's frames go out
+        if tick % 2 == 0 and not stalled:
+            monitor.record_output(now, Valve.SUPPLY, 90e3 if now < 0.3 else 25e3, True)
+            findings += [f for f in monitor.check(now, 0.05) if f.flag == Fault.REGULATOR]
+    assert abs(actual - 25e3) < 1e3
+    assert not findings, findings[0].message
 
 
 @pytest.mark.parametrize("sent_late_s", [0.0, 0.022])

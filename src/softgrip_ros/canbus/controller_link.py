@@ -248,8 +248,10 @@ class ControllerLink:
         """One control period: the controller's step and its frames. Steps from two threads (the
         loop's, and a command's) run one at a time, so that frames leave in the order computed."""
         with self._step_lock:
-            now = self.clock()
             with self._lock:
+                # read once the lock is held: a step that waited for it behind a batch of
+                # readings would otherwise be dated before them, and its outputs too
+                now = self.clock()
                 output = self.controller.step(now)
             resting = not acting(output)
             if self.resting and not resting:
@@ -310,11 +312,14 @@ class ControllerLink:
                 sent = self._send(message, signals)
                 if changed:
                     self.output_changed_time = sent
-                    if message == "ValveCommand":
-                        # once the send has returned, not ``sent``: a safety check's settle may
-                        # start late, never before the device can have acted
-                        with self._lock:
+                    with self._lock:
+                        if message == "ValveCommand":
+                            # once the send has returned, not ``sent``: a safety check's settle
+                            # may start late, never before the device can have acted
                             self.controller.valves_sent(self.clock())
+                        else:
+                            # when the device takes it: the regulator's model must not run ahead
+                            self.controller.regulator_sent(sent)
 
     def _valve_signals(self, valves) -> dict:
         signals = {f"Channel{i}": int(v) for i, v in enumerate(valves)}

@@ -319,6 +319,11 @@ class PressureController:
         """The valve state of the last step went out at ``now`` (see SafetyMonitor.valves_sent)."""
         self.monitor.valves_sent(now)
 
+    def regulator_sent(self, now: float) -> None:
+        """The regulator command of the last step went out at ``now`` (see
+        SafetyMonitor.regulator_sent)."""
+        self.monitor.regulator_sent(now)
+
     def update_consistency(self, name: str, mean_nis: float, bound: float, now: float) -> None:
         """The estimator's windowed NIS of a sensor and its upper bound (see SafetyMonitor)."""
         self.monitor.update_consistency(name, mean_nis, bound, now)

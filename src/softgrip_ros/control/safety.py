@@ -391,6 +391,24 @@ class SafetyMonitor:
         if valve is not None and when > since:
             self._valve_since = (valve, when)
 
+    def regulator_sent(self, when: float) -> None:
+        """The regulator command recorded last went out at ``when``, after the step that decided
+        it: until then the regulator followed the command before, and so does its model. A step
+        that ended a boost, held up before its send on a loaded host, had the model falling
+        towards the target while the regulator still stood at the boost's level (CI: 'reports
+        60.2 kPa where its model gives 30.3 kPa', a false REGULATOR fault before a fault's
+        injection)."""
+        history = self._model_history
+        # the last entry is that step's (it is not when the model had no value yet)
+        if len(history) < 2 or history[-1][0] != self._last_step or when <= self._last_step:
+            return
+        (before, value, inputs_before), (_, _, inputs) = history[-2], history[-1]
+        if inputs == inputs_before:
+            return
+        value = self.plant.regulator_step(value, inputs_before, when - before)[0]
+        history[-1] = (when, value, inputs)
+        self._model_regulator, self._last_step = value, when
+
     # ---- what the checks see --------------------------------------------------------------------
     def fresh(self, now: float, timeout_s: float) -> list:
         return [s for s in self.sensors.values() if now - s.stamp <= timeout_s]
