@@ -143,6 +143,31 @@ def test_a_batch_of_readings_gives_one_estimate_at_its_newest_and_an_unknown_sen
         estimator.destroy_node()
 
 
+def test_a_status_switches_the_process_model_from_when_its_outputs_went_out(rclpy_context):
+    """A status published 40 ms after the ValveCommand it reports went out (its thread held up on
+    a loaded host): the process model's inputs change at the send, stamp less
+    output_change_age_s, as softgrip_identify dates them, not at the status's stamp. Unknown
+    (infinite: nothing sent yet), the stamp is taken."""
+    from softgrip_interfaces.msg import ControllerStatus
+    from softgrip_ros.nodes.common import stamp_msg
+    from softgrip_ros.nodes.estimator import EstimatorNode
+    estimator = EstimatorNode(in_process=True, context=rclpy_context)
+    taken = []
+    inputs = estimator.runner.inputs
+    estimator.runner.inputs = lambda *args: (taken.append(args[-1]), inputs(*args))
+    try:
+        t0 = estimator._now()
+        for stamp, valve, age in ((t0, 0, math.inf), (t0 + 0.1, 1, 0.04)):
+            estimator.on_status(ControllerStatus(
+                header=_header(stamp_msg(stamp), ""), valve_states=[valve],
+                regulator_command_gauge_pressure_pa=30e3, regulator_enabled=True,
+                output_change_age_s=age))
+        assert taken == [pytest.approx(t0, abs=1e-6), pytest.approx(t0 + 0.06, abs=1e-6)]
+    finally:
+        estimator.close()
+        estimator.destroy_node()
+
+
 def test_silent_sensors_give_predictions_with_growing_variance_and_a_warning(wired):
     from diagnostic_msgs.msg import DiagnosticStatus
     feeder, publishers, status_pub, estimates, diagnostics = wired

@@ -3,11 +3,22 @@ it (the estimator's is :meth:`PressureEstimator.report`). The nodes publish thes
 from __future__ import annotations
 
 import dataclasses
+import math
 
 from softgrip_ros.control.grasp_fsm import GraspState, Phase
 from softgrip_ros.control.pressure import (ERROR_FAULTS, ControlOutput, Fault, PressureMode,
                                            fault_names)
 from softgrip_ros.health import Health, Report
+
+
+def outputs_changed_at(stamp_s: float, output_change_age_s: float) -> float:
+    """When a ControllerStatus's outputs (its regulator command and valves) went out: its stamp
+    less its ``output_change_age_s`` (the stamp itself when that is unknown). A status is
+    published after the step and its sends, later still when its thread waits on a loaded host:
+    a process model switched at the stamp runs on the old inputs meanwhile."""
+    if math.isfinite(output_change_age_s) and output_change_age_s >= 0.0:
+        return stamp_s - output_change_age_s
+    return stamp_s
 
 
 def severity(output: ControlOutput) -> Health:

@@ -25,6 +25,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile
 from sensor_msgs.msg import FluidPressure
 
 from softgrip_interfaces.msg import ControllerStatus, EstimatorInput, PressureCommand
+from softgrip_ros.control.reports import outputs_changed_at
 from softgrip_ros.estimation.estimator import PressureEstimator
 from softgrip_ros.estimation.runner import (JOURNAL_HISTORY, JOURNAL_STARTUP_S, JOURNAL_TOPIC,
                                              PREDICTION_RATE_LIMIT_HZ, EstimatorRunner,
@@ -139,9 +140,11 @@ class EstimatorNode(Node):
         self.status_received_s = self._now()
         try:
             with self._lock:
+                # from when the frames went out, not when the status was published
                 self.runner.inputs(msg.regulator_command_gauge_pressure_pa,
                                    msg.regulator_enabled, msg.valve_states[0],
-                                   stamp_seconds(msg.header.stamp))
+                                   outputs_changed_at(stamp_seconds(msg.header.stamp),
+                                                      msg.output_change_age_s))
         # a NaN command or an unknown valve value: keep the last inputs
         except ValueError as error:
             self.get_logger().warn(f"controller/status ignored: {error}",

@@ -35,6 +35,7 @@ import time
 
 import yaml
 
+from softgrip_ros.control.reports import outputs_changed_at
 from softgrip_ros.estimation import identification
 from softgrip_ros.model import plant_file
 from softgrip_ros.model.pneumatics import P_ATM_PA, Valve
@@ -334,8 +335,7 @@ def recording_from_log(path: pathlib.Path) -> tuple[identification.Recording, di
             key = (valve, msg.regulator_command_gauge_pressure_pa, bool(msg.regulator_enabled))
             if key != last:
                 # when its frames went out, not when the status that says so was published
-                changed = stamp - msg.output_change_age_s if math.isfinite(
-                    msg.output_change_age_s) else stamp
+                changed = outputs_changed_at(stamp, msg.output_change_age_s)
                 inputs.append(identification.InputChange(changed, *key))
                 last = key
     if info is None:

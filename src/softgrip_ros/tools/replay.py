@@ -49,6 +49,7 @@ def parser() -> argparse.ArgumentParser:
 
 def load(path: pathlib.Path) -> dict:
     """What a replay needs from the bag; ValueError when it cannot be read."""
+    from softgrip_ros.control.reports import outputs_changed_at
     from softgrip_ros.estimation.runner import JOURNAL_TOPIC, Event
     from softgrip_ros.model.pneumatics import P_ATM_PA
     from softgrip_ros.nodes.common import stamp_seconds
@@ -69,7 +70,9 @@ def load(path: pathlib.Path) -> dict:
             found["sensors"].append((stamp_seconds(message.header.stamp), topic.rsplit("/", 1)[1],
                                      float(message.fluid_pressure) - P_ATM_PA))
         elif topic.endswith("controller/status") and len(message.valve_states):
-            found["status"].append((stamp_seconds(message.header.stamp),
+            # as the estimator takes it: from when its outputs went out
+            found["status"].append((outputs_changed_at(stamp_seconds(message.header.stamp),
+                                                       float(message.output_change_age_s)),
                                     float(message.regulator_command_gauge_pressure_pa),
                                     bool(message.regulator_enabled),
                                     int(message.valve_states[0])))
