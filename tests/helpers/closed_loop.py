@@ -18,8 +18,9 @@ class FaultyLoop:
     ``bias_rate_pa_per_s`` (a drift), ``stuck`` {sensor: None (at its reading) or a value},
     ``noise_scale``, ``valve_stuck`` (the valves keep their state), ``valve_stuck_open`` (SUPPLY),
     ``overshoot_pa``. ``step_period_ms`` (2) spaces the controller's steps, and
-    ``reading_delay_ms`` (0) delays each reading's arrival, stamped when it was sampled: a loaded
-    host."""
+    ``reading_delay_ms`` (0) delays each reading's arrival, stamped when it was sampled, and
+    ``reading_burst_ms`` (0) holds them until the next multiple of it (a reception thread that
+    runs in bursts): a loaded host."""
 
     SENSORS = {"chamber_a": (300.0, 2), "chamber_b": (150.0, 5)}  # noise Pa, period in ms
 
@@ -39,7 +40,7 @@ class FaultyLoop:
         self.stuck, self._frozen = {}, {}
         self.valve_stuck = self.valve_stuck_open = False
         self.step_period_ms = 2
-        self.reading_delay_ms = 0
+        self.reading_delay_ms = self.reading_burst_ms = 0
         self._in_flight = []  # (arrival tick, name, reading, stamp)
         self.true, self.outputs = [], []
 
@@ -71,8 +72,10 @@ class FaultyLoop:
             self.bias_pa += self.bias_rate_pa_per_s * 1e-3
             for name, (_, period_ms) in self.SENSORS.items():
                 if self.tick % period_ms == 0:
-                    self._in_flight.append((self.tick + self.reading_delay_ms, name,
-                                            self.reading(name), self.now))
+                    arrival, burst = self.tick + self.reading_delay_ms, self.reading_burst_ms
+                    if burst:
+                        arrival = -(-arrival // burst) * burst
+                    self._in_flight.append((arrival, name, self.reading(name), self.now))
             arrived = [r for r in self._in_flight if r[0] <= self.tick]
             self._in_flight = [r for r in self._in_flight if r[0] > self.tick]
             for _, name, value, stamp in arrived:

@@ -14,6 +14,8 @@ Control law (source SUPPLY or VACUUM, target r* in Pa gauge):
   chamber within the limit plus margin, found for the target, see :func:`boost_ceiling_pa`)
   with the valve open (the time-optimal rise is the valve fully open to supply);
   ``boost_lead_s`` before the chamber would reach r at its current rate the valve closes
+  (the feedback carried to the step's time at that rate: a reading is as old as its stamp, and
+  on a loaded host it reaches the controller tens of ms late)
   (**settle**) until the regulator's reported output has come down to the regulated value, so
   its lag cannot overshoot the chamber; meanwhile the valve opens for single periods while the
   model says one cannot pass r (:meth:`PressureController._top_up`);
@@ -349,10 +351,19 @@ class PressureController:
         return sum(fresh.values()) / len(fresh) if fresh else math.nan
 
     def feedback(self, now: float) -> float:
+        return self._feedback(now)[0]
+
+    def _feedback(self, now: float) -> tuple:
+        """(the feedback, when it was measured): the estimate while fresh (dated when it came),
+        else the mean of the fresh sensors at the mean of their stamps (NaN, NaN: none)."""
         value, stamp = self._estimate
-        if now - stamp <= self.config.sensor_timeout_s and self.fresh_sensors(now):
-            return value
-        return self.measured(now)
+        fresh = [(gauge, when) for gauge, when in self._sensors.values()
+                 if now - when <= self.config.sensor_timeout_s]
+        if now - stamp <= self.config.sensor_timeout_s and fresh:
+            return value, stamp
+        if not fresh:
+            return math.nan, math.nan
+        return (sum(g for g, _ in fresh) / len(fresh), sum(w for _, w in fresh) / len(fresh))
 
     def estimate_gauge_pa(self, now: float) -> float:
         """The latest estimate while fresh, else NaN."""
@@ -388,7 +399,7 @@ class PressureController:
         if self._regulator_faults:
             faults |= Fault.REGULATOR
         measured = self.measured(now)
-        feedback = self.feedback(now)
+        feedback, measured_at = self._feedback(now)
         if self._latched & SAFETY_FAULTS:
             return self._safe_state(now, faults, feedback)
         if math.isnan(measured):
@@ -433,9 +444,13 @@ class PressureController:
         step_limit = self._rate * dt if dt > 0 else math.inf
         self._setpoint += min(max(self._target - self._setpoint, -step_limit), step_limit)
         error = self._setpoint - feedback
-        rate = self._update_rate(feedback, dt)
-        valve = self._arbitrate(error, rate)
-        regulator, valve_override = self._regulation(error, feedback, dt, now)
+        rate = self._update_rate(feedback, measured_at)
+        # the error now, at the feedback's rate since it was measured: the crossing predictions
+        # and the settle's top-up judge this (the boost, by a feedback 20 ms old, overshot a
+        # 25 kPa step by 8.7 kPa; see test_control_pressure)
+        error_now = error - rate * max(now - measured_at, 0.0)
+        valve = self._arbitrate(error_now, rate)
+        regulator, valve_override = self._regulation(error, error_now, feedback, dt, now)
         # the pump needs no settled regulator
         if valve_override is not None and valve != Valve.VACUUM:
             valve = valve_override  # (Valve.CLOSED is 0: no "or")
@@ -477,8 +492,10 @@ class PressureController:
                 return ceiling
         return self._ceilings[-1][1]  # a NaN target: the lowest
 
-    def _regulation(self, error: float, feedback: float, dt: float, now: float) -> tuple:
-        """(regulator setpoint, valve override or None) for one REGULATE period."""
+    def _regulation(self, error: float, error_now: float, feedback: float, dt: float,
+                    now: float) -> tuple:
+        """(regulator setpoint, valve override or None) for one REGULATE period: ``error`` of the
+        feedback, ``error_now`` carried to ``now`` at the feedback's rate."""
         c = self.config
         rate = self._rate_estimate
         if (self._phase == "track" and self._setpoint > 0.0 and error > c.boost_band_pa and
@@ -486,8 +503,8 @@ class PressureController:
             self._phase = "boost"
             self._count_correction(now, "boosts")
         if self._phase == "boost":
-            time_to_setpoint = error / rate if rate > 0.0 else math.inf
-            if error > 0.0 and time_to_setpoint > c.boost_lead_s:
+            time_to_setpoint = error_now / rate if rate > 0.0 else math.inf
+            if error_now > 0.0 and time_to_setpoint > c.boost_lead_s:
                 # fill hard, but no harder than the headroom and the ceiling: a late or stuck
                 # valve then stays bounded
                 return min(c.regulator_max_gauge_pa, self._target + c.boost_headroom_pa,
@@ -500,7 +517,7 @@ class PressureController:
             if regulator_close or now - self._settle_started > c.settle_timeout_s:
                 self._phase = "track"
             else:
-                return command, self._top_up(error, feedback)
+                return command, self._top_up(error_now, feedback)
         return command, None
 
     def _top_up(self, error: float, feedback: float) -> Valve:
@@ -534,14 +551,19 @@ class PressureController:
                 "kPa "
                 f"(biased sensors, a leak or a regulator offset)")
 
-    def _update_rate(self, feedback: float, dt: float) -> float:
-        """dp/dt of the feedback, low-passed (time constant rate_filter_s): raw differences of
-        noisy readings would make the boost's crossing prediction jitter."""
-        previous, self._previous_feedback = self._previous_feedback, feedback
-        if dt > 0.0 and previous is not None:
-            raw = (feedback - previous) / dt
-            self._rate_estimate += dt / (self.config.rate_filter_s + dt) * (raw -
-                                                                            self._rate_estimate)
+    def _update_rate(self, feedback: float, measured_at: float) -> float:
+        """dp/dt of the feedback over the times it was measured, low-passed (time constant
+        rate_filter_s): raw differences of noisy readings would make the boost's crossing
+        prediction jitter. Over the steps' times instead, readings held up by a stall read as a
+        standstill (the rate decayed, and the boost went on blind) and then as a jump."""
+        previous = self._previous_feedback
+        if previous is None or measured_at > previous[1]:
+            self._previous_feedback = (feedback, measured_at)
+        if previous is not None and measured_at > previous[1]:
+            span = measured_at - previous[1]
+            raw = (feedback - previous[0]) / span
+            self._rate_estimate += span / (self.config.rate_filter_s + span) * (
+                raw - self._rate_estimate)
         return self._rate_estimate
 
     def _trimmed(self, error: float, dt: float, integrate: bool) -> float:
