@@ -551,6 +551,33 @@ def test_samples_just_after_an_input_change_stay_out_of_the_nis_window():
         stats.nis) == 16 and stats.accepted + stats.rejected == 41
 
 
+def test_samples_fused_before_a_late_input_change_but_taken_after_it_leave_the_nis_window():
+    """A vent stamped 0.1 s that reaches the filter only after 15 samples of it were fused under
+    the old inputs (a status held up on a loaded host): those innovations are the filter's
+    ignorance, not evidence about the sensors, and leave the window with the settle's."""
+    estimator = PressureEstimator(EstimatorConfig(nis_window=20, nis_input_settle_s=0.05))
+    estimator.add_measurements({"chamber_a": 10e3, "chamber_b": 10e3}, 0.0)
+    estimator.set_inputs(10e3, True, Valve.CLOSED, 0.01)
+    plant, rng = PneumaticPlant(), np.random.default_rng(0)
+    truth = plant.initial_state(10e3)
+    for k in range(1, 61):  # 2 ms apart: the vent from 0.1 s, told at 0.13 s
+        stamp = 0.04 + 0.002 * k
+        vent = stamp > 0.1 + 1e-9
+        truth = plant.step(truth, PlantInputs(10e3, True, (Valve.VENT if vent else
+                                                           Valve.CLOSED,)), 0.002)
+        stats = estimator.stats["chamber_a"]
+        if abs(stamp - 0.13) < 1e-9:
+            fused_late = sum(1 for when in stats.nis_stamps if when >= 0.1)
+            settling, window = stats.nis_settling, len(stats.nis)
+            estimator.set_inputs(10e3, True, Valve.VENT, 0.1)
+            assert fused_late >= 14 and stats.nis_settling == settling + fused_late
+            assert len(stats.nis) == window - fused_late == len(stats.nis_stamps)
+        estimator.add_measurements(
+            {"chamber_a": rng.normal(truth.chamber_pa[0] - P_ATM_PA, 300.0)}, stamp)
+    # the window: what came before the vent, and after its settle
+    assert len(stats.nis) == 10 and all(when < 0.1 or when >= 0.15 for when in stats.nis_stamps)
+
+
 def test_an_over_cautious_filter_is_reported_but_is_no_warning(trajectory):
     """Q is sized for fills: at rest the NIS falls below its bound by design. That is reported in
     the message; only an overconfident filter (or a faulty sensor) is a warning."""

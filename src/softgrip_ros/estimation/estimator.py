@@ -34,8 +34,10 @@ a filter alone does not do:
   filter; samples taken in between are fused under the old inputs, and once the widened P has
   collapsed the filter still carries about 1 kPa of that, which decays over some 80 ms (traced
   in the clamp's evacuation: innovations of 3-6 sigma for 50 ms). Fault-free grasps warned 5-7
-  times each before. A faulty sensor shows outside those instants too. (Rewinding the filter to
-  an input that arrives stamped before its time would remove the cause; it is not done here.)
+  times each before. The samples fused before the change reached the filter but taken after its
+  stamp leave the window too: on a loaded host the status comes tens of ms late. A faulty
+  sensor shows outside those instants too. (Rewinding the filter to an input that arrives
+  stamped before its time would remove the cause; it is not done here.)
 - **Sample timing.** A reading's stamp may lie ``sample_timing_std_s`` (1 sigma) from the
   instant it was sampled (a device that samples on its tick and stamps at the send: the simulated
   one's send lags its plant by up to 1 ms): while the chamber moves at rate r that is a noise of
@@ -183,8 +185,18 @@ class SensorStats:
     consecutive_rejections: int = 0
     last_stamp_s: float = -math.inf
     nis: collections.deque = dataclasses.field(default_factory=collections.deque)
+    # the stamps of the samples in ``nis``
+    nis_stamps: collections.deque = dataclasses.field(default_factory=collections.deque)
     # samples kept out of the NIS window, just after an input change
     nis_settling: int = 0
+
+    def settle_from(self, stamp_s: float) -> None:
+        """The samples taken from ``stamp_s`` on leave the NIS window: an input change stamped
+        then reached the filter after they were fused under the inputs before it."""
+        while self.nis_stamps and self.nis_stamps[-1] >= stamp_s:
+            self.nis_stamps.pop()
+            self.nis.pop()
+            self.nis_settling += 1
 
     def mean_nis(self) -> float:
         return float(np.mean(self.nis)) if self.nis else math.nan
@@ -225,7 +237,8 @@ class PressureEstimator:
         self.sensors = {s.name: s for s in self.config.sensors}
         self._variance = {s.name: s.noise_std_pa**2 for s in self.config.sensors}
         self.stats = {
-            s.name: SensorStats(nis=collections.deque(maxlen=self.config.nis_window))
+            s.name: SensorStats(nis=collections.deque(maxlen=self.config.nis_window),
+                                nis_stamps=collections.deque(maxlen=self.config.nis_window))
             for s in self.config.sensors
         }
         self.q_continuous = process_noise_matrix(self.config.process_noise_pa2_per_s)
@@ -268,6 +281,8 @@ class PressureEstimator:
             quietest = min(s.noise_std_pa for s in self.config.sensors)
             if abs(d[CHAMBER]) > quietest or abs(d[REGULATOR]) > 10.0 * quietest:
                 self._inputs_changed_s = stamp_s
+                for stats in self.stats.values():
+                    stats.settle_from(stamp_s)
         self.inputs = inputs
 
     def _widen_for_input_timing(self, inputs: PlantInputs) -> np.ndarray:
@@ -451,6 +466,7 @@ class PressureEstimator:
             d2 = (value - x_chamber)**2 / (p_chamber + noise_variance + walk_variance)
             if stamp_s - self._inputs_changed_s >= self.config.nis_input_settle_s:
                 stats.nis.append(d2)
+                stats.nis_stamps.append(stamp_s)
             else:
                 stats.nis_settling += 1
             if d2 > self.sensors[name].rejection_threshold:
