@@ -156,6 +156,26 @@ def test_advance_follows_the_law_however_its_caller_chops_the_time(chunk_s):
         assert low < worst < high, (stepper.__name__, worst)
 
 
+@pytest.mark.parametrize("setpoint_pa", [0.0, 45e3, -30e3])
+def test_advance_with_the_valves_closed_is_one_exact_step(setpoint_pa, monkeypatch):
+    """The regulator's law is solved exactly and a closed chamber keeps its air: with every valve
+    closed, ``advance`` takes one step (a fifth of a held simulated device's plant time), the same
+    as its sub-steps to 1e-6 Pa."""
+    inputs = PlantInputs(regulator_setpoint_gauge_pa=setpoint_pa, valves=(Valve.CLOSED,))
+    start = PlantState(50e3, np.array([P_ATM_PA + 20e3]))
+    substeps = start
+    for _ in range(69):
+        substeps = PLANT.step(substeps, inputs, 0.0137 / 69)
+    steps = []
+    step = PLANT.step
+    monkeypatch.setattr(PLANT, "step", lambda *args: steps.append(args[2]) or step(*args))
+    once = PLANT.advance(start, inputs, 0.0137)
+    assert steps == [0.0137]
+    assert once.regulator_gauge_pa == pytest.approx(substeps.regulator_gauge_pa, abs=1e-6)
+    assert once.chamber_pa[0] == start.chamber_pa[0] == substeps.chamber_pa[0]
+    assert abs(once.regulator_gauge_pa - 50e3) > 1e3  # the regulator did move
+
+
 @pytest.mark.parametrize("valve, regulator_gauge_pa, source_gauge_pa",
                          [(Valve.VENT, 0.0, 0.0), (Valve.SUPPLY, 30e3, 30e3),
                           (Valve.VACUUM, 0.0, PLANT.parameters.vacuum_source_gauge_pa)])
