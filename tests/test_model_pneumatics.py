@@ -156,13 +156,16 @@ def test_advance_follows_the_law_however_its_caller_chops_the_time(chunk_s):
         assert low < worst < high, (stepper.__name__, worst)
 
 
-@pytest.mark.parametrize("setpoint_pa", [0.0, 45e3, -30e3])
-def test_advance_with_the_valves_closed_is_one_exact_step(setpoint_pa, monkeypatch):
-    """The regulator's law is solved exactly and a closed chamber keeps its air: with every valve
-    closed, ``advance`` takes one step (a fifth of a held simulated device's plant time), the same
-    as its sub-steps to 1e-6 Pa."""
-    inputs = PlantInputs(regulator_setpoint_gauge_pa=setpoint_pa, valves=(Valve.CLOSED,))
-    start = PlantState(50e3, np.array([P_ATM_PA + 20e3]))
+@pytest.mark.parametrize("setpoint_pa, valve, chamber_gauge_pa",
+                         [(0.0, Valve.CLOSED, 20e3), (45e3, Valve.CLOSED, 20e3),
+                          (-30e3, Valve.CLOSED, -20e3), (0.0, Valve.VENT, 0.0)])
+def test_advance_with_the_chambers_at_rest_is_one_exact_step(setpoint_pa, valve, chamber_gauge_pa,
+                                                               monkeypatch):
+    """The regulator's law is solved exactly and a closed chamber keeps its air (a vented one at
+    atmosphere stays there): ``advance`` takes one step (a fifth of an idle simulated device's
+    plant time), the same as its sub-steps to 1e-6 Pa."""
+    inputs = PlantInputs(regulator_setpoint_gauge_pa=setpoint_pa, valves=(valve,))
+    start = PlantState(50e3, np.array([P_ATM_PA + chamber_gauge_pa]))
     substeps = start
     for _ in range(69):
         substeps = PLANT.step(substeps, inputs, 0.0137 / 69)

@@ -316,10 +316,11 @@ class PneumaticPlant:
         truth close to the continuous law whatever its caller's step (the simulated device, the
         identification's offline recordings). A single step strays from the law by up to half a
         step's worth of the response (backward Euler, with the regulator taken at the step's
-        end; 1 ms: up to 210 Pa in a fill of a small chamber). With every valve closed one step
-        is exact (the regulator's law is solved exactly, and a closed chamber keeps its air): the
-        simulated device's held chamber, most of its idle time, costs a fifth."""
-        if all(valve == Valve.CLOSED for valve in self._valves(inputs)):
+        end; 1 ms: up to 210 Pa in a fill of a small chamber). With every chamber closed, or vented
+        and at atmosphere, one step is exact (the regulator's law is solved exactly, and such a
+        chamber does not move): the simulated device's idle chamber costs a fifth."""
+        if all(valve == Valve.CLOSED or (valve == Valve.VENT and p == P_ATM_PA)
+               for p, valve in zip(state.chamber_pa, self._valves(inputs))):
             return self.step(state, inputs, dt)
         count = max(1, math.ceil(dt / max_step_s - 1e-9))
         for _ in range(count):
