@@ -20,7 +20,9 @@ identification). Then, for the default file and the identified one, against the 
 
 Without --truth it runs the issue's case (a slower supply path and a larger chamber) and two
 seeded draws (each parameter scaled by a factor in [0.5, 2]). Writes its section of
-docs/benchmarks.md unless --json or --quick.
+docs/benchmarks.md unless --json or --quick. A truth whose live run fails (a process that stops,
+softgrip_identify's non-zero exit) is named on stderr and the others still run; then it prints
+``{"failed": [{name, error}], "identified": [names]}``, writes nothing and exits 1.
 Reproduce: source scripts/env.sh; python scripts/bench_identify.py
 """
 import contextlib
@@ -196,16 +198,28 @@ def main(argv=None) -> int:
         for name, description in cases:
             path = plant_file.save(description, workdir / f"{name}.yaml")
             truths.append((name, path, description))
-    rows = []
+    rows, failed = [], []
     for name, path, truth in truths:
         progress(f"truth {name}: identifying live")
-        live = identify_live(path, truth, args.quick, workdir)
-        progress(f"truth {name}: evaluating")
-        figures = evaluate(truth, live["path"], runs)
+        try:
+            live = identify_live(path, truth, args.quick, workdir)
+            progress(f"truth {name}: evaluating")
+            figures = evaluate(truth, live["path"], runs)
+        except (RuntimeError, ValueError, OSError) as error:
+            # one truth's failed run (a process that stopped, no plant file) is reported, and the
+            # others still run
+            progress(f"truth {name}: failed: {error}")
+            failed.append({"name": name, "error": str(error)})
+            continue
         steps, _ = excitation(quick=args.quick)
         figures["excitation_s"] = sum(step.duration_s for step in steps)
         rows.append({"name": name, "figures": figures})
     seconds = time.perf_counter() - started
+    if failed:
+        print(json.dumps({"failed": failed, "identified": [row["name"] for row in rows]},
+                         indent=2))
+        progress(f"{len(failed)} of {len(truths)} truths failed; docs/benchmarks.md not written")
+        return 1
     first = rows[0]["figures"]
     summary = {key: first[key] for key in (
         "param_rel_err", "validation_rmse_over_noise", "default_rise_time_ratio",

@@ -186,3 +186,34 @@ def test_demo_grasps_with_the_controller_executable_and_exits_cleanly(tmp_path):
         assert phase in result.stdout, result.stdout
     assert plot.stat().st_size > 10_000
     assert "Traceback" not in result.stderr
+
+
+def test_bench_identify_names_a_truth_whose_live_run_fails_and_runs_the_others(monkeypatch,
+                                                                               capsys, tmp_path):
+    """A live run that fails (here: softgrip_identify exits 1 on the first truth) is a line
+    naming the truth and its error, not a traceback; the next truth still runs; exit 1, nothing
+    written."""
+    sys.path.insert(0, str(REPO_ROOT / "scripts"))
+    try:
+        import bench_identify
+    finally:
+        sys.path.pop(0)
+    ran = []
+
+    def identify_live(path, truth, quick, workdir):
+        ran.append(path.stem)
+        raise RuntimeError("softgrip_identify exited 1")
+
+    monkeypatch.setattr(bench_identify, "identify_live", identify_live)
+    monkeypatch.setattr(bench_identify, "update_section",
+                        lambda *_: pytest.fail("docs/benchmarks.md written"))
+    truths = [bench_identify.plant_file.save(bench_identify.scaled(bench_identify.SLOW_LARGE),
+                                             tmp_path / f"bench-identify-{name}.yaml")
+              for name in ("first", "second")]
+    code = bench_identify.main([arg for path in truths for arg in ("--truth", str(path))])
+    out, err = capsys.readouterr()
+    assert code == 1 and ran == ["bench-identify-first", "bench-identify-second"]
+    assert json.loads(out)["failed"][0] == {"name": "bench-identify-first",
+                                            "error": "softgrip_identify exited 1"}
+    assert "truth bench-identify-first: failed: softgrip_identify exited 1" in err
+    assert "Traceback" not in err
