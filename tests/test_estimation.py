@@ -578,6 +578,22 @@ def test_samples_fused_before_a_late_input_change_but_taken_after_it_leave_the_n
     assert len(stats.nis) == 10 and all(when < 0.1 or when >= 0.15 for when in stats.nis_stamps)
 
 
+def test_a_late_input_change_after_the_filter_started_again_keeps_the_window_whole():
+    """The filter starts again from the measurements after every live sensor's samples were
+    rejected in a row; it empties the NIS window and the window's stamps together (they parted,
+    and a late vent then popped an empty window: the controller process died in a live
+    identification, IndexError)."""
+    estimator = PressureEstimator(EstimatorConfig(nis_window=20, max_consecutive_rejections=3))
+    for k in range(10):
+        estimator.add_measurements({"chamber_a": 10e3, "chamber_b": 10e3}, 0.002 * k)
+    for k in range(10, 20):  # 40 kPa away: rejected, then the filter starts there again
+        estimator.add_measurements({"chamber_a": 50e3, "chamber_b": 50e3}, 0.002 * k)
+    assert estimator.reinitialisations >= 1
+    estimator.set_inputs(10e3, True, Valve.VENT, 0.0)  # stamped before all of it
+    for stats in estimator.stats.values():
+        assert len(stats.nis) == len(stats.nis_stamps) == 0
+
+
 def test_an_over_cautious_filter_is_reported_but_is_no_warning(trajectory):
     """Q is sized for fills: at rest the NIS falls below its bound by design. That is reported in
     the message; only an overconfident filter (or a faulty sensor) is a warning."""

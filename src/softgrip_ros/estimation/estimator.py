@@ -198,6 +198,11 @@ class SensorStats:
             self.nis.pop()
             self.nis_settling += 1
 
+    def clear_nis(self) -> None:
+        """An empty NIS window (the filter started again)."""
+        self.nis.clear()
+        self.nis_stamps.clear()
+
     def mean_nis(self) -> float:
         return float(np.mean(self.nis)) if self.nis else math.nan
 
@@ -513,7 +518,7 @@ class PressureEstimator:
             self.stats[name].consecutive_rejections = 0
             self.stats[name].accepted += 1
         for stats in self.stats.values():
-            stats.nis.clear()
+            stats.clear_nis()
         self.time_s = stamp_s
 
     # ---- outputs ------------------------------------------------------------------------------
