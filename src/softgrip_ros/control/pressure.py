@@ -14,11 +14,11 @@ Control law (source SUPPLY or VACUUM, target r* in Pa gauge):
   chamber within the limit plus margin, found for the target, see :func:`boost_ceiling_pa`)
   with the valve open (the time-optimal rise is the valve fully open to supply);
   ``boost_lead_s`` before the chamber would reach r at its current rate the valve closes
-  (the feedback carried to the step's time at that rate: a reading is as old as its stamp, and
-  on a loaded host it reaches the controller tens of ms late)
   (**settle**) until the regulator's reported output has come down to the regulated value, so
   its lag cannot overshoot the chamber; meanwhile the valve opens for single periods while the
-  model says one cannot pass r (:meth:`PressureController._top_up`);
+  model says one cannot pass r (:meth:`PressureController._top_up`). The crossing is judged on
+  the feedback carried to the step's time at its rate over the readings' stamps: a reading is as
+  old as its stamp, and on a loaded host it reaches the controller tens of ms late;
 - **regulation**: regulator setpoint = r (feed-forward) + PI trim on the feedback
   (the estimate when fresh, else the mean of the fresh sensors), the trim clamped to
   +-``trim_limit_pa``; the integral runs only within ``integral_band_pa`` of the setpoint
@@ -339,8 +339,12 @@ class PressureController:
 
     # ---- feedback ---------------------------------------------------------------------------
     def fresh_sensors(self, now: float) -> dict:
+        return {name: value for name, (value, _) in self._fresh_readings(now).items()}
+
+    def _fresh_readings(self, now: float) -> dict:
+        """{name: (gauge Pa, stamp)} of the sensors read within ``sensor_timeout_s``."""
         return {
-            name: value
+            name: (value, stamp)
             for name, (value, stamp) in self._sensors.items()
             if now - stamp <= self.config.sensor_timeout_s
         }
@@ -357,8 +361,7 @@ class PressureController:
         """(the feedback, when it was measured): the estimate while fresh (dated when it came),
         else the mean of the fresh sensors at the mean of their stamps (NaN, NaN: none)."""
         value, stamp = self._estimate
-        fresh = [(gauge, when) for gauge, when in self._sensors.values()
-                 if now - when <= self.config.sensor_timeout_s]
+        fresh = list(self._fresh_readings(now).values())
         if now - stamp <= self.config.sensor_timeout_s and fresh:
             return value, stamp
         if not fresh:
