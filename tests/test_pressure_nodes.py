@@ -4,12 +4,14 @@ import math
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import can
 import pytest
 
 from softgrip_ros.devtools.processes import installed_executable, stop_process
+from softgrip_ros.nodes.common import stamp_seconds
 
 from tests.helpers.ros import send_future_command, spinning, unique, wait_for
 
@@ -211,6 +213,35 @@ def test_a_failing_in_process_consumer_is_reported_and_control_goes_on(nodes):
     assert controller.link.listener_errors > 0 and controller.loop.errors > 0
     # a listener after the broken one still gets every reading
     assert after
+
+
+def test_a_status_is_stamped_at_the_instant_its_ages_are_read(nodes, monkeypatch):
+    """Its stamp less output_change_age_s is when the outputs went out (the estimator's inputs
+    change then), even when this thread pauses right after reading the ROS clock (a switch to
+    another thread: the status was dated up to 89 ms early in the composed controller)."""
+    controller, _, _ = nodes
+    link = controller.link
+    ros_clock, paused, here = controller.get_clock(), [], threading.get_ident()
+
+    class PausingClock:  # in this thread only: the control loop publishes statuses too
+        def now(self):
+            value = ros_clock.now()
+            if not paused and threading.get_ident() == here:
+                paused.append(True)
+                time.sleep(0.04)
+            return value
+
+    monkeypatch.setattr(controller, "get_clock", PausingClock)
+    seen = []
+    controller.status_listeners.append(
+        lambda status: seen.append(status) if threading.get_ident() == here else None)
+    link.output_changed_time = link.clock() - 0.5
+    ros_minus_link_s = time.time() - time.monotonic()
+    controller._publish_status()
+    status = seen[-1]
+    changed = stamp_seconds(status.header.stamp) - status.output_change_age_s
+    assert paused and changed == pytest.approx(link.output_changed_time + ros_minus_link_s,
+                                               abs=2e-3)
 
 
 def test_a_batch_of_readings_asks_once_per_sensor_whether_its_topic_is_subscribed(

@@ -3,7 +3,7 @@ import threading
 
 import pytest
 
-from softgrip_ros.realtime import TimerThread
+from softgrip_ros.realtime import TimerThread, clock_offset_s
 
 from tests.helpers.ros import wait_for
 
@@ -83,3 +83,17 @@ def test_periodic_thread_slows_down_at_rest_and_wakes_at_once():
         loop.stop()
     with pytest.raises(ValueError, match="rest_rate_hz must lie in"):
         PeriodicThread(step, 100.0, "test-loop", rest_rate_hz=200.0, resting=bool)
+
+
+def test_a_clock_offset_is_read_between_two_reads_of_the_other_clock_not_across_a_pause():
+    """Two clocks read one after the other are an instant apart only while the thread runs: the
+    first bracket here spans a 40 ms pause (another thread took the GIL), the second does not,
+    and the offset is the second's."""
+    link = iter([10.000, 10.040, 10.0401, 10.0402])
+    ros = iter([1000.0, 1000.0402])  # ros - link = 990.0 at every instant
+    assert clock_offset_s(lambda: next(link), lambda: next(ros)) == pytest.approx(990.0, abs=1e-4)
+    # every bracket wide: the narrowest is kept, never more than `attempts` reads
+    link = iter([0.0, 0.05, 1.0, 1.03, 2.0, 2.04])
+    ros = iter([5.0, 6.03, 7.0])
+    assert clock_offset_s(lambda: next(link), lambda: next(ros),
+                          attempts=3) == pytest.approx(6.03 - 1.015, abs=1e-9)

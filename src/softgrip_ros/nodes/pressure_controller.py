@@ -25,13 +25,15 @@ from softgrip_ros.model.pneumatics import PneumaticPlant
 from softgrip_ros.control.reports import pressure_controller_report
 from softgrip_ros.nodes import messages
 from softgrip_ros.canbus import open_bus
-from softgrip_ros.nodes.common import listened, notify, publish, run_node, stamp_seconds
+from softgrip_ros.nodes.common import (listened, notify, publish, run_node, stamp_msg,
+                                       stamp_seconds)
 from softgrip_ros.nodes.estimator import ESTIMATOR_STATUS
 from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import (PRESSURE_CONFIGURE_PREFIXES, check_rest_rate,
                                       frame_id_overrides, frame_id_specs, load_plant,
                                       pressure_control_config, sensor_settings)
 from softgrip_ros.nodes.specs import PRESSURE_CONTROLLER_SPECS as SPECS
+from softgrip_ros.realtime import clock_offset_s
 
 
 class PressureControllerNode(LifecycleNode):
@@ -251,8 +253,8 @@ class PressureControllerNode(LifecycleNode):
         if link is None:
             return
         # stamped when measured, not when processed (they differ when this process is starved)
-        ros_now_s, link_now_s = self.get_clock().now().nanoseconds * 1e-9, link.clock()
-        samples = [(name, gauge_pa, ros_now_s - max(0.0, link_now_s - sent_at))
+        link_now_s, ros_minus_link_s = link.clock(), self._ros_minus_link_s(link)
+        samples = [(name, gauge_pa, ros_minus_link_s + min(sent_at, link_now_s))
                    for name, gauge_pa, sent_at in readings]
         # whether anyone subscribes: asked once per sensor and batch, not per reading
         wanted = {}
@@ -266,14 +268,20 @@ class PressureControllerNode(LifecycleNode):
                     messages.fluid_pressure(gauge_pa, self.noise_variance[name], measured_s, name))
         notify(self.sensor_listeners, samples)
 
-    def _header(self, frame_id="softgrip_base"):
-        return Header(stamp=self.get_clock().now().to_msg(), frame_id=frame_id)
+    def _ros_minus_link_s(self, link) -> float:
+        """ROS time less the link's clock, read at one instant."""
+        return clock_offset_s(link.clock, lambda: self.get_clock().now().nanoseconds * 1e-9)
 
     def _publish_status(self):
         out, link = self.last_output, self.link
         if out is None or link is None:
             return
-        status = messages.controller_status(out, link, self._header(), self.last_note)
+        # its stamp and its ages (output_change_age_s: when the estimator's inputs change) at
+        # one instant of the link's clock
+        now = link.clock()
+        header = Header(stamp=stamp_msg(now + self._ros_minus_link_s(link)),
+                        frame_id="softgrip_base")
+        status = messages.controller_status(out, link, header, self.last_note, now)
         if listened(self, self.status_pub):  # 50 Hz; the composed nodes take it by direct call
             publish(self, self.status_pub, status)
         notify(self.status_listeners, status)
