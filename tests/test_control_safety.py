@@ -234,6 +234,22 @@ def test_a_stuck_valve_is_named_when_the_chamber_moves_against_the_closed_comman
             within_limits(loop))
 
 
+@pytest.mark.parametrize("held_pa", [19e3, -10e3])
+def test_a_valve_stuck_open_while_the_valves_are_held_closed_is_named(held_pa):
+    """A valve stuck open to SUPPLY through a release went unseen in the HOLD after it (the fault
+    matrix's valve_stuck in HOLDING): the regulator stayed at the held pressure, so the chamber
+    did not move. Held with the regulator at atmosphere, the chamber moves towards it."""
+    loop = held_at(held_pa, 1.0)
+    loop.command(held_pa, Source.HOLD)
+    loop.run_for(0.5)
+    assert loop.first_fault(since=1.0) is None  # a sound valve held closed: nothing moves
+    loop.valve_stuck_open = True
+    loop.run_for(1.0)
+    when, output = loop.first_fault(since=1.5)
+    assert Fault.RESPONSE in output.fault_flags and "CLOSED valve" in output.message
+    assert when - 1.5 < 0.2 and within_limits(loop)
+
+
 @pytest.mark.parametrize("target_pa", [19e3, 45e3])
 def test_a_regulator_overshoot_is_named_and_the_peak_stays_inside_the_limit(target_pa):
     """#20.4: regulator_overshoot_pa = 100 kPa while ENVELOPED peaked at 55.5 kPa (the trip fired

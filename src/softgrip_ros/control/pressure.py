@@ -25,7 +25,8 @@ Control law (source SUPPLY or VACUUM, target r* in Pa gauge):
   and while the trim is not clamped (anti-windup);
 - **valves** (hysteresis ``valve_band_pa``, so they do not chatter): SUPPLY (the regulated
   line) normally; VACUUM (the raw pump) while the chamber is far above a negative target;
-  VENT for a VENT command; CLOSED for HOLD.
+  VENT for a VENT command; CLOSED for HOLD, with the regulator at atmosphere (so that a valve
+  stuck open shows itself).
 
 Safety (design.md), independent of the grasp manager:
 
@@ -438,8 +439,12 @@ class PressureController:
                                 PressureMode.IDENTIFY, faults, feedback,
                                 "identification: valves closed, the regulator set")
         if self._source == Source.HOLD or not regulating:
-            return self._output(self._setpoint, True, Source.HOLD, Valve.CLOSED, PressureMode.HOLD,
-                                faults, feedback, "holding: valves closed")
+            # the regulator at atmosphere: closed valves do not feel it, and a valve stuck open
+            # then moves the chamber towards atmosphere, where the response check names it. At
+            # the held pressure it kept the chamber there, unseen (a valve stuck open to SUPPLY
+            # through a release, into the HOLD after it: the fault matrix)
+            return self._output(0.0, True, Source.HOLD, Valve.CLOSED, PressureMode.HOLD, faults,
+                                feedback, "holding: valves closed")
         if self.identification:
             return self._open_loop(faults, feedback)
 
