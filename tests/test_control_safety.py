@@ -91,6 +91,30 @@ def test_a_stalled_sender_is_not_a_frozen_sensor():
     assert [f for f in monitor.check(0.26, 0.05) if f.flag == Fault.SENSOR_STUCK]
 
 
+@pytest.mark.parametrize("late_s, closed_after_s, trips", [(0.0, None, False),
+                                                          (0.025, None, True),
+                                                          (0.025, 0.003, False)])
+def test_the_limit_trip_carries_a_late_reading_through_the_plant(late_s, closed_after_s, trips):
+    """A chamber read at 46 kPa, filling from a regulator at 150 kPa (one settling 100 kPa high),
+    is near 60 kPa once the reading is 25 ms old: the trip fires. From the reading as it was (46 +
+    5.8 kPa over the 10 ms reaction time) it did not, and such a regulator peaked at 55.4 kPa in
+    the quick fault matrix. The same late reading with the valve closed 3 ms after it is carried
+    to 47.7 kPa only: no trip."""
+    from softgrip_ros.control.safety import SafetyMonitor
+    monitor = SafetyMonitor(sensors={"chamber_a": 300.0})
+    for k in range(101):  # the loop's steps and the readings, 1 ms apart, 16 kPa to 46 kPa
+        now = 0.001 * k
+        monitor.add_regulator(150e3, now)
+        monitor.record_output(now, Valve.SUPPLY, 150e3, True)
+        monitor.add_reading("chamber_a", 16e3 + 300e3 * now, now)
+    if closed_after_s is not None:
+        monitor.record_output(0.1 + closed_after_s, Valve.CLOSED, 150e3, True)
+    finding = monitor.trip(0.1 + late_s, 0.05)
+    assert (finding is not None and finding.flag == Fault.OVERPRESSURE) == trips
+    if trips:
+        assert "25 ms after its reading" in finding.message, finding.message
+
+
 def test_with_one_sensor_a_frozen_reading_is_named_from_the_plant():
     """No second sensor to compare with: the plant, through the commanded valve, says it must
     move."""
