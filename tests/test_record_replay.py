@@ -149,8 +149,9 @@ def test_replay_reproduces_the_recorded_estimates(demo_bag, tmp_path):
 
 @pytest.mark.ros
 def test_replay_without_a_journal_is_close_and_says_so(demo_bag, tmp_path):
-    """The same bag without pressure/estimator_input: the readings and statuses in stamp order
-    give estimates near the recorded ones, not equal (exit 1), and the summary says why."""
+    """The same bag without pressure/estimator_input: the readings and statuses in stamp order,
+    batched at the recorded estimates' instants, give estimates near the recorded ones, not equal
+    (exit 1), and the summary says why."""
     from softgrip_ros.tools import bag as bags
     from softgrip_ros.tools.bag import BagWriter
     source, _ = demo_bag
@@ -165,8 +166,9 @@ def test_replay_without_a_journal_is_close_and_says_so(demo_bag, tmp_path):
     done = tool("softgrip_replay", stripped, "--output", tmp_path / "out", "--no-plot")
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert "no journal" in summary["source"]
-    # the estimates come at other instants than the live batches gave them: some share a stamp
-    assert done.returncode == 1 and summary["matched"] >= 10
+    # the readings batched at the recorded estimates' instants: most estimates share a stamp with
+    # a recorded one (282 of 310 here; one reading at a time, 6 of ~300 in CI)
+    assert done.returncode == 1 and summary["matched"] >= 0.5 * summary["recorded"] >= 100
     # the readings one by one, not in the live batches and fusion windows: typically within the
     # sensors' noise (0.15-0.3 kPa) of the recorded estimate; in a fast fill, where a fusion
     # window's 20 ms at 100-300 kPa/s is kPa, by up to 3 kPa (1.04 kPa in CI, ci19: the 1 kPa

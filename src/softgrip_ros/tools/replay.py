@@ -8,9 +8,10 @@ the bag's custom_data, else the defaults), and runs it through the estimator's j
 (pressure/estimator_input: every event it took, in the order it took them). On the same code the
 replayed estimates equal the recorded ones to within 1e-9 relative; a difference shows what
 changed, and where it starts. Without a journal it runs the recorded sensor readings and
-controller status in stamp order instead: close, not exact. The kinematics core (free bending,
-the grasp manager's default model) turns each replayed estimate into the tip spacing D2, beside
-the one grasp_state recorded.
+controller status in stamp order instead, the readings batched at the recorded estimates'
+instants: close, not exact. The kinematics core (free bending, the grasp manager's default
+model) turns each replayed estimate into the tip spacing D2, beside the one grasp_state
+recorded.
 
 Writes into --output (default: BAG_replay/): estimates.csv, replay.png (pressure, estimates and
 D2 over time, with the recorded estimate beside the replayed one) and summary.json. Use it for
@@ -83,17 +84,32 @@ def load(path: pathlib.Path) -> dict:
 
 
 def events_from_topics(found: dict) -> list:
-    """No journal: the readings and the controller's status in stamp order, as events."""
+    """No journal: the readings and the controller's status in stamp order, as events. The
+    readings go in batches that end where a recorded estimate's stamp is a reading's: the live
+    estimator gave an estimate at the newest reading of a batch, so the replay gives its own at
+    the same instants and fuses its windows there (one reading at a time, its estimates fell
+    between the recorded ones: 6 of ~300 shared a stamp in CI)."""
     from softgrip_ros.estimation.runner import INPUTS, SAMPLES, Event
     timeline = [(s, 0, (name, gauge)) for s, name, gauge in found["sensors"]]
     timeline += [(s, 1, rest) for s, *rest in found["status"]]
-    events = []
-    for sequence, (stamp, kind, payload) in enumerate(sorted(timeline, key=lambda e: e[:2])):
+    estimated = {sec * 10**9 + nanosec for sec, nanosec, *_ in found["estimates"]}
+    events, batch = [], []
+
+    def close_batch():
+        if batch:
+            events.append(Event(len(events), SAMPLES, tuple(batch)))
+            batch.clear()
+
+    for stamp, kind, payload in sorted(timeline, key=lambda e: e[:2]):
         if kind == 0:
-            events.append(Event(sequence, SAMPLES, ((payload[0], payload[1], stamp),)))
+            batch.append((payload[0], payload[1], stamp))
+            if not estimated or round(stamp * 1e9) in estimated:
+                close_batch()
         else:
+            close_batch()
             command, enabled, valve = payload
-            events.append(Event(sequence, INPUTS, (), command, enabled, valve, stamp))
+            events.append(Event(len(events), INPUTS, (), command, enabled, valve, stamp))
+    close_batch()
     return events
 
 
@@ -254,8 +270,8 @@ def main(argv=None) -> int:
         source += f", with {lost} events lost in recording (the replay diverges from the first)"
     if not events:
         events = events_from_topics(found)
-        source = ("no journal: the sensor readings and controller status in stamp order "
-                  "(close, not exact)")
+        source = ("no journal: the sensor readings and controller status in stamp order, "
+                  "batched at the recorded estimates' instants (close, not exact)")
     if not events:
         print(f"softgrip_replay: {args.bag} holds no sensor readings and no estimator journal",
               file=sys.stderr)
