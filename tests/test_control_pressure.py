@@ -300,6 +300,21 @@ def test_identification_mode_opens_the_commanded_valve_with_the_regulator_at_the
     assert out.mode == PressureMode.IDENTIFY
 
 
+def test_a_hold_sets_the_regulator_to_atmosphere_except_in_identification():
+    """HOLD closes the valves with the regulator at 0 gauge (a valve stuck open then shows);
+    identification's plain HOLD keeps the regulator at its last target, so that the refill after
+    it measures the valve, not the regulator's lag."""
+    for identifying, regulator_pa in ((False, 0.0), (True, 30e3)):
+        controller = _identifying() if identifying else active()
+        controller.command(30e3, Source.SUPPLY, math.nan, 0.0)
+        controller.step(0.001)
+        controller.update_sensor("s", 30e3, 0.5)
+        controller.command(math.nan, Source.HOLD, math.nan, 0.5)
+        out = controller.step(0.501)
+        assert out.valves == (Valve.CLOSED,) and out.mode == PressureMode.HOLD
+        assert out.regulator_setpoint_gauge_pa == regulator_pa and out.regulator_enabled
+
+
 def test_identification_mode_evacuates_to_the_target_and_closes_there():
     controller = _identifying()
     controller.command(-30e3, Source.VACUUM, math.nan, 0.0)

@@ -442,9 +442,12 @@ class PressureController:
             # the regulator at atmosphere: closed valves do not feel it, and a valve stuck open
             # then moves the chamber towards atmosphere, where the response check names it. At
             # the held pressure it kept the chamber there, unseen (a valve stuck open to SUPPLY
-            # through a release, into the HOLD after it: the fault matrix)
-            return self._output(0.0, True, Source.HOLD, Valve.CLOSED, PressureMode.HOLD, faults,
-                                feedback, "holding: valves closed")
+            # through a release, into the HOLD after it: the fault matrix). Identification keeps
+            # it where its excitation put it (its holds end in refills that measure the valve,
+            # not the regulator's lag; and the response check is suspended there anyway)
+            regulator = self._setpoint if self.identification else 0.0
+            return self._output(regulator, True, Source.HOLD, Valve.CLOSED, PressureMode.HOLD,
+                                faults, feedback, "holding: valves closed")
         if self.identification:
             return self._open_loop(faults, feedback)
 
