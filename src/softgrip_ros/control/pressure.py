@@ -26,7 +26,7 @@ Control law (source SUPPLY or VACUUM, target r* in Pa gauge):
 - **valves** (hysteresis ``valve_band_pa``, so they do not chatter): SUPPLY (the regulated
   line) normally; VACUUM (the raw pump) while the chamber is far above a negative target;
   VENT for a VENT command; CLOSED for HOLD, with the regulator at atmosphere (so that a valve
-  stuck open shows itself).
+  stuck open shows itself; in identification mode where it was).
 
 Safety (design.md), independent of the grasp manager:
 
