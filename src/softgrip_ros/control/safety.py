@@ -520,14 +520,21 @@ class SafetyMonitor:
         34.5 kPa."""
         if not math.isfinite(gauge_pa):
             return gauge_pa
-        pressure = P_ATM_PA + gauge_pa
         for start, end, inputs in segments:
-            steps = max(1, math.ceil((end - start) / 0.005))
-            dt = (end - start) / steps
-            for k in range(steps):
-                regulator = self._regulator_output(now, timeout_s, at=start + (k + 0.5) * dt)
-                pressure = self.plant.chamber_step(pressure, inputs.valves[0], regulator, dt,
-                                                   inputs.regulator_enabled)[0]
+            gauge_pa = self._through_plant(gauge_pa, start, end, inputs.valves[0],
+                                           inputs.regulator_enabled,
+                                           max(1, math.ceil((end - start) / 0.005)), now,
+                                           timeout_s)
+        return gauge_pa
+
+    def _through_plant(self, gauge_pa: float, start: float, end: float, valve: Valve,
+                       enabled: bool, steps: int, now: float, timeout_s: float) -> float:
+        """The chamber at ``gauge_pa`` at ``start``, at ``end`` through ``valve``: ``steps``
+        backward-Euler steps, each fed by the regulator's reported output at its middle."""
+        pressure, dt = P_ATM_PA + gauge_pa, (end - start) / steps
+        for k in range(steps):
+            regulator = self._regulator_output(now, timeout_s, at=start + (k + 0.5) * dt)
+            pressure = self.plant.chamber_step(pressure, valve, regulator, dt, enabled)[0]
         return pressure - P_ATM_PA
 
     # ---- every check ----------------------------------------------------------------------------
@@ -706,12 +713,10 @@ class SafetyMonitor:
         if judged:
             p0, p1 = sum(begins) / len(begins), sum(ends) / len(ends)
             _, _, enabled = self.commanded()
-            p, steps, span = P_ATM_PA + p0, 5, end - start
-            for k in range(steps):
-                regulator = self._regulator_output(now, timeout_s,
-                                                   at=start + (k + 0.5) * span / steps)
-                p = self.plant.chamber_step(p, valve, regulator, span / steps, enabled)[0]
-            measured, predicted = p1 - p0, p - P_ATM_PA - p0
+            span = end - start
+            measured = p1 - p0
+            predicted = self._through_plant(p0, start, end, valve, enabled, 5, now,
+                                            timeout_s) - p0
             if valve == Valve.CLOSED:
                 wrong = abs(measured) > c.response_min_change_pa
             elif abs(predicted) >= c.response_min_change_pa and span >= 0.8 * c.response_window_s:
@@ -723,7 +728,8 @@ class SafetyMonitor:
                     f"{measured / 1e3:+.1f} kPa in {1e3 * span:.0f} ms where "
                     f"{predicted / 1e3:+.1f} kPa was due" +
                     ("" if valve != Valve.SUPPLY else
-                     f" (the regulator at {regulator / 1e3:.1f} kPa)") +
+                     f" (the regulator at "
+                     f"{self._regulator_output(now, timeout_s, at=end) / 1e3:.1f} kPa)") +
                     ": a valve that does not move, or biased sensors")
         # closed valves: motion that lasts half as long is evidence enough (no leak moves a chamber
         # kPa in ms); a close that reached the device late moves it only in the first window
