@@ -57,12 +57,10 @@ def estimator_nis(msg: DiagnosticArray, status_name: str, sensor_names) -> list:
     return evidence
 
 
-def controller_status(output, link, header: Header, note: str,
-                      now: float | None = None) -> ControllerStatus:
+def controller_status(output, link, header: Header, note: str, now: float) -> ControllerStatus:
     """The ControllerStatus of a control ``output`` (a ControlOutput) and the ``link``'s counts;
     ``note``: what the last command's handling said, after the output's own message. ``now``:
-    the instant of the link's clock that ``header``'s stamp is (default: the clock read now)."""
-    now = link.clock() if now is None else now
+    the instant of the link's clock that ``header``'s stamp is."""
     return ControllerStatus(
         header=header, mode=int(output.mode), setpoint_gauge_pressure_pa=output.setpoint_gauge_pa,
         measured_gauge_pressure_pa=link.controller.measured(now),
