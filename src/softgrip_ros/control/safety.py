@@ -467,8 +467,8 @@ class SafetyMonitor:
         upper, lower = c.max_gauge_pa + c.margin_pa, c.min_gauge_pa - c.margin_pa
         newest = max((s.stamp for s in fresh), default=now)
         # carried only where the plant's fastest motion could reach a limit by then (a trip that
-        # carries took 19 us here, one that does not 12 us; at 30 kPa and a reading 2 ms old, a
-        # rise reaches 16 kPa further)
+        # carries took 16-19 us here, one that does not 11-12 us; at 30 kPa and a reading 2 ms
+        # old, a rise reaches 16 kPa further)
         horizon_s = max(now - newest, 0.0) + c.reaction_time_s
         near = (high + self.max_rate(high, True) * horizon_s > upper or
                 low - self.max_rate(low, False) * horizon_s < lower)
