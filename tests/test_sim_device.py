@@ -10,6 +10,7 @@ from softgrip_ros.canbus.sim_device import (MAX_PLANT_STEP_S, REPLAY_AGE_FRAMES,
                                             REPLAY_BURST_FRAMES, STUCK_READINGS_PA,
                                             SimDeviceConfig, SimulatedDevice)
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
+from tests.helpers.clocks import SwitchingClocks
 
 
 class FakeClock:
@@ -253,8 +254,8 @@ def test_a_valve_command_takes_effect_when_it_arrived_even_when_the_tick_comes_l
 
 def test_a_frame_taken_late_in_a_tick_acts_when_it_was_sent(bench, monkeypatch):
     """A tick takes its frames one after the other; one may be taken ms after the tick began
-    (a GIL wait, or the plant advanced for the frames before it). It acts when it was sent: its
-    age read against the clock of the same moment. Against the tick's start it acted that long
+    (a GIL wait, or the plant advanced for the frames before it). It acts when it was sent, as
+    its stamp says. Against the tick's start it acted that long
     before it was sent (here 4 ms; live, up to the ms a loaded host's tick spent before taking
     it), and the switches an identification dates from its log were off by as much."""
     import softgrip_ros.canbus.sim_device as sim_device
@@ -264,7 +265,7 @@ def test_a_frame_taken_late_in_a_tick_acts_when_it_was_sent(bench, monkeypatch):
     start, state = clock.now, device._state
     # stamped on the fake clock; a tick 15 ms late, the CLOSED sent 8 ms before it and taken
     # after a 4 ms wait behind the setpoint frame
-    monkeypatch.setattr(sim_device, "frame_age_s", lambda frame: clock.now - frame.timestamp)
+    monkeypatch.setattr(sim_device, "frame_sent_at", lambda frame, *clocks: frame.timestamp)
     queued = [codec.encode("RegulatorSetpoint", {"SetpointGaugePressure": 40e3, "Enable": 1,
                                                  "Source": 0}),
               codec.encode("ValveCommand", {"Channel0": int(Valve.CLOSED), "Channel1": 0,
@@ -291,6 +292,29 @@ def test_a_frame_taken_late_in_a_tick_acts_when_it_was_sent(bench, monkeypatch):
     # the fill for the 7 ms until the CLOSED was sent, within 20 Pa (4 ms less: 0.9 kPa less)
     assert device.chamber_gauge_pa() == pytest.approx(closed_after(0.007), abs=20.0)
     assert closed_after(0.007) - closed_after(0.003) > 500.0
+
+
+def test_frames_are_stamped_and_dated_across_a_thread_switch_between_the_clocks():
+    """The device's two clock conversions, a reading's wall-clock stamp and a command's sending
+    instant, read the clocks' offset at one instant: a thread switch of 8 ms between the two reads
+    moves neither. (Read one after the other, it put the reading's stamp and the command's action
+    8 ms early: the chamber then moved before the status's stamp said the valve did.)"""
+    clocks = SwitchingClocks(now=100.0, switch_s=0.008)
+    bus = can.Bus(interface="virtual", channel=f"simdev-{uuid.uuid4().hex[:8]}")
+    try:
+        device = SimulatedDevice(bus, SimDeviceConfig(seed=4), codec=FrameCodec(sync_frames=0),
+                                 clock=clocks.monotonic, wall_clock=clocks.wall)
+        assert device._wall_time(99.995) == pytest.approx(999.995, abs=1e-9)
+        command = FrameCodec().encode("ValveCommand", {
+            "Channel0": int(Valve.SUPPLY), "Channel1": 0, "Channel2": 0, "Channel3": 0,
+            "OpenLifetime": 0.2})
+        command.timestamp = 1000.010  # sent at 100.010 on the device's clock
+        clocks.now, clocks.switches = 100.020, 1
+        device._on_frame(command)
+        assert device.valves() == (Valve.SUPPLY,)
+        assert device._last_valve_command == pytest.approx(100.010, abs=1e-9)
+    finally:
+        bus.shutdown()
 
 
 def test_the_plant_keeps_real_time_through_a_stall_of_its_thread(bench):

@@ -34,6 +34,8 @@ import time
 import can
 import cantools
 
+from softgrip_ros.realtime import clock_offset_s
+
 COUNTER_SIGNAL = "AliveCounter"
 CRC_SIGNAL = "Crc"
 COUNTER_MODULO = 16
@@ -264,13 +266,20 @@ class FrameCodec:
 FRAME_CLOCK_TRUST_S = 60.0
 
 
-def frame_age_s(frame: can.Message, wall_clock=time.time) -> float:
-    """How long ago ``frame`` was sent or received by the interface, from its timestamp (python-can
-    gives wall-clock seconds: the sender's on the virtual and softgrip_ipc buses, the kernel's on
-    SocketCAN). A reading is as old as its frame, not as its late processing: when this process is
-    starved, a backlog of frames must look stale (the controller then holds) rather than fresh (it
-    would regulate on pressures 100 ms old, and a boost would overshoot). A timestamp more than
-    FRAME_CLOCK_TRUST_S away from this clock is on another time base (some adapters count from
-    their own start): the frame is then taken as new."""
-    age = wall_clock() - frame.timestamp
-    return max(age, 0.0) if abs(age) < FRAME_CLOCK_TRUST_S else 0.0
+def frame_sent_at(frame: can.Message, clock, wall_clock=time.time) -> float:
+    """When ``frame`` was sent or received by the interface, on ``clock``, from its timestamp
+    (python-can gives wall-clock seconds: the sender's on the virtual and softgrip_ipc buses, the
+    kernel's on SocketCAN). A reading is as old as its frame, not as its late processing: when
+    this process is starved, a backlog of frames must look stale (the controller then holds)
+    rather than fresh (it would regulate on pressures 100 ms old, and a boost would overshoot).
+    Never after ``clock``'s now; a timestamp more than FRAME_CLOCK_TRUST_S away from it is on
+    another time base (some adapters count from their own start): the frame is then taken as new.
+
+    The two clocks' offset is read at one instant (:func:`clock_offset_s`). ``clock()`` minus an
+    age read on the wall clock afterwards put a frame as much early as a thread switch between
+    the two reads lasted: in three fault-free grasps of the composed suite, 6-8 of 3,200 readings
+    were 1-8 ms early, and one ms-early reading in a fill is a NIS outlier that lifts a 200-sample
+    window's mean above its bound."""
+    sent = frame.timestamp - clock_offset_s(clock, wall_clock)
+    now = clock()
+    return min(sent, now) if abs(now - sent) < FRAME_CLOCK_TRUST_S else now

@@ -26,7 +26,7 @@ import time
 
 import can
 
-from softgrip_ros.canbus.codec import FrameCodec, frame_age_s
+from softgrip_ros.canbus.codec import FrameCodec, frame_sent_at
 from softgrip_ros.checks import future_stamp_reason
 from softgrip_ros.canbus.reader import BatchReader
 from softgrip_ros.control.pressure import (ControlOutput, Fault, PressureMode, PressureController,
@@ -69,7 +69,7 @@ class SensorBinding:
 class ControllerLink:
     """Owns the controller's bus traffic. ``on_readings(readings)`` is called (from the reception
     thread) with each batch's valid sensor readings, [(name, gauge_pa, stamp)] oldest first;
-    ``stamp`` is when the frame was sent, on ``clock`` (see :func:`frame_age_s`)."""
+    ``stamp`` is when the frame was sent, on ``clock`` (see :func:`frame_sent_at`)."""
 
     def __init__(self, bus: can.BusABC, controller: PressureController, sensors: list,
                  codec: FrameCodec | None = None, bus_silent_timeout_s: float = 0.25,
@@ -139,11 +139,11 @@ class ControllerLink:
     # ---- reception
     # --------------------------------------------------------------------------------
     def _on_frames(self, frames: list) -> None:
-        # each frame's age read with this clock at the same moment: one ``now`` for the batch
-        # put a frame decoded later that much earlier (a regulator report 2.9 ms before the
-        # plant time of its value, behind a burst of readings on a loaded host: a false REGULATOR
-        # fault, its report 16.7 kPa above the model during a boost)
-        valid = [(decoded, self.clock() - frame_age_s(frame)) for frame in frames
+        # each frame dated from its own stamp: one ``now`` for the batch minus ages put a frame
+        # decoded later that much earlier (a regulator report 2.9 ms before the plant time of its
+        # value, behind a burst of readings on a loaded host: a false REGULATOR fault, its report
+        # 16.7 kPa above the model during a boost)
+        valid = [(decoded, frame_sent_at(frame, self.clock)) for frame in frames
                  if (decoded := self.codec.decode(frame)) is not None]
         if not valid:
             return
@@ -342,7 +342,7 @@ class ControllerLink:
             self.send_errors += 1
         if not frame.timestamp:
             return before
-        return self.clock() - frame_age_s(frame)
+        return frame_sent_at(frame, self.clock)
 
     def last_sensor_age_s(self) -> float:
         with self._lock:

@@ -46,10 +46,10 @@ import time
 import can
 import numpy as np
 
-from softgrip_ros.canbus.codec import CRC_BYTE, FrameCodec, frame_age_s
+from softgrip_ros.canbus.codec import CRC_BYTE, FrameCodec, frame_sent_at
 from softgrip_ros.model.pneumatics import (P_ATM_PA, PlantInputs, PneumaticParameters,
                                            PneumaticPlant, Valve)
-from softgrip_ros.realtime import PeriodicThread
+from softgrip_ros.realtime import PeriodicThread, clock_offset_s
 
 LOG = logging.getLogger(__name__)
 
@@ -164,9 +164,10 @@ class SimulatedDevice:
     """The device on ``bus``. Call :meth:`start`, then :meth:`stop` (it does not close the bus)."""
 
     def __init__(self, bus: can.BusABC, config: SimDeviceConfig | None = None,
-                 codec: FrameCodec | None = None, clock=time.monotonic):
+                 codec: FrameCodec | None = None, clock=time.monotonic, wall_clock=time.time):
         self.bus = bus
-        self.clock = clock
+        # frames carry wall-clock stamps (python-can's); the plant runs on ``clock``
+        self.clock, self.wall_clock = clock, wall_clock
         self.config = config or SimDeviceConfig()
         self.codec = codec or FrameCodec()
         self.plant = PneumaticPlant(self.config.plant)
@@ -278,10 +279,10 @@ class SimulatedDevice:
                 return
             if frame is None:
                 return
-            # when it was sent, on this clock: its age and this clock's time read together (the
-            # tick's start minus an age read later put a frame taken after a GIL wait, or after
-            # the plant was advanced for the frames before it, that long before it was sent)
-            sent = self.clock() - frame_age_s(frame)
+            # when it was sent, on this clock, from its own stamp (the tick's start minus an age
+            # read later put a frame taken after a GIL wait, or after the plant was advanced for
+            # the frames before it, that long before it was sent)
+            sent = frame_sent_at(frame, self.clock, self.wall_clock)
             arrived = min(max(sent, self._last_tick), now)
             self._advance_to(arrived)
             self._on_frame(frame)
@@ -302,7 +303,7 @@ class SimulatedDevice:
                     regulator_enabled=bool(decoded.signals["Enable"]))
             elif decoded.name == "ValveCommand":
                 # from its arrival on the bus
-                self._last_valve_command = self.clock() - frame_age_s(frame)
+                self._last_valve_command = frame_sent_at(frame, self.clock, self.wall_clock)
                 if not (self._faults["valve_stuck"] or self._faults["valve_stuck_open"]):
                     self._valves_open_until = (self._last_valve_command +
                                                decoded.signals["OpenLifetime"])
@@ -463,7 +464,7 @@ class SimulatedDevice:
             old = valve_frames[0]
             self._on_frame(
                 can.Message(arbitration_id=old.arbitration_id, data=old.data, is_extended_id=False,
-                            timestamp=time.time()))
+                            timestamp=self.wall_clock()))
 
     def _send_status(self) -> None:
         self._catch_up()
@@ -475,8 +476,9 @@ class SimulatedDevice:
                    self._last_tick)
 
     def _wall_time(self, when: float) -> float:
-        """``when`` on this device's clock as a python-can timestamp (wall-clock seconds)."""
-        return time.time() - (self.clock() - when)
+        """``when`` on this device's clock as a python-can timestamp (wall-clock seconds), through
+        the clocks' offset read at one instant (see :func:`frame_sent_at`)."""
+        return when + clock_offset_s(self.clock, self.wall_clock)
 
     def _send(self, message: str, signals: dict, when: float) -> can.Message | None:
         """Encode and send, stamped with ``when`` (this clock: the instant the frame describes);
@@ -513,5 +515,5 @@ class SimulatedDevice:
         if not silent:
             self.bus.send(
                 can.Message(arbitration_id=frame.arbitration_id, data=frame.data,
-                            is_extended_id=False, timestamp=time.time()))
+                            is_extended_id=False, timestamp=self.wall_clock()))
             self.frames_sent += 1
