@@ -490,6 +490,38 @@ def test_an_output_change_is_dated_when_its_frame_goes_out_not_after_the_send_re
         controller_bus.shutdown()
 
 
+def test_a_status_dates_a_valve_switch_by_its_frame_not_by_a_regulator_step_after_it():
+    """A command's step opens the valve at 100 s; the loop's step, woken 30 ms later (a loaded
+    host), moves the regulator before any status went out. The status dates the outputs' change
+    from the valve's frame: from the regulator's, the estimator ran the chamber closed for 30 ms
+    while it filled (up to 50 ms late in the composed suite, NIS outliers in the hundreds). With
+    no valve change since the last status, a regulator step is dated by its own frame."""
+    from softgrip_ros.control.pressure import ControlOutput, PressureMode
+    channel = f"softgrip-test-{uuid.uuid4().hex[:8]}"
+    controller_bus = can.Bus(interface="virtual", channel=channel)
+    now = [100.0]
+    link = ControllerLink(controller_bus, PressureController(PressureControlConfig()), SENSORS,
+                          clock=lambda: now[0])
+
+    def output(valve, regulator_pa):
+        return ControlOutput(regulator_pa, True, Source.SUPPLY, (valve,), PressureMode.REGULATE,
+                             Fault.NONE, 20e3, 0.0, "")
+
+    try:
+        link._send_output(output(Valve.CLOSED, 0.0), now[0] - 1.0)
+        link.status_outputs()
+        link._send_output(output(Valve.SUPPLY, 60e3), now[0])
+        now[0] += 0.03
+        link._send_output(output(Valve.SUPPLY, 22e3), now[0])
+        assert link.status_outputs()[1] == pytest.approx(100.0, abs=1e-9)
+        now[0] += 0.03
+        link._send_output(output(Valve.SUPPLY, 21e3), now[0])
+        assert link.status_outputs()[1] == pytest.approx(100.06, abs=1e-9)
+    finally:
+        link.close()
+        controller_bus.shutdown()
+
+
 def test_each_frame_of_a_batch_is_dated_with_its_own_age():
     """Four readings sent at one instant and decoded 5 ms apart (a loaded host): each is dated by
     its age and this clock read together. One clock reading for the whole batch dated the later

@@ -117,6 +117,9 @@ class ControllerLink:
         self._last_command_frames = {}  # message -> (signals, time sent)
         # when the valves or the regulator's command last changed (their frames went out then)
         self.output_changed_time = -math.inf
+        # ... and the valves alone; whether no status has carried that yet (see status_outputs)
+        self.valves_changed_time, self._valve_change_unreported = -math.inf, False
+        self.last_output = None  # the last step's
         # the control loop's wake(): a command or a reading beyond a limit
         self.wake = None
         # the last step left the valves as they are (not regulating)
@@ -273,11 +276,27 @@ class ControllerLink:
                 output = dataclasses.replace(output, fault_flags=output.fault_flags | extra,
                                              message=message)
             self._send_output(output, now)
+            self.last_output = output
             if now - self._last_heartbeat >= HEARTBEAT_PERIOD_S:
                 self._last_heartbeat = now
                 self._send("ControllerHeartbeat",
                            {"ControllerState": CONTROLLER_STATE.get(output.mode, 1)})
             return output
+
+    def status_outputs(self) -> tuple[ControlOutput | None, float]:
+        """What a status reports: the last step's output (None before the first), and when its
+        outputs changed: when the valves did, if they have since the last call, else when the
+        valves or the regulator command last did. Dated from the last change of either, a valve
+        switch came out as late as a regulator step after it that no status had carried in
+        between (a command's step switched the valves, the loop's step woken after it moved the
+        regulator: up to 50 ms late on a loaded host, and the estimator predicted the chamber
+        closed while it filled, NIS outliers in the hundreds). A regulator step taken after the
+        switch is dated with it, early by the wait for the loop, where the switch matters more:
+        a valve moves the chamber at up to 1000 kPa/s, a regulator step through its 30 ms lag."""
+        with self._step_lock:
+            valves_changed, self._valve_change_unreported = self._valve_change_unreported, False
+            return self.last_output, (self.valves_changed_time if valves_changed else
+                                      self.output_changed_time)
 
     def send_vent(self, repeats: int = 3) -> None:
         """Vent frames now (shutdown, deactivate, the ~/vent service), a few times for
@@ -312,6 +331,8 @@ class ControllerLink:
                 sent = self._send(message, signals)
                 if changed:
                     self.output_changed_time = sent
+                    if message == "ValveCommand":
+                        self.valves_changed_time, self._valve_change_unreported = sent, True
                     with self._lock:
                         if message == "ValveCommand":
                             # once the send has returned, not ``sent``: a safety check's settle

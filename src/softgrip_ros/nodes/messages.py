@@ -57,10 +57,13 @@ def estimator_nis(msg: DiagnosticArray, status_name: str, sensor_names) -> list:
     return evidence
 
 
-def controller_status(output, link, header: Header, note: str, now: float) -> ControllerStatus:
+def controller_status(output, link, header: Header, note: str, now: float,
+                      outputs_changed_s: float) -> ControllerStatus:
     """The ControllerStatus of a control ``output`` (a ControlOutput) and the ``link``'s counts;
     ``note``: what the last command's handling said, after the output's own message. ``now``:
-    the instant of the link's clock that ``header``'s stamp is."""
+    the instant of the link's clock that ``header``'s stamp is; ``outputs_changed_s``: when the
+    output's valves or regulator command changed, on that clock (see
+    ControllerLink.status_outputs)."""
     return ControllerStatus(
         header=header, mode=int(output.mode), setpoint_gauge_pressure_pa=output.setpoint_gauge_pa,
         measured_gauge_pressure_pa=link.controller.measured(now),
@@ -69,7 +72,7 @@ def controller_status(output, link, header: Header, note: str, now: float) -> Co
         regulator_report_age_s=now - link.regulator_report_time,
         regulator_command_gauge_pressure_pa=output.regulator_setpoint_gauge_pa,
         regulator_enabled=output.regulator_enabled, valve_states=[int(v) for v in output.valves],
-        output_change_age_s=now - link.output_changed_time,
+        output_change_age_s=now - outputs_changed_s,
         frames_rx=link.frames_rx, frames_tx=link.frames_tx, frames_bad=link.frames_bad,
         last_sensor_frame_age_s=link.last_sensor_age_s(), fault_flags=int(output.fault_flags),
         message="; ".join(m for m in (output.message, note) if m))

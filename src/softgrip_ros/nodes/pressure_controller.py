@@ -273,15 +273,18 @@ class PressureControllerNode(LifecycleNode):
         return clock_offset_s(link.clock, lambda: self.get_clock().now().nanoseconds * 1e-9)
 
     def _publish_status(self):
-        out, link = self.last_output, self.link
-        if out is None or link is None:
+        link = self.link
+        if link is None:
+            return
+        out, changed = link.status_outputs()
+        if out is None:
             return
         # its stamp and its ages (output_change_age_s: when the estimator's inputs change) at
         # one instant of the link's clock
         now = link.clock()
         header = Header(stamp=stamp_msg(now + self._ros_minus_link_s(link)),
                         frame_id="softgrip_base")
-        status = messages.controller_status(out, link, header, self.last_note, now)
+        status = messages.controller_status(out, link, header, self.last_note, now, changed)
         if listened(self, self.status_pub):  # 50 Hz; the composed nodes take it by direct call
             publish(self, self.status_pub, status)
         notify(self.status_listeners, status)
