@@ -511,12 +511,46 @@ def test_a_status_dates_a_valve_switch_by_its_frame_not_by_a_regulator_step_afte
         link._send_output(output(Valve.CLOSED, 0.0), now[0] - 1.0)
         link.status_outputs()
         link._send_output(output(Valve.SUPPLY, 60e3), now[0])
-        now[0] += 0.03
+        now[0] += 0.02
         link._send_output(output(Valve.SUPPLY, 22e3), now[0])
-        assert link.status_outputs()[1] == pytest.approx(100.0, abs=1e-9)
-        now[0] += 0.03
+        assert link.status_outputs()[1:] == (pytest.approx(100.0, abs=1e-9), None)
+        now[0] += 0.02
         link._send_output(output(Valve.SUPPLY, 21e3), now[0])
-        assert link.status_outputs()[1] == pytest.approx(100.06, abs=1e-9)
+        assert link.status_outputs()[1:] == (pytest.approx(100.04, abs=1e-9), None)
+    finally:
+        link.close()
+        controller_bus.shutdown()
+
+
+def test_a_lapse_of_the_valves_lifetime_is_reported_with_the_valves_the_device_held():
+    """The loop held up 40 ms with the supply open: the device closed it when the last frame's
+    25 ms lifetime ran out and the next frame reopened it. The status reports that lapse, from
+    when the lifetime ran out, and dates the valves' change from the reopening; frames within
+    the lifetime, or with no source valve open, make no lapse."""
+    from softgrip_ros.control.pressure import ControlOutput, PressureMode
+    channel = f"softgrip-test-{uuid.uuid4().hex[:8]}"
+    controller_bus = can.Bus(interface="virtual", channel=channel)
+    now = [100.0]
+    link = ControllerLink(controller_bus, PressureController(PressureControlConfig()), SENSORS,
+                          clock=lambda: now[0], valve_lifetime_s=0.025)
+
+    def send(valve, after_s):
+        now[0] += after_s
+        link._send_output(ControlOutput(20e3, True, Source.SUPPLY, (valve,),
+                                        PressureMode.REGULATE, Fault.NONE, 20e3, 0.0, ""), now[0])
+
+    try:
+        send(Valve.SUPPLY, 0.0)
+        send(Valve.SUPPLY, 0.02)
+        link.status_outputs()
+        send(Valve.SUPPLY, 0.04)
+        _, changed, lapse = link.status_outputs()
+        assert changed == pytest.approx(100.06, abs=1e-9)
+        assert lapse[0] == pytest.approx(100.045, abs=1e-9) and lapse[1] == (Valve.CLOSED,)
+        assert link.status_outputs()[2] is None  # reported once
+        send(Valve.CLOSED, 0.02)
+        send(Valve.CLOSED, 0.04)
+        assert link.status_outputs()[2] is None
     finally:
         link.close()
         controller_bus.shutdown()

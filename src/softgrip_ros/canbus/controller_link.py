@@ -14,7 +14,9 @@ and ControllerHeartbeat at 10 Hz. Unchanged frames every 2 ms would only load th
 Every ValveCommand carries ``valve_lifetime_s`` (the DBC's OpenLifetime): the device closes a
 channel left in SUPPLY or VACUUM that long without a newer frame. The link re-sends well within
 it, so in normal running nothing expires; when this process stalls (a GIL hog, a paused VM), the
-chamber is held instead of running on towards the vacuum pump or the boosted regulator.
+chamber is held instead of running on towards the vacuum pump or the boosted regulator. A frame
+sent after such a lapse reopens them; the status reports the lapse (see
+:meth:`ControllerLink.status_outputs`).
 """
 from __future__ import annotations
 
@@ -32,7 +34,7 @@ from softgrip_ros.canbus.reader import BatchReader
 from softgrip_ros.control.pressure import (ControlOutput, Fault, PressureMode, PressureController,
                                            Source)
 from softgrip_ros.control.reports import LinkStats
-from softgrip_ros.model.pneumatics import Valve
+from softgrip_ros.model.pneumatics import SOURCE_VALVES, Valve
 from softgrip_ros.realtime import PeriodicThread
 
 HEARTBEAT_PERIOD_S = 0.1
@@ -119,6 +121,10 @@ class ControllerLink:
         self.output_changed_time = -math.inf
         # ... and the valves alone; whether no status has carried that yet (see status_outputs)
         self.valves_changed_time, self._valve_change_unreported = -math.inf, False
+        # the last ValveCommand: when it went out and the valves it set
+        self._valves_sent_at, self._valves_sent = -math.inf, ()
+        # a lapse of the valves' lifetime that no status has carried: (from when, the valves then)
+        self._lapse = None
         self.last_output = None  # the last step's
         # the control loop's wake(): a command or a reading beyond a limit
         self.wake = None
@@ -283,20 +289,36 @@ class ControllerLink:
                            {"ControllerState": CONTROLLER_STATE.get(output.mode, 1)})
             return output
 
-    def status_outputs(self) -> tuple[ControlOutput | None, float]:
-        """What a status reports: the last step's output (None before the first), and when its
+    def status_outputs(self) -> tuple[ControlOutput | None, float, tuple | None]:
+        """What a status reports: the last step's output (None before the first); when its
         outputs changed: when the valves did, if they have since the last call, else when the
-        valves or the regulator command last did. Dated from the last change of either, a valve
-        switch came out as late as a regulator step after it that no status had carried in
-        between (a command's step switched the valves, the loop's step woken after it moved the
-        regulator: up to 50 ms late on a loaded host, and the estimator predicted the chamber
-        closed while it filled, NIS outliers in the hundreds). A regulator step taken after the
-        switch is dated with it, early by the wait for the loop, where the switch matters more:
-        a valve moves the chamber at up to 1000 kPa/s, a regulator step through its 30 ms lag."""
+        valves or the regulator command last did; and a lapse since the last call, (from when,
+        the valves the device held then), or None.
+
+        Dated from the last change of either, a valve switch came out as late as a regulator step
+        after it that no status had carried in between (a command's step switched the valves, the
+        loop's step woken after it moved the regulator: up to 50 ms late on a loaded host, and the
+        estimator predicted the chamber closed while it filled, NIS outliers in the hundreds). A
+        regulator step taken after the switch is dated with it, early by the wait for the loop,
+        where the switch matters more: a valve moves the chamber at up to 1000 kPa/s, a regulator
+        step through its 30 ms lag. A lapse: the loop was held up past ``valve_lifetime_s`` with
+        a source valve open, so the device closed it until the next frame (on a 2-core host
+        beside one busy process, some 7 times a grasp); the reopening counts as a valve change."""
         with self._step_lock:
             valves_changed, self._valve_change_unreported = self._valve_change_unreported, False
+            lapse, self._lapse = self._lapse, None
             return self.last_output, (self.valves_changed_time if valves_changed else
-                                      self.output_changed_time)
+                                      self.output_changed_time), lapse
+
+    def _valves_went_out(self, valves: tuple, sent: float) -> None:
+        """A ValveCommand setting ``valves`` went out at ``sent``: a lapse ends here if the last
+        one left a source valve open for longer than its lifetime."""
+        expired_at = self._valves_sent_at + self.valve_lifetime_s
+        if sent > expired_at and any(v in SOURCE_VALVES for v in self._valves_sent):
+            self._lapse = (expired_at, tuple(Valve.CLOSED if v in SOURCE_VALVES else v
+                                             for v in self._valves_sent))
+            self.valves_changed_time, self._valve_change_unreported = sent, True
+        self._valves_sent_at, self._valves_sent = sent, valves
 
     def send_vent(self, repeats: int = 3) -> None:
         """Vent frames now (shutdown, deactivate, the ~/vent service), a few times for
@@ -329,6 +351,8 @@ class ControllerLink:
             if changed or now - last[1] >= self.command_frame_period_s - 1e-9:
                 self._last_command_frames[message] = (signals, now)
                 sent = self._send(message, signals)
+                if message == "ValveCommand":
+                    self._valves_went_out(tuple(output.valves), sent)
                 if changed:
                     self.output_changed_time = sent
                     if message == "ValveCommand":

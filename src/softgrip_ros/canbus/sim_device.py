@@ -47,8 +47,8 @@ import can
 import numpy as np
 
 from softgrip_ros.canbus.codec import CRC_BYTE, FrameCodec, frame_sent_at
-from softgrip_ros.model.pneumatics import (P_ATM_PA, PlantInputs, PneumaticParameters,
-                                           PneumaticPlant, Valve)
+from softgrip_ros.model.pneumatics import (P_ATM_PA, SOURCE_VALVES, PlantInputs,
+                                           PneumaticParameters, PneumaticPlant, Valve)
 from softgrip_ros.realtime import PeriodicThread, clock_offset_s
 
 LOG = logging.getLogger(__name__)
@@ -96,8 +96,6 @@ class SimDeviceConfig:
             if not 0 <= sensor.channel < self.plant.channels:
                 raise ValueError(f"sensor {sensor.name}: channel {sensor.channel} does not exist")
 
-
-SOURCE_VALVES = (Valve.SUPPLY, Valve.VACUUM)  # the states that expire with OpenLifetime
 
 # What a stuck sensor reads (fault sensor_stuck_at): "present" freezes its last reading; "low"
 # and "high" are fixed readings inside the pressure limits, so that only a plausibility check,

@@ -77,6 +77,9 @@ class Valve(enum.IntEnum):
     VENT = 3  # chamber <-> atmosphere
 
 
+# open to a source: the states a device closes when a ValveCommand's OpenLifetime runs out
+SOURCE_VALVES = (Valve.SUPPLY, Valve.VACUUM)
+
 @dataclasses.dataclass(frozen=True)
 class PneumaticParameters:
     """Every default of the plant, in one place. These are documented assumptions, not
