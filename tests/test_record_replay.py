@@ -169,12 +169,16 @@ def test_replay_without_a_journal_is_close_and_says_so(demo_bag, tmp_path):
     # the readings batched at the recorded estimates' instants: most estimates share a stamp with
     # a recorded one (282 of 310 here; one reading at a time, 6 of ~300 in CI)
     assert done.returncode == 1 and summary["matched"] >= 0.5 * summary["recorded"] >= 100
-    # the readings one by one, not in the live batches and fusion windows: typically within the
-    # sensors' noise (0.15-0.3 kPa) of the recorded estimate; in a fast fill, where a fusion
-    # window's 20 ms at 100-300 kPa/s is kPa, by up to 3 kPa (1.04 kPa in CI, ci19: the 1 kPa
-    # this asserted before was a guess below that)
+    # typically within the sensors' noise (0.15-0.3 kPa) of the recorded estimate: 95 % of them
+    # within 15 Pa here beside two busy processes. The largest difference is the live
+    # estimator's own: the estimates it gave before a status that reached it late (it then went
+    # back to the status's stamp), which the replay, taking each status at its stamp, never
+    # gives. It grows with the host's load, over a fast fill's 100-300 kPa/s: 73 Pa idle here,
+    # 237 Pa beside two busy processes, 3954 Pa in CI (1.04 kPa in CI before the statuses dated
+    # valve switches by their frames, when the replay took them as late as the live estimator)
     assert 0.0 < summary["median_pressure_difference_pa"] < 150.0
-    assert summary["max_pressure_difference_pa"] < 3000.0
+    assert summary["p95_pressure_difference_pa"] < 300.0
+    assert summary["max_pressure_difference_pa"] < 10e3
     assert not (tmp_path / "out" / "replay.png").exists()
 
 

@@ -182,6 +182,8 @@ def compare(replayed: list, recorded: list) -> dict:
             "max_pressure_difference_pa": worst_pa,
             "median_pressure_difference_pa": (statistics.median(differences_pa)
                                               if differences_pa else math.nan),
+            "p95_pressure_difference_pa": (statistics.quantiles(differences_pa, n=20)[-1]
+                                           if len(differences_pa) > 1 else math.nan),
             "max_variance_relative_difference": worst_variance}
 
 
