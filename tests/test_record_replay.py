@@ -176,10 +176,11 @@ def test_replay_without_a_journal_is_close_and_says_so(demo_bag, tmp_path):
     # gives. It grows with the host's load, over a fast fill's 100-300 kPa/s: 73 Pa idle here,
     # 237 Pa beside two busy processes, 3954 Pa in a fresh-clone CI run here (1.04 kPa in CI
     # before the statuses dated valve switches by their frames, when the replay took them as late
-    # as the live estimator)
+    # as the live estimator). The 3 kPa bound stays: a replay that takes each status as late as
+    # the live estimator did would meet it, and none does yet
     assert 0.0 < summary["median_pressure_difference_pa"] < 150.0
     assert summary["p95_pressure_difference_pa"] < 300.0
-    assert summary["max_pressure_difference_pa"] < 10e3
+    assert summary["max_pressure_difference_pa"] < 3000.0
     assert not (tmp_path / "out" / "replay.png").exists()
 
 
