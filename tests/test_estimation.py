@@ -469,7 +469,7 @@ def late_inputs_run(delay_s, scenario=BOOST, arrivals=None):
     """A scenario (default: the boosted fill), each input stamped when the device acted on it
     but reaching the estimator ``delay_s`` later (a status held up), or at ``arrivals`` (one
     time per input). (rejected samples and RMSE over the samples taken once every input stamped
-    before them had arrived, rewinds)."""
+    before them had arrived, the estimator)."""
     trajectory = sim.simulate(duration_s=1.0, scenario=scenario, seed=4)
     estimator = PressureEstimator(sim.config_for(trajectory, "ekf"))
     arrivals = arrivals or [start + delay_s for start, _ in scenario]
@@ -486,7 +486,7 @@ def late_inputs_run(delay_s, scenario=BOOST, arrivals=None):
             errors.append(estimator.estimate().gauge_pa - trajectory.truth_at(t)[0])
             rejected += sum(s.rejected for s in estimator.stats.values()) - before
     rmse = float(np.sqrt(np.mean(np.square(errors)))) if errors else math.nan
-    return rejected, rmse, estimator.rewinds
+    return rejected, rmse, estimator
 
 
 def test_an_input_that_arrives_late_is_applied_at_its_stamp(monkeypatch):
@@ -496,16 +496,23 @@ def test_an_input_that_arrives_late_is_applied_at_its_stamp(monkeypatch):
     it stayed kilopascals off with samples rejected (here 854 and 2499 Pa, 5 and 15 samples).
     Beyond REWIND_HORIZON_S nothing is taken again."""
     import softgrip_ros.estimation.estimator as estimator_module
-    _, rmse_on_time, rewinds = late_inputs_run(0.0)
-    assert rewinds == 0
+    _, rmse_on_time, estimator = late_inputs_run(0.0)
+    assert estimator.rewinds == estimator.inputs_applied_late == 0
     for delay_s in (0.03, 0.06):
-        rejected, rmse, rewinds = late_inputs_run(delay_s)
+        rejected, rmse, estimator = late_inputs_run(delay_s)
+        rewinds = estimator.rewinds
         assert rewinds == len(BOOST) - 1 and rejected == 0, (delay_s, rejected, rewinds)
         assert rmse <= 1.2 * rmse_on_time, (delay_s, rmse, rmse_on_time)
-    assert late_inputs_run(0.3)[2] == 0
+        values = estimator.report(estimator.time_s).values
+        assert (values["rewinds"], values["inputs_applied_late"]) == (len(BOOST) - 1, 0)
+    estimator = late_inputs_run(0.3)[2]
+    assert estimator.rewinds == 0
+    # every change after the first that arrives within the 1 s run (the last would at 1.1 s)
+    assert estimator.inputs_applied_late == len(BOOST) - 2
     monkeypatch.setattr(estimator_module, "REWIND_HORIZON_S", 0.0)
-    rejected, rmse, rewinds = late_inputs_run(0.03)
-    assert rewinds == 0 and rejected >= 3 and rmse > 10.0 * rmse_on_time, (rejected, rmse)
+    rejected, rmse, estimator = late_inputs_run(0.03)
+    assert estimator.rewinds == 0 and rejected >= 3 and rmse > 10.0 * rmse_on_time, (rejected,
+                                                                                      rmse)
 
 
 def test_a_lapse_reported_late_is_taken_as_two_changes_at_their_stamps():
@@ -519,8 +526,8 @@ def test_a_lapse_reported_late_is_taken_as_two_changes_at_their_stamps():
              (0.28, PlantInputs(40e3, True, (Valve.SUPPLY,))),
              (0.6, PlantInputs(0.0, True, (Valve.VENT,)))]
     _, rmse_on_time, _ = late_inputs_run(0.0, lapse)
-    rejected, rmse, rewinds = late_inputs_run(0.0, lapse, [0.0, 0.2, 0.29, 0.29, 0.6])
-    assert rewinds == 2 and rejected == 0, (rewinds, rejected)
+    rejected, rmse, estimator = late_inputs_run(0.0, lapse, [0.0, 0.2, 0.29, 0.29, 0.6])
+    assert estimator.rewinds == 2 and rejected == 0, (estimator.rewinds, rejected)
     assert rmse <= 1.2 * rmse_on_time, (rmse, rmse_on_time)
 
 

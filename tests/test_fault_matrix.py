@@ -46,7 +46,7 @@ def test_every_fault_is_named_ends_in_its_documented_state_and_a_new_grasp_works
 def test_fault_free_grasps_raise_no_warning(quick_matrix):
     _, figures, _ = quick_matrix
     assert figures["fault_free_grasps"] == 2
-    assert figures["false_alarms_fault_free"] == 0, figures["fault_free_warnings"]
+    assert figures["false_alarms_fault_free"] == 0, "\n".join(figures["fault_free_warnings"])
 
 
 def test_the_quick_matrix_covers_every_fault_and_every_phase(quick_matrix):

@@ -425,7 +425,9 @@ def run_case(rig: Rig, case: FaultCase, phase: str) -> CaseResult:
 
 
 def false_alarms(rig: Rig, grasps: int) -> tuple[int, list]:
-    """Fault-free grasps: (number of WARN-or-worse diagnostics and safety flags, their texts)."""
+    """Fault-free grasps: (number of WARN-or-worse diagnostics and safety flags, their texts).
+    The texts begin with the values of the estimator's first warning, if it warned: its counts
+    (rewinds, late inputs, rejections) say what a NIS warning on a host that CI loads came from."""
     if not rig.reset():
         raise RuntimeError("could not reset the suite")
     # the reports of earlier faults (a refusal is reported for 5 s) run out
@@ -440,7 +442,14 @@ def false_alarms(rig: Rig, grasps: int) -> tuple[int, list]:
     # the 1 Hz diagnostics of the last grasp
     time.sleep(1.2)
     warnings = rig.warnings_since(since)
-    return len(warnings) + len(problems), warnings + problems
+    with rig.lock:
+        estimator = [s for when, s in rig.diagnostics
+                     if when >= since and s.name.endswith(": estimator") and _level(s) >= 1]
+    evidence = [
+        "estimator values at its first warning: " +
+        ", ".join(f"{kv.key}={kv.value}" for kv in estimator[0].values)
+    ] if estimator else []
+    return len(warnings) + len(problems), evidence + warnings + problems
 
 
 def summarise(results: list) -> dict:

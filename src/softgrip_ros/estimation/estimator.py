@@ -273,6 +273,9 @@ class PressureEstimator:
         # taking them again (the counts and the NIS are the first pass's), and before the change
         self._rewinding = self._replaying_before_change = False
         self.rewinds = 0
+        # input changes stamped before the filter's time that no rewind could reach: applied
+        # at the filter's time
+        self.inputs_applied_late = 0
 
     # ---- inputs and time ----------------------------------------------------------------------
     @property
@@ -299,8 +302,9 @@ class PressureEstimator:
             return  # the model runs on as it was: nothing to fuse early, nothing to predict to
         self.fuse_pending()  # under the inputs they were taken with
         events, self._since_inputs = list(self._since_inputs), collections.deque()
-        if not (self.initialised and stamp_s < self.time_s and
-                self._rewind(inputs, stamp_s, events)):
+        late = self.initialised and stamp_s < self.time_s
+        if not (late and self._rewind(inputs, stamp_s, events)):
+            self.inputs_applied_late += late
             self._switch_inputs(inputs, stamp_s)
 
     def _switch_inputs(self, inputs: PlantInputs, stamp_s: float) -> None:
@@ -679,7 +683,8 @@ class PressureEstimator:
         notes = [v for n, v in verdicts.items() if v and v not in problems]
         values = {
             "filter_type": self.config.filter_type, "sensors_alive": ",".join(alive) or "none",
-            "reinitialisations": self.reinitialisations,
+            "reinitialisations": self.reinitialisations, "rewinds": self.rewinds,
+            "inputs_applied_late": self.inputs_applied_late,
             "nis_upper_bound": round(self.nis_bounds[1], 4)
         }
         for name, stats in self.stats.items():
