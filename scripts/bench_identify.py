@@ -180,10 +180,23 @@ def main(argv=None) -> int:
                               "nothing")
     parser.add_argument("--truth", type=pathlib.Path, action="append",
                         help="a plant file to play the user's hardware (repeatable)")
+    parser.add_argument("--workdir", type=pathlib.Path,
+                        help="keep the truths' plant files, the recordings and the fits here "
+                        "(default: a temporary directory, removed at the end)")
     args = parser.parse_args(argv)
+    with contextlib.ExitStack() as stack:
+        if args.workdir:
+            args.workdir.mkdir(parents=True, exist_ok=True)
+            workdir = args.workdir
+        else:
+            workdir = pathlib.Path(
+                stack.enter_context(tempfile.TemporaryDirectory(prefix="bench_identify_")))
+        return run_benchmark(parser, args, workdir)
+
+
+def run_benchmark(parser, args, workdir: pathlib.Path) -> int:
     started = time.perf_counter()
     runs = 5 if args.quick else 20
-    workdir = pathlib.Path(tempfile.mkdtemp(prefix="bench_identify_"))
     truths = []
     if args.truth:
         for path in args.truth:

@@ -5,6 +5,7 @@ import math
 import pathlib
 import subprocess
 import sys
+import tempfile
 
 import pytest
 
@@ -192,7 +193,10 @@ def test_bench_identify_names_a_truth_whose_live_run_fails_and_runs_the_others(m
                                                                                capsys, tmp_path):
     """A live run that fails (here: softgrip_identify exits 1 on the first truth) is a line
     naming the truth and its error, not a traceback; the next truth still runs; exit 1, nothing
-    written."""
+    written; its temporary directory removed."""
+    temporary = tmp_path / "tmp"
+    temporary.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temporary))
     sys.path.insert(0, str(REPO_ROOT / "scripts"))
     try:
         import bench_identify
@@ -217,3 +221,4 @@ def test_bench_identify_names_a_truth_whose_live_run_fails_and_runs_the_others(m
                                             "error": "softgrip_identify exited 1"}
     assert "truth bench-identify-first: failed: softgrip_identify exited 1" in err
     assert "Traceback" not in err
+    assert ran == [p.stem for p in truths] and list(temporary.iterdir()) == []
