@@ -503,20 +503,23 @@ def test_a_status_dates_a_valve_switch_by_its_frame_not_by_a_regulator_step_afte
     link = ControllerLink(controller_bus, PressureController(PressureControlConfig()), SENSORS,
                           clock=lambda: now[0])
 
-    def output(valve, regulator_pa):
-        return ControlOutput(regulator_pa, True, Source.SUPPLY, (valve,), PressureMode.REGULATE,
-                             Fault.NONE, 20e3, 0.0, "")
+    def send(valve, regulator_pa, when):  # a step's frames, as ControllerLink.step sends them
+        link.last_output = ControlOutput(regulator_pa, True, Source.SUPPLY, (valve,),
+                                         PressureMode.REGULATE, Fault.NONE, 20e3, 0.0, "")
+        link._send_output(link.last_output, when)
 
     try:
-        link._send_output(output(Valve.CLOSED, 0.0), now[0] - 1.0)
+        send(Valve.CLOSED, 0.0, now[0] - 1.0)
         link.status_outputs()
-        link._send_output(output(Valve.SUPPLY, 60e3), now[0])
+        send(Valve.SUPPLY, 60e3, now[0])
         now[0] += 0.02
-        link._send_output(output(Valve.SUPPLY, 22e3), now[0])
-        assert link.status_outputs()[1:] == (pytest.approx(100.0, abs=1e-9), None)
+        send(Valve.SUPPLY, 22e3, now[0])
+        [(_, changed, note)] = link.status_outputs()
+        assert changed == pytest.approx(100.0, abs=1e-9) and note == ""
         now[0] += 0.02
-        link._send_output(output(Valve.SUPPLY, 21e3), now[0])
-        assert link.status_outputs()[1:] == (pytest.approx(100.04, abs=1e-9), None)
+        send(Valve.SUPPLY, 21e3, now[0])
+        [(_, changed, _)] = link.status_outputs()
+        assert changed == pytest.approx(100.04, abs=1e-9)
     finally:
         link.close()
         controller_bus.shutdown()
@@ -534,23 +537,28 @@ def test_a_lapse_of_the_valves_lifetime_is_reported_with_the_valves_the_device_h
     link = ControllerLink(controller_bus, PressureController(PressureControlConfig()), SENSORS,
                           clock=lambda: now[0], valve_lifetime_s=0.025)
 
-    def send(valve, after_s):
+    def send(valve, after_s):  # a step's frames, as ControllerLink.step sends them
         now[0] += after_s
-        link._send_output(ControlOutput(20e3, True, Source.SUPPLY, (valve,),
-                                        PressureMode.REGULATE, Fault.NONE, 20e3, 0.0, ""), now[0])
+        link.last_output = ControlOutput(20e3, True, Source.SUPPLY, (valve,),
+                                         PressureMode.REGULATE, Fault.NONE, 20e3, 0.0, "")
+        link._send_output(link.last_output, now[0])
 
     try:
         send(Valve.SUPPLY, 0.0)
         send(Valve.SUPPLY, 0.02)
         link.status_outputs()
         send(Valve.SUPPLY, 0.04)
-        _, changed, lapse = link.status_outputs()
+        statuses = link.status_outputs()
+        # first the lapse, then the reopening
+        assert [out.valves for out, _, _ in statuses] == [(Valve.CLOSED,), (Valve.SUPPLY,)]
+        (_, lapsed_at, note), (_, changed, _) = statuses
         assert changed == pytest.approx(100.06, abs=1e-9)
-        assert lapse[0] == pytest.approx(100.045, abs=1e-9) and lapse[1] == (Valve.CLOSED,)
-        assert link.status_outputs()[2] is None  # reported once
+        assert lapsed_at == pytest.approx(100.045, abs=1e-9)
+        assert "end of their lifetime, 15 ms before" in note
+        assert len(link.status_outputs()) == 1  # reported once
         send(Valve.CLOSED, 0.02)
         send(Valve.CLOSED, 0.04)
-        assert link.status_outputs()[2] is None
+        assert len(link.status_outputs()) == 1
     finally:
         link.close()
         controller_bus.shutdown()

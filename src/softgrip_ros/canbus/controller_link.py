@@ -289,11 +289,13 @@ class ControllerLink:
                            {"ControllerState": CONTROLLER_STATE.get(output.mode, 1)})
             return output
 
-    def status_outputs(self) -> tuple[ControlOutput | None, float, tuple | None]:
-        """What a status reports: the last step's output (None before the first); when its
-        outputs changed: when the valves did, if they have since the last call, else when the
-        valves or the regulator command last did; and a lapse since the last call, (from when,
-        the valves the device held then), or None.
+    def status_outputs(self) -> list:
+        """What the next statuses report, in order: [(output, when its outputs changed, a note)];
+        none before the first step. The last is the last step's output, its outputs changed
+        when the valves did, if they have since the last call, else when the valves or the
+        regulator command last did. A lapse since the last call comes first: the same output
+        with the valves the device held, from when their lifetime ran out, and a note that says
+        so.
 
         Dated from the last change of either, a valve switch came out as late as a regulator step
         after it that no status had carried in between (a command's step switched the valves, the
@@ -307,8 +309,18 @@ class ControllerLink:
         with self._step_lock:
             valves_changed, self._valve_change_unreported = self._valve_change_unreported, False
             lapse, self._lapse = self._lapse, None
-            return self.last_output, (self.valves_changed_time if valves_changed else
-                                      self.output_changed_time), lapse
+            output = self.last_output
+            changed = self.valves_changed_time if valves_changed else self.output_changed_time
+        if output is None:
+            return []
+        statuses = [(output, changed, "")]
+        if lapse is not None:
+            lapsed_at, valves = lapse
+            statuses.insert(0, (dataclasses.replace(output, valves=valves), lapsed_at, (
+                f"the device closed the valves at the end of their lifetime, "
+                f"{(changed - lapsed_at) * 1e3:.0f} ms before this loop sent the next "
+                "ValveCommand (the loop was held up)")))
+        return statuses
 
     def _valves_went_out(self, valves: tuple, sent: float) -> None:
         """A ValveCommand setting ``valves`` went out at ``sent``: a lapse ends here if the last

@@ -9,8 +9,6 @@ commands come on ~/identification_command only, and pressure/command is ignored.
 """
 from __future__ import annotations
 
-import dataclasses
-
 import can
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.event_handler import SubscriptionEventCallbacks
@@ -278,23 +276,17 @@ class PressureControllerNode(LifecycleNode):
         link = self.link
         if link is None:
             return
-        out, changed, lapse = link.status_outputs()
-        if out is None:
+        outputs = link.status_outputs()
+        if not outputs:
             return
-        # its stamp and its ages (output_change_age_s: when the estimator's inputs change) at
-        # one instant of the link's clock
+        # their stamp and their ages (output_change_age_s: when the estimator's inputs change)
+        # at one instant of the link's clock
         now = link.clock()
         header = Header(stamp=stamp_msg(now + self._ros_minus_link_s(link)),
                         frame_id="softgrip_base")
-        statuses = [messages.controller_status(out, link, header, self.last_note, now, changed)]
-        if lapse is not None:  # first, what the device held through the lapse, from its start
-            lapsed_at, valves = lapse
-            note = (f"the device closed the valves at the end of their lifetime, "
-                    f"{(changed - lapsed_at) * 1e3:.0f} ms before this loop sent the next "
-                    "ValveCommand (the loop was held up)")
-            statuses.insert(0, messages.controller_status(
-                dataclasses.replace(out, valves=valves), link, header, note, now, lapsed_at))
-        for status in statuses:
+        for out, changed, note in outputs:
+            status = messages.controller_status(out, link, header, note or self.last_note, now,
+                                                changed)
             if listened(self, self.status_pub):  # 50 Hz; the composed nodes take it directly
                 publish(self, self.status_pub, status)
             notify(self.status_listeners, status)
