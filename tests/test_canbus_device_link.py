@@ -559,6 +559,12 @@ def test_a_lapse_of_the_valves_lifetime_is_reported_with_the_valves_the_device_h
         send(Valve.CLOSED, 0.02)
         send(Valve.CLOSED, 0.04)
         assert len(link.status_outputs()) == 1
+        # the supply closed by VENT frames (the ~/vent service) within its lifetime: no lapse
+        send(Valve.SUPPLY, 0.02)
+        now[0] += 0.01
+        link.send_vent()
+        send(Valve.VENT, 0.04)
+        assert len(link.status_outputs()) == 1
     finally:
         link.close()
         controller_bus.shutdown()

@@ -337,10 +337,13 @@ class ControllerLink:
         robustness."""
         with self._lock:
             self.controller.vent(self.clock())
-        for _ in range(repeats):
-            self._send("RegulatorSetpoint",
-                       {"SetpointGaugePressure": 0.0, "Enable": 0, "Source": int(Source.VENT)})
-            self._send("ValveCommand", self._valve_signals([Valve.VENT] * 4))
+        with self._step_lock:  # a step's frames and these do not interleave
+            for _ in range(repeats):
+                self._send("RegulatorSetpoint",
+                           {"SetpointGaugePressure": 0.0, "Enable": 0, "Source": int(Source.VENT)})
+                sent = self._send("ValveCommand", self._valve_signals([Valve.VENT] * 4))
+                # the supply and vacuum closed here: a later frame ends no lapse of them
+                self._valves_went_out((Valve.VENT,), sent)
 
     def vent_and_say(self) -> str:
         """:meth:`send_vent`, then what to tell the caller: "venting" when a fresh reading can
