@@ -596,8 +596,10 @@ def test_a_prediction_far_ahead_takes_a_bounded_number_of_filter_steps():
 
 def test_samples_just_after_an_input_change_stay_out_of_the_nis_window():
     """The input's effect at the device lies within ~input_timing_std of its stamp; for
-    nis_input_settle_s the innovations there are not evidence about the sensors."""
-    estimator = PressureEstimator(EstimatorConfig(nis_window=20, nis_input_settle_s=0.05))
+    nis_input_settle_s the innovations there are not evidence about the sensors. (The sensors'
+    timeout is longer than the 0.1 s without samples here: no silence of every sensor.)"""
+    estimator = PressureEstimator(
+        EstimatorConfig(nis_window=20, nis_input_settle_s=0.05, sensor_timeout_s=0.2))
     estimator.add_measurements({"chamber_a": 10e3, "chamber_b": 10e3}, 0.0)
     # the regulator told 10 kPa: a change that matters
     estimator.set_inputs(10e3, True, Valve.CLOSED, 0.01)
@@ -642,6 +644,41 @@ def test_samples_fused_before_a_late_input_change_but_taken_after_it_leave_the_n
             {"chamber_a": rng.normal(truth.chamber_pa[0] - P_ATM_PA, 300.0)}, stamp)
     # the window: what came before the vent, and after its settle
     assert len(stats.nis) == 10 and all(when < 0.1 or when >= 0.15 for when in stats.nis_stamps)
+
+
+def test_samples_just_after_every_sensor_fell_silent_stay_out_of_the_nis_window():
+    """A chamber at rest, both sensors silent for 80 ms (a host that held the readings up holds
+    the control loop up too), and 1.2 kPa higher when they come back: the innovations of the
+    first nis_input_settle_s after the gap judge the prediction across it, not the sensors, and
+    stay out of the window. A gap shorter than sensor_timeout_s is no such gap."""
+    rng = np.random.default_rng(3)
+
+    def run(gap_s):
+        estimator = PressureEstimator(EstimatorConfig(nis_window=200, nis_input_settle_s=0.05))
+        estimator.set_inputs(0.0, True, Valve.CLOSED, 0.0)
+        after_gap = 0.2 + gap_s
+        for k in range(int(0.4 / 0.002)):
+            stamp = 0.002 * k
+            if 0.2 < stamp < after_gap - 1e-9:
+                continue
+            level = 1.2e3 if stamp >= after_gap - 1e-9 else 0.0
+            estimator.add_measurements({"chamber_a": rng.normal(level, 300.0),
+                                        "chamber_b": rng.normal(level, 150.0)}, stamp)
+        return estimator, after_gap
+
+    estimator, after_gap = run(0.08)
+    stamps = [0.002 * k for k in range(200) if not 0.2 < 0.002 * k < after_gap - 1e-9]
+    first = min(stamp for stamp in stamps if stamp > 0.2)
+    settling = [stamp for stamp in stamps if 0.0 <= stamp - first < 0.05]
+    assert len(settling) in (25, 26)  # 2 ms apart (the last one as the rounding falls)
+    for stats in estimator.stats.values():
+        assert not set(settling) & set(stats.nis_stamps)
+        assert any(when > settling[-1] for when in stats.nis_stamps)
+        assert stats.nis_settling == len(settling)
+    estimator, after_gap = run(0.03)
+    for stats in estimator.stats.values():
+        assert stats.nis_settling == 0
+        assert any(after_gap - 1e-9 <= when < after_gap + 0.05 for when in stats.nis_stamps)
 
 
 def test_a_late_input_change_after_the_filter_started_again_keeps_the_window_whole():
