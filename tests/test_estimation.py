@@ -465,13 +465,13 @@ def boost_run(late_s, **changes):
                for s in estimator.stats.values()), float(np.sqrt(np.mean(np.square(errors))))
 
 
-def late_inputs_run(delay_s, scenario=BOOST, arrivals=None):
+def late_inputs_run(delay_s, scenario=BOOST, arrivals=None, **changes):
     """A scenario (default: the boosted fill), each input stamped when the device acted on it
     but reaching the estimator ``delay_s`` later (a status held up), or at ``arrivals`` (one
     time per input). (rejected samples and RMSE over the samples taken once every input stamped
     before them had arrived, the estimator)."""
     trajectory = sim.simulate(duration_s=1.0, scenario=scenario, seed=4)
-    estimator = PressureEstimator(sim.config_for(trajectory, "ekf"))
+    estimator = PressureEstimator(sim.config_for(trajectory, "ekf", **changes))
     arrivals = arrivals or [start + delay_s for start, _ in scenario]
     waiting = sorted(zip(arrivals, scenario), key=lambda item: item[0])
     errors, rejected = [], 0
@@ -489,13 +489,12 @@ def late_inputs_run(delay_s, scenario=BOOST, arrivals=None):
     return rejected, rmse, estimator
 
 
-def test_an_input_that_arrives_late_is_applied_at_its_stamp(monkeypatch):
+def test_an_input_that_arrives_late_is_applied_at_its_stamp():
     """Inputs 30 and 60 ms late (statuses behind a loaded host): once each arrives the filter goes
     back to its stamp and takes the samples since again, and from there it is as close as with
     inputs on time (RMSE within 20 %, no sample rejected). Applied at the filter's time instead,
     it stayed kilopascals off with samples rejected (here 854 and 2499 Pa, 5 and 15 samples).
-    Beyond REWIND_HORIZON_S nothing is taken again."""
-    import softgrip_ros.estimation.estimator as estimator_module
+    Beyond rewind_horizon_s nothing is taken again."""
     _, rmse_on_time, estimator = late_inputs_run(0.0)
     assert estimator.rewinds == estimator.inputs_applied_late == 0
     for delay_s in (0.03, 0.06):
@@ -509,10 +508,11 @@ def test_an_input_that_arrives_late_is_applied_at_its_stamp(monkeypatch):
     assert estimator.rewinds == 0
     # every change after the first that arrives within the 1 s run (the last would at 1.1 s)
     assert estimator.inputs_applied_late == len(BOOST) - 2
-    monkeypatch.setattr(estimator_module, "REWIND_HORIZON_S", 0.0)
-    rejected, rmse, estimator = late_inputs_run(0.03)
+    rejected, rmse, estimator = late_inputs_run(0.03, rewind_horizon_s=0.0)
     assert estimator.rewinds == 0 and rejected >= 3 and rmse > 10.0 * rmse_on_time, (rejected,
                                                                                       rmse)
+    with pytest.raises(ValueError, match="rewind_horizon_s must lie in"):
+        EstimatorConfig(rewind_horizon_s=-0.1)
 
 
 def test_a_lapse_reported_late_is_taken_as_two_changes_at_their_stamps():

@@ -79,9 +79,6 @@ MAX_PREDICTION_STEPS = 200
 SILENCE_REPORTED_S = 0.1  # a sensor silent this long is named in the report
 # 3 sigma: a sample this far from the estimate ends a rest
 REST_GATE_D2 = 9.0
-# an input change stamped up to this long before the filter's time is applied there, the samples
-# and predictions taken since taken again (see PressureEstimator.set_inputs)
-REWIND_HORIZON_S = 0.25
 _SAMPLES_EVENT, _PREDICT_EVENT = 0, 1
 
 
@@ -147,6 +144,9 @@ class EstimatorConfig:
     fusion_window_s: float = 0.0
     max_fusion_shift_pa: float = 50.0
     input_timing_std_s: float = 0.01
+    # an input change stamped up to this long before the filter's time is applied at its stamp,
+    # the samples and predictions taken since taken again (see PressureEstimator.set_inputs)
+    rewind_horizon_s: float = 0.25
     sample_timing_std_s: float = 0.0005
     nis_input_settle_s: float = 0.1
     nis_window: int = 200
@@ -169,6 +169,9 @@ class EstimatorConfig:
         if not 0.0 <= self.input_timing_std_s <= 0.1:
             raise ValueError(
                 f"input_timing_std_s must lie in [0, 0.1] s, got {self.input_timing_std_s}")
+        if not 0.0 <= self.rewind_horizon_s <= 1.0:
+            raise ValueError(
+                f"rewind_horizon_s must lie in [0, 1] s, got {self.rewind_horizon_s}")
         if not 0.0 <= self.sample_timing_std_s <= 0.01:
             raise ValueError(
                 f"sample_timing_std_s must lie in [0, 0.01] s, got {self.sample_timing_std_s}")
@@ -274,7 +277,7 @@ class PressureEstimator:
         # ... and the window is predicted in one step (see fuse_pending)
         self._one_step = False
         # since the last input change: [(state before, kind, args)] of each sample and committed
-        # prediction taken, within REWIND_HORIZON_S (see set_inputs)
+        # prediction taken, within rewind_horizon_s (see set_inputs)
         self._since_inputs = collections.deque()
         # taking them again (the counts and the NIS are the first pass's), and before the change
         self._rewinding = self._replaying_before_change = False
@@ -295,7 +298,7 @@ class PressureEstimator:
 
         A change stamped before the filter's time (its status held up behind a loaded host: up
         to tens of ms) is applied at its stamp: the filter goes back to its state before it
-        passed the stamp, within REWIND_HORIZON_S and never before the last change, and takes
+        passed the stamp, within ``rewind_horizon_s`` and never before the last change, and takes
         the samples and predictions since again, in order, the change among them. Applied at
         the filter's time instead, a boost's start 25 ms late left the estimate 6 kPa behind
         the chamber with a tight P, and the gate rejected every sample until the lockout
@@ -336,7 +339,7 @@ class PressureEstimator:
         events.append(((self.time_s, self.filter.x.copy(), self.filter.P.copy(),
                         {n: (s.consecutive_rejections, s.last_stamp_s)
                          for n, s in self.stats.items()}), kind, args))
-        while len(events) > 1 and events[1][0][0] < self.time_s - REWIND_HORIZON_S:
+        while len(events) > 1 and events[1][0][0] < self.time_s - self.config.rewind_horizon_s:
             events.popleft()
 
     def _rewind(self, inputs: PlantInputs, stamp_s: float, events: list) -> bool:
@@ -349,7 +352,7 @@ class PressureEstimator:
             if time_s > stamp_s:
                 break
             base = k
-        if base is None or self.time_s - stamp_s > REWIND_HORIZON_S:
+        if base is None or self.time_s - stamp_s > self.config.rewind_horizon_s:
             return False
         (time_s, x, P, sensors), _, _ = events[base]
         self.filter.reset(x, P)

@@ -210,8 +210,14 @@ ESTIMATOR_FILTER_SPECS = [
         "s", 0.0, 0.01, field="sample_timing_std_s"),
     ParamSpec(
         "nis_input_settle", _E.nis_input_settle_s, "samples this soon after an input "
-        "change stay out of the NIS window (still gated and fused): the input's timing is "
-        "uncertain there", "s", 0.0, 1.0, field="nis_input_settle_s"),
+        "change, or after every sensor fell silent, stay out of the NIS window (still gated and "
+        "fused): the inputs' timing is uncertain there", "s", 0.0, 1.0,
+        field="nis_input_settle_s"),
+    ParamSpec(
+        "rewind_horizon", _E.rewind_horizon_s, "an input change stamped up to this long before "
+        "the filter's time (a status held up on a loaded host) is applied at its stamp, the "
+        "samples since taken again; 0: applied at the filter's time", "s", 0.0, 1.0,
+        field="rewind_horizon_s"),
     ParamSpec(
         "max_fusion_shift_pa", _E.max_fusion_shift_pa, "the chamber rests (see "
         "fusion_window) while its modelled change over the window stays within this", "Pa", 1.0,
