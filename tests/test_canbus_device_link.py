@@ -14,6 +14,7 @@ from softgrip_ros.canbus.controller_link import ControllerLink, SensorBinding
 from softgrip_ros.canbus.sim_device import SimDeviceConfig, SimulatedDevice
 from softgrip_ros.control.pressure import (Fault, PressureMode, PressureControlConfig,
                                            PressureController, Source)
+from softgrip_ros.control.reports import pressure_controller_report
 from softgrip_ros.model.pneumatics import Valve
 from softgrip_ros.realtime import freeze_start_up_heap
 
@@ -556,6 +557,8 @@ def test_a_lapse_of_the_valves_lifetime_is_reported_with_the_valves_the_device_h
         assert lapsed_at == pytest.approx(100.045, abs=1e-9)
         assert "end of their lifetime, 15 ms before" in note
         assert len(link.status_outputs()) == 1  # reported once
+        assert pressure_controller_report(link.last_output, link.stats(("chamber_a", "chamber_b"))
+                                          ).values["valve_lapses"] == link.lapses == 1
         send(Valve.CLOSED, 0.02)
         send(Valve.CLOSED, 0.04)
         assert len(link.status_outputs()) == 1
@@ -564,7 +567,7 @@ def test_a_lapse_of_the_valves_lifetime_is_reported_with_the_valves_the_device_h
         now[0] += 0.01
         link.send_vent()
         send(Valve.VENT, 0.04)
-        assert len(link.status_outputs()) == 1
+        assert len(link.status_outputs()) == 1 and link.lapses == 1
     finally:
         link.close()
         controller_bus.shutdown()

@@ -125,6 +125,7 @@ class ControllerLink:
         self._valves_sent_at, self._valves_sent = -math.inf, ()
         # a lapse of the valves' lifetime that no status has carried: (from when, the valves then)
         self._lapse = None
+        self.lapses = 0  # lapses of the valves' lifetime (see _valves_went_out)
         self.last_output = None  # the last step's
         # the control loop's wake(): a command or a reading beyond a limit
         self.wake = None
@@ -327,6 +328,7 @@ class ControllerLink:
         one left a source valve open for longer than its lifetime."""
         expired_at = self._valves_sent_at + self.valve_lifetime_s
         if sent > expired_at and any(v in SOURCE_VALVES for v in self._valves_sent):
+            self.lapses += 1
             self._lapse = (expired_at, tuple(Valve.CLOSED if v in SOURCE_VALVES else v
                                              for v in self._valves_sent))
             self.valves_changed_time, self._valve_change_unreported = sent, True
@@ -421,7 +423,8 @@ class ControllerLink:
                          last_listener_error=self.last_listener_error,
                          status_errors=loop.errors if loop is not None else 0,
                          last_status_error=loop.last_error if loop is not None else "",
-                         receive_errors=receive_errors, last_receive_error=last_receive_error)
+                         receive_errors=receive_errors, last_receive_error=last_receive_error,
+                         valve_lapses=self.lapses)
 
 
 def make_control_loop(link: ControllerLink, rate_hz: float, status_rate_hz: float, on_status=None,

@@ -49,6 +49,9 @@ class LinkStats:
     last_status_error: str = ""
     receive_errors: int = 0  # bus reads that failed
     last_receive_error: str = ""
+    # the control loop held up past the valves' lifetime with a source valve open (the device
+    # closed it until the next frame): a host that starves the loop
+    valve_lapses: int = 0
 
 
 def pressure_controller_report(output: ControlOutput | None, stats: LinkStats | None) -> Report:
@@ -65,7 +68,8 @@ def pressure_controller_report(output: ControlOutput | None, stats: LinkStats | 
             "frames_tx": stats.frames_tx, "frames_bad": stats.frames_bad, "rejected": dict(
                 stats.rejected), "last_sensor_age_s": f"{stats.last_sensor_age_s:.4f}",
             "sensor_listener_errors": stats.listener_errors,
-            "status_publish_errors": stats.status_errors, "receive_errors": stats.receive_errors
+            "status_publish_errors": stats.status_errors, "receive_errors": stats.receive_errors,
+            "valve_lapses": stats.valve_lapses
         })
     if stats.silent_sensors and not faults & Fault.SENSOR_TIMEOUT:  # the others carry on
         report = report.with_note(Health.WARN,

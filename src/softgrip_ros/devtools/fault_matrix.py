@@ -426,8 +426,9 @@ def run_case(rig: Rig, case: FaultCase, phase: str) -> CaseResult:
 
 def false_alarms(rig: Rig, grasps: int) -> tuple[int, list]:
     """Fault-free grasps: (number of WARN-or-worse diagnostics and safety flags, their texts).
-    The texts begin with the values of the estimator's first warning, if it warned: its counts
-    (rewinds, late inputs, rejections) say what a NIS warning on a host that CI loads came from."""
+    When anything warned, the texts begin with the evidence of what the host did meanwhile: the
+    values of the estimator's first warning (its rewinds, late inputs, rejections) and the
+    lapses of the valves' lifetime during the grasps (the control loop held up)."""
     if not rig.reset():
         raise RuntimeError("could not reset the suite")
     # the reports of earlier faults (a refusal is reported for 5 s) run out
@@ -442,13 +443,22 @@ def false_alarms(rig: Rig, grasps: int) -> tuple[int, list]:
     # the 1 Hz diagnostics of the last grasp
     time.sleep(1.2)
     warnings = rig.warnings_since(since)
+    if not warnings + problems:
+        return 0, []
     with rig.lock:
-        estimator = [s for when, s in rig.diagnostics
-                     if when >= since and s.name.endswith(": estimator") and _level(s) >= 1]
+        diagnostics = list(rig.diagnostics)
+    estimator = [s for when, s in diagnostics
+                 if when >= since and s.name.endswith(": estimator") and _level(s) >= 1]
     evidence = [
         "estimator values at its first warning: " +
         ", ".join(f"{kv.key}={kv.value}" for kv in estimator[0].values)
     ] if estimator else []
+    lapses = [(when >= since, int(kv.value)) for when, s in diagnostics
+              if s.name.endswith(": pressure controller") for kv in s.values
+              if kv.key == "valve_lapses"]
+    if lapses:
+        before = max((count for after, count in lapses if not after), default=0)
+        evidence.append(f"valve lifetime lapses during the grasps: {lapses[-1][1] - before}")
     return len(warnings) + len(problems), evidence + warnings + problems
 
 
