@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from softgrip_ros.devtools.processes import installed_executable
+from softgrip_ros.model.pneumatics import Valve
 
 from tests.helpers.ros import spinning, wait_for
 
@@ -162,7 +163,38 @@ def test_a_status_switches_the_process_model_from_when_its_outputs_went_out(rclp
                 header=_header(stamp_msg(stamp), ""), valve_states=[valve],
                 regulator_command_gauge_pressure_pa=30e3, regulator_enabled=True,
                 output_change_age_s=age))
+        estimator._on_timer()  # in process, its timer takes them
         assert taken == [pytest.approx(t0, abs=1e-6), pytest.approx(t0 + 0.06, abs=1e-6)]
+    finally:
+        estimator.close()
+        estimator.destroy_node()
+
+
+def test_an_in_process_status_leaves_the_work_to_the_estimators_own_threads(rclpy_context):
+    """The composed controller calls on_status from its control loop: it returns at once, even
+    while a batch of readings holds the estimator's lock, and the readings that come next take
+    its inputs first (a rewind in the loop's thread held the loop up past the valves' lifetime:
+    17-29 lapses in two idle grasps)."""
+    import threading
+    from softgrip_interfaces.msg import ControllerStatus
+    from softgrip_ros.nodes.common import stamp_msg
+    from softgrip_ros.nodes.estimator import EstimatorNode
+    estimator = EstimatorNode(in_process=True, context=rclpy_context)
+    try:
+        t0 = estimator._now()
+        estimator.on_sensor_samples([("chamber_a", 0.0, t0), ("chamber_b", 0.0, t0)])
+        status = ControllerStatus(header=_header(stamp_msg(t0 + 0.01), ""), valve_states=[1],
+                                  regulator_command_gauge_pressure_pa=30e3,
+                                  regulator_enabled=True, output_change_age_s=0.0)
+        with estimator._lock:  # a batch being fused
+            caller = threading.Thread(target=estimator.on_status, args=(status,))
+            caller.start()
+            caller.join(timeout=5.0)
+            assert not caller.is_alive()
+        assert estimator.estimator.inputs.valves == (Valve.CLOSED,)
+        estimator.on_sensor_samples([("chamber_a", 0.0, t0 + 0.02)])
+        assert estimator.estimator.inputs.valves == (Valve.SUPPLY,)
+        assert estimator.estimator.inputs.regulator_setpoint_gauge_pa == 30e3
     finally:
         estimator.close()
         estimator.destroy_node()
