@@ -30,10 +30,12 @@ the conductances and compliances are only as right as that volume.
    least squares (scipy's trf and dogbox, restarted, see :func:`fit`) over every sensor
    reading, weighted by its noise. The chamber rests wherever its valves stay closed or vented a
    while; each segment, from one rest to the next, is simulated from the measured pressure at
-   its rest, all segments at once. A segment takes in the whole of a vent that ends it (the
-   vent path's decay) but only the first ``HOLD_FITTED_S`` of a closed hold: the hold repeats
-   one level, set by when the valve closed, and a millisecond's error in that time (a 40 ms
-   evacuation) weighed over the whole hold outweighed every flow the excitation measures.
+   its rest, all segments at once. A segment takes in a vent that ends it (the vent path's
+   decay) but only the first ``HOLD_FITTED_S`` of a closed hold: the hold repeats one level,
+   set by when the valve closed, and a millisecond's error in that time (a 40 ms evacuation)
+   weighed over the whole hold outweighed every flow the excitation measures. Each segment is
+   fitted only until its response has settled (:func:`settled_parts`): the rest tells no flow,
+   and a simulation's time goes to its longest segment's steps.
    Then once more with each valve switch's time and each sensor's latency as values too,
    dated by the readings about them (their effect on them linearised, with a prior of
    ``SWITCH_PRIOR_MS``), repeated on the re-dated recording until they settle or a pass no
@@ -70,6 +72,9 @@ REST_S = 0.5  # a vent this long ends an episode: the chamber is at 0 Pa gauge
 HOLD_S = 0.2  # valves closed this long: the chamber rests where it is (a segment may start)
 HOLD_FITTED_S = 0.05  # of a hold that ends a segment, the part fitted
 REST_TAIL_S = 0.1  # the last part of a rest: the readings averaged for the bias and the start
+SETTLED_SIGMAS = 5.0  # a reading this many noises from where its segment ends has not settled
+SETTLED_LEVEL_S = 0.05  # ... where it ends: the mean of its last readings
+SETTLED_MARGIN_S = 0.1  # a segment is fitted this long past its last unsettled reading
 WHITENESS_LIMIT = 0.5  # |lag-one autocorrelation| of a sensor's normalised residuals
 RELATIVE_CI_LIMIT = 0.25  # a 95 % interval wider than +-25 % of the value is flagged
 VALIDATION_LIMIT = 1.5  # the held-out excitation's RMSE over the noise above this is flagged
@@ -370,6 +375,34 @@ def episodes_of(recording: Recording, biases: dict, rests: list | None = None) -
     return episodes
 
 
+def settled_parts(recording: Recording, episodes: list, biases: dict, noises: dict) -> list:
+    """``episodes``, each cut SETTLED_MARGIN_S after its readings last strayed more than
+    SETTLED_SIGMAS times their sensor's noise from the level they end at, once its last input
+    changed (never before that change): the part of a response that tells the paths anything.
+    The rest (a vent's chamber at 0 Pa, a fill at the regulator's level) tells no flow, yet
+    every simulation stepped through it: the fit's time goes to the longest segment's steps,
+    hardly to how many run beside it (live slow_large, the vents' last 0.7 s: 6000 of 18600
+    readings, every stage-3 value's standard deviation the same to 0.01 %)."""
+    parts = []
+    for episode in episodes:
+        changes = [c.time_s for c in recording.inputs
+                   if episode.start_s + REST_TAIL_S <= c.time_s < episode.end_s]
+        settled = max(changes, default=episode.start_s)
+        for name, (times, values) in recording.sensors.items():
+            inside = (times >= episode.start_s) & (times < episode.end_s)
+            t, gauge = times[inside], values[inside] - biases[name]
+            last = t >= episode.end_s - SETTLED_LEVEL_S
+            if not last.any():
+                continue
+            strays = np.flatnonzero((np.abs(gauge - gauge[last].mean())
+                                     > SETTLED_SIGMAS * max(noises[name], 1.0)) & (t >= settled))
+            if len(strays):
+                settled = max(settled, float(t[strays[-1]]))
+        parts.append(dataclasses.replace(episode,
+                                         end_s=min(episode.end_s, settled + SETTLED_MARGIN_S)))
+    return parts
+
+
 class _Grid:
     """Every episode on one 1 ms grid: the valve, the source's pressure and which path, per step;
     each sensor reading's place on it."""
@@ -434,9 +467,34 @@ class _Grid:
         """Each reading taken as the chamber was ``delays_s[its sensor]`` (s) before its stamp (the
         readings fitted stay the same)."""
         self.delays_s = dict(delays_s)
+        self._place(self.delayed_position())
+
+    def delayed_position(self) -> np.ndarray:
+        """Each reading's place on the grid, in steps, its sensor's delay taken off."""
         position = self.position.copy()
-        for name, delay in delays_s.items():
+        for name, delay in self.delays_s.items():
             position[self.names == name] -= delay / DT_S
+        return position
+
+    @classmethod
+    def stacked(cls, grids: list) -> "_Grid":
+        """One grid of every episode of ``grids`` (the same number of steps each; the inputs,
+        readings and delays of each as it has them), so that one simulation runs them all: a
+        simulation's time goes to its steps, far less to its width. Its readings are those of
+        ``grids`` in order."""
+        grid = copy.copy(grids[0])
+        offsets = np.cumsum([0] + [len(g.episodes) for g in grids[:-1]])
+        grid.episodes = [e for g in grids for e in g.episodes]
+        for name in ("valve", "regulator", "enabled", "open_part", "fresh", "start"):
+            setattr(grid, name, np.concatenate([getattr(g, name) for g in grids]))
+        for name in ("names", "position", "measured", "weight", "times"):
+            setattr(grid, name, np.concatenate([getattr(g, name) for g in grids]))
+        grid.episode = np.concatenate([g.episode + offset for g, offset in zip(grids, offsets)])
+        grid.delays_s = None  # each part's own, already in the places
+        grid._place(np.concatenate([g.delayed_position() for g in grids]))
+        return grid
+
+    def _place(self, position: np.ndarray) -> None:
         self.before = np.clip(np.floor(position).astype(int), 0, self.steps - 2)
         self.fraction = np.clip(position - self.before, 0.0, 1.0)
         # the steps each episode's readings need (the one after the last reading's), and so the
@@ -544,24 +602,31 @@ def _timing_sensitivities(recording: Recording, grid: "_Grid", regulator_at, bia
     per_episode = [[i for i in range(1, len(changes)) if changes[i].valve != changes[i - 1].valve
                     and episode.start_s < changes[i].time_s < episode.end_s]
                    for episode in grid.episodes]
-    reference = grid.simulate([parameters])[0]
-    columns, timings = [], []
+    # the grid as it is, each batch of moved switches, and every sensor's readings older at once
+    # (each column keeps its own sensor's): all in one simulation
+    variants = [grid]
     for k in range(max(len(switched) for switched in per_episode)):
         later = recording.moved({switched[k]: SWITCH_STEP_S for switched in per_episode
                                  if len(switched) > k})
         moved_grid = _Grid(later, grid.episodes, regulator_at, biases, weights, until_s=until_s)
         moved_grid.set_delays(grid.delays_s)
-        change = (moved_grid.simulate([parameters])[0] - reference) / (SWITCH_STEP_S * 1e3)
+        variants.append(moved_grid)
+    older = copy.copy(grid)
+    sensors = list(dict.fromkeys(grid.names))
+    older.set_delays({name: grid.delays_s.get(name, 0.0) + SWITCH_STEP_S for name in sensors})
+    variants.append(older)
+    predicted = np.split(_Grid.stacked(variants).simulate([parameters])[0],
+                         np.cumsum([len(v.measured) for v in variants[:-1]]))
+    reference = predicted[0]
+    columns, timings = [], []
+    for k, moved in enumerate(predicted[1:-1]):
+        change = (moved - reference) / (SWITCH_STEP_S * 1e3)
         for e, switched in enumerate(per_episode):
             column = np.where(grid.episode == e, change, 0.0)
             if len(switched) > k and np.any(column != 0.0):
                 columns.append(column)
                 timings.append(switched[k])
-    # every sensor's readings older at once: each column keeps its own sensor's
-    older = copy.copy(grid)
-    sensors = list(dict.fromkeys(grid.names))
-    older.set_delays({name: grid.delays_s.get(name, 0.0) + SWITCH_STEP_S for name in sensors})
-    change = (older.simulate([parameters])[0] - reference) / (SWITCH_STEP_S * 1e3)
+    change = (predicted[-1] - reference) / (SWITCH_STEP_S * 1e3)
     for name in sensors:
         columns.append(np.where(grid.names == name, change, 0.0))
         timings.append(str(name))
@@ -729,7 +794,8 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
 
     episodes = episodes_of(recording, biases, rests)
     weights = {name: 1.0 / max(noise, 1.0) for name, noise in noises.items()}
-    grid = _Grid(recording, episodes, regulator_at, biases, weights, until_s=fitted_until)
+    grid = _Grid(recording, settled_parts(recording, episodes, biases, noises), regulator_at,
+                 biases, weights, until_s=fitted_until)
     progress(f"stage 3: the chamber's paths over {len(episodes)} episodes, "
              f"{len(grid.measured)} readings")
     cache = {}
@@ -824,7 +890,7 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
         shifts_s = {t: 1e-3 * ms for t, ms in timing_ms.items() if isinstance(t, int)}
         delays_s = {t: 1e-3 * ms for t, ms in timing_ms.items() if isinstance(t, str)}
         redated = recording.moved(shifts_s)
-        grid = _Grid(redated, episodes, regulator_at, biases, weights, until_s=fitted_until)
+        grid = _Grid(redated, grid.episodes, regulator_at, biases, weights, until_s=fitted_until)
         grid.set_delays(delays_s)
         cache.clear()
         if (not len(moved) or np.max(np.abs(moved)) < REDATE_SETTLED_MS
