@@ -381,8 +381,8 @@ def settled_parts(recording: Recording, episodes: list, biases: dict, noises: di
     changed (never before that change): the part of a response that tells the paths anything.
     The rest (a vent's chamber at 0 Pa, a fill at the regulator's level) tells no flow, yet
     every simulation stepped through it: the fit's time goes to the longest segment's steps,
-    hardly to how many run beside it (live slow_large, the vents' last 0.7 s: 6000 of 18600
-    readings, every stage-3 value's standard deviation the same to 0.01 %)."""
+    hardly to how many run beside it (live slow_large: 5600 of 18600 readings left out, every
+    stage-3 value's standard deviation the same at two decimals of a percent)."""
     parts = []
     for episode in episodes:
         changes = [c.time_s for c in recording.inputs
