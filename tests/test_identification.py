@@ -59,16 +59,22 @@ def test_volume_and_conductances_cannot_be_told_apart_by_pressure_alone():
     assert np.max(np.abs(both[0] - both[1])) <= 1e-9 * P_ATM_PA
 
 
-def test_episodes_stepped_together_predict_what_each_predicts_alone():
-    """The grid steps its episodes longest first, each only as far as its readings need (13 %
-    less time per simulation of the full excitation): together, under two parameter sets and
-    with the sensors' readings dated apart, each episode's readings come out as they do alone."""
+def _quick_drawn_2():
+    """(truth, recording, biases, weights, episodes): drawn_2 run through the quick excitation,
+    without biases, each reading weighed alike."""
     truth = identification_sim.drawn(2)
     steps, _ = identification.excitation(quick=True)
     recording = identification_sim.record(truth, steps, seed=0)
     biases = {name: 0.0 for name in recording.sensors}
     weights = {name: 1.0 for name in recording.sensors}
-    episodes = identification.episodes_of(recording, biases)
+    return truth, recording, biases, weights, identification.episodes_of(recording, biases)
+
+
+def test_episodes_stepped_together_predict_what_each_predicts_alone():
+    """The grid steps its episodes longest first, each only as far as its readings need (13 %
+    less time per simulation of the full excitation): together, under two parameter sets and
+    with the sensors' readings dated apart, each episode's readings come out as they do alone."""
+    truth, recording, biases, weights, episodes = _quick_drawn_2()
     lengths = [e.end_s - e.start_s for e in episodes]
     assert len(episodes) >= 8 and max(lengths) > 1.5 * min(lengths)
     sets = [truth.parameters, dataclasses.replace(truth.parameters, vent_critical_ratio=0.45,
@@ -92,12 +98,7 @@ def test_grids_stacked_into_one_simulation_predict_what_each_predicts_alone():
     """The timings' sensitivities simulate the recording with each batch of valve switches moved,
     and with the sensors' readings dated older, all as one grid: a simulation's time goes to its
     steps, hardly to its width (live slow_large: 9 simulations, 2.6 s, per pass before)."""
-    truth = identification_sim.drawn(2)
-    steps, _ = identification.excitation(quick=True)
-    recording = identification_sim.record(truth, steps, seed=0)
-    biases = {name: 0.0 for name in recording.sensors}
-    weights = {name: 1.0 for name in recording.sensors}
-    episodes = identification.episodes_of(recording, biases)
+    truth, recording, biases, weights, episodes = _quick_drawn_2()
     later = recording.moved({i: 4e-4 for i in range(1, len(recording.inputs), 3)})
     grids = [identification._Grid(of, episodes, lambda t: np.full(len(t), 20e3), biases, weights)
              for of in (recording, later, recording)]
