@@ -340,6 +340,24 @@ def test_valve_switches_dated_tenths_of_a_millisecond_off_are_re_timed_by_the_fi
     assert result.validation_rmse_over_noise <= 1.1
 
 
+def test_a_switch_is_never_re_dated_past_a_change_beside_it():
+    """Live, a step that moves the regulator and switches the valves reports the regulator's
+    command 0.1 ms before the switch (its frame went out first), each change carrying the whole
+    output. A switch the fit dated 0.3 ms earlier came before that command, and the recording
+    then switched the valves back: the live fit ran off to residuals of 3.5 kPa. The switch
+    stops just after the change before it, and the order and what each change says stay."""
+    Change = identification.InputChange
+    inputs = [Change(0.0, Valve.CLOSED, 0.0, True), Change(1.0, Valve.CLOSED, 40e3, True),
+              Change(1.0001, Valve.SUPPLY, 40e3, True), Change(1.6, Valve.CLOSED, 40e3, True)]
+    recording = identification.Recording({"s": ([0.0], [0.0])}, ([0.0], [0.0]), inputs)
+    moved = recording.moved({2: -3e-4, 3: 2e-4})
+    assert [(c.valve, c.regulator_setpoint_pa) for c in moved.inputs] == [
+        (c.valve, c.regulator_setpoint_pa) for c in inputs]
+    assert moved.inputs[2].time_s == pytest.approx(1.0 + identification.MOVE_GAP_S, abs=1e-12)
+    assert moved.inputs[3].time_s == pytest.approx(1.6002, abs=1e-12)  # free to move
+    assert moved.inputs[1].time_s == 1.0
+
+
 def test_the_joint_passes_stop_once_one_no_longer_lowers_the_cost(monkeypatch):
     """A pass that re-dates the switches but lowers the cost by less than REDATE_GAIN is the last:
     live (slow_large) such passes walked along a valley the data do not resolve, the vent ratio

@@ -83,6 +83,7 @@ SUBSONIC_LIMIT = 0.25  # below this share of subsonic evacuation, the vacuum pai
 SWITCH_STEP_S = 2e-4  # the finite-difference step of a valve switch's time
 SWITCH_PRIOR_MS = 1.0  # a valve switch's time is known to about this, before the fit
 SWITCH_LIMIT_MS = 5.0  # and the fit moves it at most this far
+MOVE_GAP_S = 1e-6  # ... and never nearer than this to a change beside it (Recording.moved)
 REDATE_PASSES = 4  # at most this many joint passes, each on the timings the last one re-dated
 REDATE_SETTLED_MS = 0.02  # ... until no timing (a switch, a sensor's latency) moves further
 # ... and while a pass lowers the cost (half the weighted sum of squares) by at least this much:
@@ -139,10 +140,20 @@ class Recording:
 
     def moved(self, shifts_s: dict) -> "Recording":
         """This recording with each change ``i`` in ``shifts_s`` dated ``shifts_s[i]`` (s) later
-        (the readings and reports as they are)."""
+        (the readings and reports as they are), but never past a change beside it: it stays
+        MOVE_GAP_S after the one before and before the one after. A change carries the whole
+        output, so one moved past another would swap what each says: a valve switch dated
+        before the regulator command that went out 0.1 ms ahead of it (its own status) became a
+        switch back to the valves of before, and the live fit ran off to residuals of 3.5 kPa."""
+        times = [c.time_s + shifts_s.get(i, 0.0) for i, c in enumerate(self.inputs)]
+        for i in sorted(shifts_s):
+            if 0 <= i < len(times):
+                low = times[i - 1] + MOVE_GAP_S if i > 0 else -math.inf
+                high = times[i + 1] - MOVE_GAP_S if i + 1 < len(times) else math.inf
+                times[i] = min(max(times[i], low), max(high, low))
         return dataclasses.replace(self, inputs=[
-            dataclasses.replace(c, time_s=c.time_s + shifts_s[i]) if i in shifts_s else c
-            for i, c in enumerate(self.inputs)])
+            dataclasses.replace(c, time_s=t) if t != c.time_s else c
+            for c, t in zip(self.inputs, times)])
 
     @property
     def start_s(self) -> float:
@@ -890,6 +901,9 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
         shifts_s = {t: 1e-3 * ms for t, ms in timing_ms.items() if isinstance(t, int)}
         delays_s = {t: 1e-3 * ms for t, ms in timing_ms.items() if isinstance(t, str)}
         redated = recording.moved(shifts_s)
+        # as far as each switch could move (not past a change beside it)
+        shifts_s = {i: redated.inputs[i].time_s - recording.inputs[i].time_s for i in shifts_s}
+        timing_ms.update({i: 1e3 * shift for i, shift in shifts_s.items()})
         grid = _Grid(redated, grid.episodes, regulator_at, biases, weights, until_s=fitted_until)
         grid.set_delays(delays_s)
         cache.clear()
