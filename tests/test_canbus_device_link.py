@@ -577,8 +577,9 @@ def test_a_regulator_command_sent_before_a_valve_switch_is_reported_before_it():
     """A step that changes the regulator's command and the valves sends the RegulatorSetpoint
     first: the device follows it from then, before the valves switch. The status reports it
     from when its frame went out, with the valves the device still held, then the switch from
-    when the ValveCommand went out. Dated with the valves (one status), the regulator ran some
-    0.35 ms ahead of a live identification's log at every fill."""
+    when the ValveCommand went out. Dated with the valves (one status), the regulator ran ahead
+    of a live identification's log at every fill, and the fit bent its compliances and critical
+    ratios to that."""
     from softgrip_ros.control.pressure import ControlOutput, PressureMode
     channel = f"softgrip-test-{uuid.uuid4().hex[:8]}"
     controller_bus = can.Bus(interface="virtual", channel=channel)
