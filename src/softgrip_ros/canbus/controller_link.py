@@ -316,7 +316,7 @@ class ControllerLink:
         2-5 ms (a GIL wait; live identification, three runs). Dated with the switch, the regulator
         ran ahead of a live identification's log at every fill (its reports 0.3-0.8 kPa above
         the model's, just after); the chamber fit took the faster fills for its compliances
-        (+2 to +8 %), and through them put the vent path's critical ratio +3 to +24 % off."""
+        (+2 to +8 %), and through them put the vent path's critical ratio up to +24 % off."""
         with self._step_lock:
             valves_changed, self._valve_change_unreported = self._valve_change_unreported, False
             lapse, self._lapse = self._lapse, None
