@@ -388,9 +388,9 @@ class ControllerLink:
                     self.output_changed_time = sent
                     if message == "ValveCommand":
                         self.valves_changed_time, self._valve_change_unreported = sent, True
-                        self._regulator_ahead = None if regulator_changed_at is None else (
-                            regulator_changed_at,
-                            dataclasses.replace(output, valves=valves_before or output.valves))
+                        ahead = regulator_changed_at is not None and regulator_changed_at < sent
+                        self._regulator_ahead = (regulator_changed_at, dataclasses.replace(
+                            output, valves=valves_before or output.valves)) if ahead else None
                     else:
                         regulator_changed_at = sent
                     with self._lock:
