@@ -313,8 +313,8 @@ class ControllerLink:
         A step that changed the regulator's command and then the valves sent the regulator's
         frame first: that command comes before, from when its frame went out, with the valves
         the device still held. Its frame goes out a median 0.1 ms before the switch's, at times
-        2-5 ms (a GIL wait; live identification, three runs). Dated with the switch, the regulator
-        ran ahead of a live identification's log at every fill (its reports 0.3-0.8 kPa above
+        2-5 ms (a GIL wait; live identification, two runs). Dated with the switch, the regulator
+        ran ahead of a live identification's log at every fill (its reports up to 0.8 kPa above
         the model's, just after); the chamber fit took the faster fills for its compliances
         (+2 to +8 %), and through them put the vent path's critical ratio up to +24 % off."""
         with self._step_lock:
