@@ -30,12 +30,10 @@ the conductances and compliances are only as right as that volume.
    least squares (scipy's trf and dogbox, restarted, see :func:`fit`) over every sensor
    reading, weighted by its noise. The chamber rests wherever its valves stay closed or vented a
    while; each segment, from one rest to the next, is simulated from the measured pressure at
-   its rest, all segments at once. A segment takes in a vent that ends it (the vent path's
-   decay) but only the first ``HOLD_FITTED_S`` of a closed hold: the hold repeats one level,
-   set by when the valve closed, and a millisecond's error in that time (a 40 ms evacuation)
-   weighed over the whole hold outweighed every flow the excitation measures. Each segment is
-   fitted only until its response has settled (:func:`settled_parts`): the rest tells no flow,
-   and a simulation's time goes to its longest segment's steps.
+   its rest, all segments at once. A segment takes in the whole of a vent that ends it (the
+   vent path's decay) but only the first ``HOLD_FITTED_S`` of a closed hold: the hold repeats
+   one level, set by when the valve closed, and a millisecond's error in that time (a 40 ms
+   evacuation) weighed over the whole hold outweighed every flow the excitation measures.
    Then once more with each valve switch's time and each sensor's latency as values too,
    dated by the readings about them (their effect on them linearised, with a prior of
    ``SWITCH_PRIOR_MS``), repeated on the re-dated recording until they settle or a pass no
@@ -72,9 +70,6 @@ REST_S = 0.5  # a vent this long ends an episode: the chamber is at 0 Pa gauge
 HOLD_S = 0.2  # valves closed this long: the chamber rests where it is (a segment may start)
 HOLD_FITTED_S = 0.05  # of a hold that ends a segment, the part fitted
 REST_TAIL_S = 0.1  # the last part of a rest: the readings averaged for the bias and the start
-SETTLED_SIGMAS = 5.0  # a reading this many noises from where its segment ends has not settled
-SETTLED_LEVEL_S = 0.05  # ... where it ends: the mean of its last readings
-SETTLED_MARGIN_S = 0.1  # a segment is fitted this long past its last unsettled reading
 WHITENESS_LIMIT = 0.5  # |lag-one autocorrelation| of a sensor's normalised residuals
 RELATIVE_CI_LIMIT = 0.25  # a 95 % interval wider than +-25 % of the value is flagged
 VALIDATION_LIMIT = 1.5  # the held-out excitation's RMSE over the noise above this is flagged
@@ -384,34 +379,6 @@ def episodes_of(recording: Recording, biases: dict, rests: list | None = None) -
     if not episodes:
         raise ValueError("no valve opened between two rests: nothing to fit the paths to")
     return episodes
-
-
-def settled_parts(recording: Recording, episodes: list, biases: dict, noises: dict) -> list:
-    """``episodes``, each cut SETTLED_MARGIN_S after its readings last strayed more than
-    SETTLED_SIGMAS times their sensor's noise from the level they end at, once its last input
-    changed (never before that change): the part of a response that tells the paths anything.
-    The rest (a vent's chamber at 0 Pa, a fill at the regulator's level) tells no flow, yet
-    every simulation stepped through it: the fit's time goes to the longest segment's steps,
-    hardly to how many run beside it (live slow_large: 5600 of 18600 readings left out, every
-    stage-3 value's standard deviation the same at two decimals of a percent)."""
-    parts = []
-    for episode in episodes:
-        changes = [c.time_s for c in recording.inputs
-                   if episode.start_s + REST_TAIL_S <= c.time_s < episode.end_s]
-        settled = max(changes, default=episode.start_s)
-        for name, (times, values) in recording.sensors.items():
-            inside = (times >= episode.start_s) & (times < episode.end_s)
-            t, gauge = times[inside], values[inside] - biases[name]
-            last = t >= episode.end_s - SETTLED_LEVEL_S
-            if not last.any():
-                continue
-            strays = np.flatnonzero((np.abs(gauge - gauge[last].mean())
-                                     > SETTLED_SIGMAS * max(noises[name], 1.0)) & (t >= settled))
-            if len(strays):
-                settled = max(settled, float(t[strays[-1]]))
-        parts.append(dataclasses.replace(episode,
-                                         end_s=min(episode.end_s, settled + SETTLED_MARGIN_S)))
-    return parts
 
 
 class _Grid:
@@ -805,8 +772,7 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
 
     episodes = episodes_of(recording, biases, rests)
     weights = {name: 1.0 / max(noise, 1.0) for name, noise in noises.items()}
-    grid = _Grid(recording, settled_parts(recording, episodes, biases, noises), regulator_at,
-                 biases, weights, until_s=fitted_until)
+    grid = _Grid(recording, episodes, regulator_at, biases, weights, until_s=fitted_until)
     progress(f"stage 3: the chamber's paths over {len(episodes)} episodes, "
              f"{len(grid.measured)} readings")
     cache = {}
@@ -904,7 +870,7 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
         # as far as each switch could move (not past a change beside it)
         shifts_s = {i: redated.inputs[i].time_s - recording.inputs[i].time_s for i in shifts_s}
         timing_ms.update({i: 1e3 * shift for i, shift in shifts_s.items()})
-        grid = _Grid(redated, grid.episodes, regulator_at, biases, weights, until_s=fitted_until)
+        grid = _Grid(redated, episodes, regulator_at, biases, weights, until_s=fitted_until)
         grid.set_delays(delays_s)
         cache.clear()
         if (not len(moved) or np.max(np.abs(moved)) < REDATE_SETTLED_MS
