@@ -319,13 +319,38 @@ def test_identification_mode_evacuates_to_the_target_and_closes_there():
     controller = _identifying()
     controller.command(-30e3, Source.VACUUM, math.nan, 0.0)
     assert controller.step(0.001).valves == (Valve.VACUUM,)
-    controller.update_sensor("s", -20e3, 0.002)
-    assert controller.step(0.003).valves == (Valve.VACUUM,)
-    controller.update_sensor("s", -30.1e3, 0.004)
-    out = controller.step(0.005)
+    # falling 200 kPa/s: 50 ms from the target
+    controller.update_sensor("s", -20e3, 0.05)
+    assert controller.step(0.051).valves == (Valve.VACUUM,)
+    controller.update_sensor("s", -30.1e3, 0.1)
+    out = controller.step(0.101)
     assert out.valves == (Valve.CLOSED,) and "evacuated" in out.message
-    controller.update_sensor("s", -30.1e3, 0.006)
-    assert controller.step(0.007).valves == (Valve.CLOSED,)
+    controller.update_sensor("s", -30.1e3, 0.102)
+    assert controller.step(0.103).valves == (Valve.CLOSED,)
+
+
+def test_identification_mode_closes_the_pump_before_its_predicted_crossing():
+    """A small chamber falls some 550 kPa/s near the bottom: closing on the first reading past
+    the target ran on by the reading's age, the period and the valve's lag (live, 2-4 kPa). The
+    valve closes ``boost_lead_s`` before the predicted crossing, as the closed loop's does."""
+    controller = _identifying()
+    lead_s, rate_pa_per_s, target_pa = controller.config.boost_lead_s, -550e3, -30e3
+    controller.command(target_pa, Source.VACUUM, math.nan, 0.0)
+    closed_at = None
+    # readings every 2 ms, each reaching a step 1 ms after it was measured
+    for tick in range(1, 60):
+        measured_at = 0.002 * tick
+        controller.update_sensor("s", rate_pa_per_s * measured_at, measured_at)
+        now = measured_at + 0.001
+        if controller.step(now).valves == (Valve.CLOSED,):
+            closed_at = now
+            break
+    assert closed_at is not None
+    chamber_pa = rate_pa_per_s * closed_at
+    # before the crossing, by the lead and at most one more period (and the rate's filter lag)
+    assert target_pa < chamber_pa <= target_pa - rate_pa_per_s * (lead_s + 0.002), chamber_pa
+    controller.update_sensor("s", chamber_pa, closed_at + 0.001)
+    assert controller.step(closed_at + 0.002).valves == (Valve.CLOSED,)
 
 
 def test_identification_mode_keeps_the_limits_and_clamps_targets():
