@@ -88,7 +88,6 @@ REDATE_SETTLED_MS = 0.02  # ... until no timing (a switch, a sensor's latency) m
 REDATE_GAIN = 1.92
 REPEATS = 3  # the excitation's extra vents from the top and the bottom, and refills
 STAGE3_METHODS = ("trf", "dogbox", "trf")  # the chamber fit's passes, at most (see fit)
-RATIOS = slice(3, 6)  # the critical ratios in the stage-3 vector
 STAGE3 = ("supply_conductance", "vacuum_conductance", "vent_conductance", "supply_critical_ratio",
           "vacuum_critical_ratio", "vent_critical_ratio", "chamber_compliance_m3_per_pa",
           "vacuum_compliance_m3_per_pa", "vacuum_source_gauge_pa")
@@ -826,14 +825,6 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
             stage3, x3 = trial, trial.x
         if trial.status in (1, 2, 4) or not improved:
             break
-    # and once from the best with the critical ratios back at the base's: along the valley the
-    # ratios drift furthest, and a pass from there went further down it (live drawn_1: 5371 to
-    # 5170, the truth's 5135; ratios 63-88 % off to 34-55 %)
-    restart = stage3.x.copy()
-    restart[RATIOS] = start[RATIOS]
-    trial = solve(restart, "trf")
-    if trial.cost < stage3.cost:
-        stage3 = trial
     # Then again with each valve switch's time as a value too, fitted to the readings about it
     # (a prior of SWITCH_PRIOR_MS keeps one the readings do not tell near its record). A switch
     # is dated to a few tenths of a ms live (to a ms or more for a solenoid valve), and a small
