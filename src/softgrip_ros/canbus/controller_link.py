@@ -409,11 +409,12 @@ class ControllerLink:
 
     def _send(self, message: str, signals: dict) -> float:
         """Send; when the frame went out, on ``clock``: the stamp the bus gave it, where it gives
-        one (softgrip_ipc: the stamp the device acts on), else the time just before the send.
-        This thread may wait for the GIL on either side of the socket call (a switch interval,
-        5 ms, when another thread computes). Dated after the send returns, one valve change in a
-        live identification came out 4 ms late; dated before it, evacuations started 5 ms after
-        their logged times: either way the chamber fit bent its critical ratios to match."""
+        one (softgrip_ipc: the kernel's, when it sent the frame, microseconds from when it
+        reached the device), else the time just before the send. This thread may wait for the
+        GIL or the CPU on either side of the socket call. Dated after the send returns, one valve
+        change in a live identification came out 4 ms late; dated before it, evacuations started
+        5 ms after their logged times: either way the chamber fit bent its critical ratios to
+        match."""
         frame = self.codec.encode(message, signals)
         before = self.clock()
         try:

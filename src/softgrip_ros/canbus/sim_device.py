@@ -277,9 +277,10 @@ class SimulatedDevice:
                 return
             if frame is None:
                 return
-            # when it was sent, on this clock, from its own stamp (the tick's start minus an age
-            # read later put a frame taken after a GIL wait, or after the plant was advanced for
-            # the frames before it, that long before it was sent)
+            # when it was sent, on this clock, from its own stamp (softgrip_ipc: the kernel's, as
+            # it reached this bus; the tick's start minus an age read later put a frame taken
+            # after a GIL wait, or after the plant was advanced for the frames before it, that
+            # long before it was sent)
             sent = frame_sent_at(frame, self.clock, self.wall_clock)
             arrived = min(max(sent, self._last_tick), now)
             self._advance_to(arrived)
