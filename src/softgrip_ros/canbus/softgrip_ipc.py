@@ -20,9 +20,10 @@ Each end stamps a frame with the kernel's time, as SocketCAN does: a receiver ge
 reached its socket (``SO_TIMESTAMPNS``), and the sender's copy says when the kernel sent it (a
 software transmit timestamp, ``SO_TIMESTAMPING``); on loopback the two are microseconds apart.
 A stamp read in Python before the socket call was as early as a wait for the GIL or the CPU
-between the two lasted: in a live identification 10 of 4,671 valve frames reached the simulated
-device 0.5-1.8 ms after their stamps, so the device switched later than the controller logged. A
-bus with ``preserve_timestamps`` still sends the sender's own stamp (a sampling instant).
+between the two lasted: in a live identification the simulated device took 10 of 4,671 valve
+frames 0.5-1.8 ms after their stamps (none of them a change there; one that was would have
+switched the valves later than the controller logged). A bus with ``preserve_timestamps`` still
+sends the sender's own stamp (a sampling instant).
 """
 from __future__ import annotations
 
