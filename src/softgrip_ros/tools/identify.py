@@ -1,7 +1,7 @@
 """softgrip_identify: fit the plant file (config/plant.yaml) to your gripper, through the running
 pressure controller over DDS and CAN, as on hardware; or again from the log it recorded.
 
-    softgrip_identify --output my_gripper --volume-m3 21e-6     # live: ~42 s of excitation
+    softgrip_identify --output my_gripper --volume-m3 21e-6     # live: ~50 s of excitation
     softgrip_identify --from-log my_gripper/recording --output refit
 
 Live, it deactivates the pressure controller (which vents), sets its identification_mode,
