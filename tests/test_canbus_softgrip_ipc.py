@@ -180,6 +180,29 @@ def test_the_sender_s_frame_carries_the_stamp_its_receiver_gets(channel):
         receiver.shutdown()
 
 
+def test_without_kernel_stamps_a_frame_carries_the_senders_stamp_to_its_receiver(channel):
+    """A kernel that takes neither timestamping option: the sender stamps each frame in Python
+    as it goes to the socket, and its receiver gets that very stamp; a receiver without kernel
+    stamps dates a frame sent without one by when it read it."""
+    sender, receiver = (can.Bus(interface="softgrip_ipc", channel=channel) for _ in range(2))
+    try:
+        sender._kernel_send_stamps = receiver._kernel_receive_stamps = False
+        sender._refresh_peers()
+        before = time.time()
+        frame = can.Message(arbitration_id=0x101, data=b"\x01", is_extended_id=False)
+        sender.send(frame)
+        received = receiver.recv(2.0)
+        assert received is not None and received.timestamp == frame.timestamp
+        assert before <= frame.timestamp <= time.time()
+        sender._kernel_send_stamps = True  # a frame sent with a stamp of 0
+        before = time.time()
+        sender.send(can.Message(arbitration_id=0x102, data=b"\x02", is_extended_id=False))
+        assert before <= receiver.recv(2.0).timestamp <= time.time()
+    finally:
+        sender.shutdown()
+        receiver.shutdown()
+
+
 def test_a_bus_that_preserves_timestamps_delivers_the_senders_stamp(channel):
     """As python-can's virtual bus with ``preserve_timestamps``: the simulated device stamps a
     reading when it samples it, and its receivers must see that instant, not when a held-up thread
