@@ -809,8 +809,7 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
     def inside(x):  # strictly inside the bounds, as least_squares needs a start
         return np.clip(x, STAGE3_BOUNDS[0] + 1e-6, STAGE3_BOUNDS[1] - 1e-6)
 
-    start = inside(_stage3_vector(base))
-    x3 = start
+    x3 = inside(_stage3_vector(base))
     # Restarted while a pass stops on its step size (xtol) or its evaluation budget rather than
     # on the cost (ftol, gtol): the trust region had shrunk away from a minimum, in the valley
     # where the ratios and the conductances trade off. trf and dogbox stall at different places
