@@ -11,7 +11,8 @@ fault-free grasps, counting every diagnostic at WARN or above and every safety f
 
 Keys of --json: ``limit_violations`` (must be 0), ``false_alarms_fault_free`` (must be 0 over
 ``fault_free_grasps``), ``undetected``, ``wrong_end_state``, ``not_recovered``, ``cases``,
-``detection_s`` ({fault: {median, max}}), ``true_range_pa``, ``failures`` (the failed cases).
+``detection_s`` ({fault: {median, max}}), ``true_range_pa``, ``failures`` (the failed cases),
+``retried`` (what ran once more, and why).
 --quick runs each fault once (its phase rotating through the six) and 2 fault-free grasps.
 Writes its section of docs/benchmarks.md unless --json or --quick; exits 1 when a case fails.
 Reproduce: source scripts/env.sh; python scripts/bench_faults.py
@@ -27,8 +28,8 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 40))  # not the de
 import rclpy
 
 from softgrip_ros.devtools.benchmarking import benchmark_parser, machine_line, update_section
-from softgrip_ros.devtools.fault_matrix import (FAULTS, FAULTS_BY_NAME, PHASES, Rig, false_alarms,
-                                                run_case, summarise)
+from softgrip_ros.devtools.fault_matrix import (FAULTS, FAULTS_BY_NAME, PHASES, Rig,
+                                                fault_free_grasps, run_case, summarise)
 
 
 def cases(args) -> list:
@@ -39,7 +40,7 @@ def cases(args) -> list:
     return [(fault, phase) for fault in faults for phase in phases]
 
 
-def markdown(results, summary, false_count, warnings, grasps, seconds, command) -> str:
+def markdown(results, summary, fault_free, grasps, retried, seconds, command) -> str:
     lines = [
         f"Reproduce: `{command}` ({machine_line()}; {seconds / 60:.1f} min).", "",
         "Each fault injected in each grasp phase of an ENVELOP_CLAMP 40 mm grasp on the composed "
@@ -53,7 +54,7 @@ def markdown(results, summary, false_count, warnings, grasps, seconds, command) 
         "shows only once the pressure moves is named once the grasp moves it.", "",
         "| key | value | target |", "|---|---|---|",
         f"| `limit_violations` | {summary['limit_violations']} of {summary['cases']} | 0 |",
-        f"| `false_alarms_fault_free` | {false_count} over {grasps} grasps | 0 |",
+        f"| `false_alarms_fault_free` | {fault_free.warnings} over {grasps} grasps | 0 |",
         f"| `undetected` | {summary['undetected']} | 0 |",
         f"| `not_run` (the grasp could not reach the phase; no fault injected) | "
         f"{summary['not_run']} | 0 |",
@@ -98,8 +99,11 @@ def markdown(results, summary, false_count, warnings, grasps, seconds, command) 
     if failures:
         lines += (["", "Failed cases:", ""] +
                   [f"- `{r.fault}` in {r.phase}: {r.problem or r.end_state}" for r in failures])
-    if warnings:
-        lines += ["", "Fault-free warnings:", ""] + [f"- {w}" for w in warnings[:20]]
+    if fault_free.texts:
+        lines += ["", "Fault-free warnings:", ""] + [f"- {w}" for w in fault_free.texts[:20]]
+    if retried:
+        lines += ["", "Run once more (`--retries`), the first run's problem:", ""] + [
+            f"- {r['fault']} {r['phase']}: {r['problem']}" for r in retried]
     return "\n".join(lines)
 
 
@@ -113,7 +117,9 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--retries", type=int, default=0,
         help="run a failed case again this many times when the true pressure stayed within the "
-        "limits (a limit violation is never run again); each retry is reported (default 0)")
+        "limits (a limit violation is never run again), and the fault-free grasps when they "
+        "warned while the control loop was held up past the valves' lifetime (a host stall); "
+        "each retry is reported (default 0)")
     args = parser.parse_args(argv)
     grasps = args.grasps if args.grasps is not None else (2 if args.quick else 20)
     if grasps < 0 or args.retries < 0:
@@ -143,15 +149,22 @@ def main(argv=None) -> int:
                     "named after "
                     f"{result.detection_s:.3f} s  {result.problem}", file=sys.stderr, flush=True)
             print(f"fault-free: {grasps} grasps ...", file=sys.stderr, flush=True)
-            false_count, warnings = false_alarms(rig, grasps) if grasps else (0, [])
+            fault_free, fault_free_retried = fault_free_grasps(
+                rig, grasps, args.retries,
+                on_retry=lambda: print(f"fault-free: warned while the control loop was held up; "
+                                       f"{grasps} grasps once more ...", file=sys.stderr,
+                                       flush=True))
+            retried += fault_free_retried
     finally:
         rclpy.try_shutdown()
     seconds = time.monotonic() - started
     summary = summarise(results)
     figures = {
         **summary, "case_list": [[r.fault, r.phase] for r in results],
-        "false_alarms_fault_free": false_count, "fault_free_grasps": grasps,
-        "fault_free_warnings": warnings[:20], "seconds": round(seconds, 1), "retried": retried,
+        "false_alarms_fault_free": fault_free.warnings, "fault_free_grasps": grasps,
+        "fault_free_warnings": fault_free.texts[:20],
+        "fault_free_valve_lapses": fault_free.valve_lapses,
+        "seconds": round(seconds, 1), "retried": retried,
         "failures": [{
             "fault": r.fault, "phase": r.phase, "problem": r.problem or r.end_state,
             "within_limits": r.within_limits, "detected": r.detected,
@@ -161,12 +174,12 @@ def main(argv=None) -> int:
     if args.json:
         print(json.dumps(figures, indent=2))
     else:
-        text = markdown(results, summary, false_count, warnings, grasps, seconds,
+        text = markdown(results, summary, fault_free, grasps, retried, seconds,
                         "python scripts/bench_faults.py" + (" --quick" if args.quick else ""))
         print(text)
         if not args.quick and not args.faults and not args.phases:
             update_section("bench_faults", "## Single-fault matrix (bench_faults)\n\n" + text)
-    failed = figures["failures"] or false_count
+    failed = figures["failures"] or fault_free.warnings
     return 1 if failed else 0
 
 
