@@ -439,8 +439,8 @@ class FaultFreeRound:
     @property
     def host_stalled(self) -> bool:
         """Warned in grasps during which the control loop itself was held up: on a shared host
-        (CI's VMs lose a vCPU to the hypervisor for tens of ms) the warning is the suite
-        reporting the stall, as it must, not a false alarm of its own."""
+        (other processes or the hypervisor taking the CPUs) the warning is the suite reporting
+        the stall, as it must, not a false alarm of its own."""
         return self.warnings > 0 and self.valve_lapses > 0
 
 
