@@ -180,6 +180,13 @@ def test_the_sender_s_frame_carries_the_stamp_its_receiver_gets(channel):
         receiver.shutdown()
 
 
+def _assert_dated_as_it_went(sender, receiver) -> None:
+    """A frame sent without a stamp reaches ``receiver`` dated between its send and its receipt."""
+    before = time.time()
+    sender.send(can.Message(arbitration_id=0x103, data=b"\x03", is_extended_id=False))
+    assert before <= receiver.recv(2.0).timestamp <= time.time()
+
+
 def test_without_kernel_stamps_a_frame_carries_the_senders_stamp_to_its_receiver(channel):
     """A kernel that takes neither timestamping option: the sender stamps each frame in Python
     as it goes to the socket, and its receiver gets that very stamp; a receiver without kernel
@@ -195,9 +202,7 @@ def test_without_kernel_stamps_a_frame_carries_the_senders_stamp_to_its_receiver
         assert received is not None and received.timestamp == frame.timestamp
         assert before <= frame.timestamp <= time.time()
         sender._kernel_send_stamps = True  # a frame sent with a stamp of 0
-        before = time.time()
-        sender.send(can.Message(arbitration_id=0x102, data=b"\x02", is_extended_id=False))
-        assert before <= receiver.recv(2.0).timestamp <= time.time()
+        _assert_dated_as_it_went(sender, receiver)
     finally:
         sender.shutdown()
         receiver.shutdown()
@@ -216,9 +221,7 @@ def test_a_bus_that_preserves_timestamps_delivers_the_senders_stamp(channel):
                                 timestamp=123.5))
         assert receiver.recv(2.0).timestamp == 123.5
         assert sender.recv(2.0).timestamp == 123.5  # its own copy too
-        before = time.time()
-        sender.send(can.Message(arbitration_id=0x103, data=b"\x03", is_extended_id=False))
-        assert before <= receiver.recv(2.0).timestamp <= time.time()
+        _assert_dated_as_it_went(sender, receiver)
     finally:
         sender.shutdown()
         receiver.shutdown()
