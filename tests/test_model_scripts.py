@@ -153,6 +153,35 @@ def test_bench_identify_quick_json_reports_every_key():
 
 
 @pytest.mark.slow
+def test_bench_identify_spread_quick_json_summarises_every_value_over_its_fits():
+    """Two seeded offline fits of slow_large (quick excitation): every value of the issue's
+    targets summarised over both, with shares that are shares, and each fit in the output."""
+    from softgrip_ros.devtools.identification_sim import RECOVERY_TARGETS
+
+    result = run("scripts/bench_identify_spread.py", "--quick", "--json", timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    figures = json.loads(result.stdout)
+    assert figures["failures"] == []
+    assert [(f["truth"], f["seed"]) for f in figures["fits"]] == [("slow_large", 20),
+                                                                   ("slow_large", 21)]
+    assert set(figures["spread"]) == set(RECOVERY_TARGETS)
+    for name, row in figures["spread"].items():
+        assert row["fits"] == 2, name
+        for share in ("within_target", "covered", "flagged"):
+            assert row[share] in (0.0, 0.5, 1.0), (name, share)
+        assert 0.0 <= row["median_abs_err"] <= row["max_abs_err"], name
+    assert figures["per_truth"]["slow_large"] == figures["spread"]
+    assert "fit 2/2" in result.stderr
+
+
+def test_bench_identify_spread_refuses_a_bad_seed_count():
+    result = run("scripts/bench_identify_spread.py", "--seeds", "0", "--json")
+    assert result.returncode == 2
+    assert "must be at least 1, got 0" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+@pytest.mark.slow
 def test_bench_speed_accuracy_quick_json_runs_through_and_reports_every_key():
     """#21: it died at the end on an import of a renamed function, and no test ran it."""
     result = run("scripts/bench_speed_accuracy.py", "--quick", "--json", timeout=600)
