@@ -110,15 +110,19 @@ def main(argv=None) -> int:
                               "writes nothing")
     parser.add_argument("--seeds", type=positive_int, default=10,
                         help="noise seeds per truth (default 10)")
-    parser.add_argument("--truth", action="append", choices=TRUTHS,
-                        help="a truth to fit (repeatable; default: all three)")
+    parser.add_argument("--truth", action="append",
+                        help="slow_large, drawn_<seed> or a plant file to play the user's "
+                        f"hardware (repeatable; default: {', '.join(TRUTHS)})")
     parser.add_argument("--jobs", type=positive_int, default=max(1, min(2, os.cpu_count() or 1)),
                         help="fits at a time (default: the cores, at most 2)")
     args = parser.parse_args(argv)
     truths = args.truth or (["slow_large"] if args.quick else list(TRUTHS))
     seeds = list(range(FIRST_SEED, FIRST_SEED + (2 if args.quick else args.seeds)))
     for name in truths:
-        truth(name)
+        try:
+            truth(name)
+        except (ValueError, OSError) as error:
+            parser.error(str(error))
     started = time.perf_counter()
     progress(f"{len(truths) * len(seeds)} fits, {args.jobs} at a time")
     fits, failures = run_fits(truths, seeds, args.quick, args.jobs)

@@ -245,13 +245,16 @@ def test_the_spread_over_seeded_fits_counts_targets_and_intervals():
     assert row["flagged"] == pytest.approx(0.25)
 
 
-def test_a_benchmark_truth_is_named_or_refused():
+def test_a_benchmark_truth_is_named_or_a_file_or_refused(tmp_path):
     assert identification_sim.truth("drawn_2").parameters == (
         identification_sim.drawn(2).parameters)
     assert identification_sim.truth("slow_large").parameters.supply_conductance == pytest.approx(
         0.6 * plant_file.default_description().parameters.supply_conductance)
     with pytest.raises(ValueError, match="unknown truth 'drawn_x'"):
         identification_sim.truth("drawn_x")
+    path = plant_file.save(identification_sim.drawn(4), tmp_path / "mine.yaml")
+    assert dataclasses.asdict(identification_sim.truth(str(path)).parameters) == pytest.approx(
+        dataclasses.asdict(identification_sim.drawn(4).parameters))
 
 
 @pytest.mark.slow

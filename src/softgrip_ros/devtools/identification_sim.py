@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import pathlib
 
 import numpy as np
 
@@ -118,12 +119,15 @@ def record(truth: plant_file.PlantDescription, steps: list, held_out_s: float = 
 
 
 def truth(name: str) -> plant_file.PlantDescription:
-    """A named truth of the benchmarks: ``slow_large`` (the issue's case) or ``drawn_<seed>``."""
+    """A truth of the benchmarks: ``slow_large`` (the issue's case), ``drawn_<seed>``, or the
+    path of a plant file (the format of config/plant.yaml)."""
     if name == "slow_large":
         return scaled(SLOW_LARGE)
     if name.startswith("drawn_") and name[len("drawn_"):].isdigit():
         return drawn(int(name[len("drawn_"):]))
-    raise ValueError(f"unknown truth {name!r}: slow_large or drawn_<seed>")
+    if pathlib.Path(name).is_file():
+        return plant_file.load(pathlib.Path(name))
+    raise ValueError(f"unknown truth {name!r}: slow_large, drawn_<seed> or a plant file")
 
 
 def seeded_fit(name: str, seed: int, quick: bool = False) -> dict:
