@@ -289,6 +289,31 @@ def test_the_fit_recovers_a_perturbed_plant_within_the_targets(case):
 
 
 @pytest.mark.slow
+def test_a_measured_pump_level_is_held_and_the_vacuum_ratio_is_then_identified():
+    """Fitted, the pump's level and the vacuum path's critical ratio trade off within the limits
+    (both flagged in the test above, the ratio 50 % off here) and drag the values beside them.
+    Given as measured (softgrip_identify --vacuum-source-pa), the level is held, exactly, and
+    the ratio comes out unflagged within its target; nothing is flagged."""
+    truth = identification_sim.scaled(identification_sim.SLOW_LARGE, (800.0, -400.0))
+    steps, held_out = identification.excitation()
+    recording = identification_sim.record(truth, steps, held_out, seed=3)
+    level = truth.parameters.vacuum_source_gauge_pa
+    result = identification.fit(recording, plant_file.default_description().parameters,
+                                volume_m3=truth.parameters.chamber_volume_m3,
+                                vacuum_source_pa=level)
+    source = result.estimates["vacuum_source_gauge_pa"]
+    assert (source.value, source.ci95, source.source, source.flag) == (
+        level, (level, level), "measured", "")
+    assert result.parameters.vacuum_source_gauge_pa == level
+    ratio = result.estimates["vacuum_critical_ratio"]
+    assert not ratio.flag
+    assert ratio.value == pytest.approx(truth.parameters.vacuum_critical_ratio, rel=0.10)
+    assert result.flags == []
+    _assert_recovered(result, truth.parameters)
+    assert 0.95 <= result.validation_rmse_over_noise <= 1.05
+
+
+@pytest.mark.slow
 def test_valve_switches_dated_tenths_of_a_millisecond_off_are_re_timed_by_the_fit():
     """Live, a valve switch is dated to a few tenths of a ms (a solenoid valve's to a ms or
     more), and a small chamber's fill moves 600 Pa in one. Here every recorded switch is moved by

@@ -23,6 +23,8 @@ def _run(*args, timeout=120):
 
 @pytest.mark.parametrize("args, message", [
     (["--volume-m3", "5"], "--volume-m3 must lie in"),
+    (["--vacuum-source-pa", "5"], "--vacuum-source-pa must lie in"),
+    (["--vacuum-source-pa", "nan"], "--vacuum-source-pa must lie in"),
     (["--from-log", "/nonexistent"], "no rosbag2 log there"),
     (["--timeout", "0"], "--timeout must be > 0"),
 ])
@@ -74,7 +76,8 @@ def _log_of(recording: identification.Recording, base: plant_file.PlantDescripti
 @pytest.mark.slow
 def test_a_log_reads_back_and_is_fitted_into_a_plant_file_with_its_report(tmp_path):
     """The log format round trip (rosbags, MCAP), then the tool fits it: a plant file that
-    loads, with provenance, intervals and the measured volume, and its report and figure."""
+    loads, with provenance, intervals, the measured volume and pump level, and its report and
+    figure."""
     truth = plant_file.default_description()
     steps, held_out = identification.excitation(quick=True)
     recording = identification_sim.record(truth, steps, held_out, seed=2)
@@ -92,11 +95,14 @@ def test_a_log_reads_back_and_is_fitted_into_a_plant_file_with_its_report(tmp_pa
     assert [c.valve for c in back.inputs] == [c.valve for c in recording.inputs]
     assert back.held_out_from_s == pytest.approx(recording.held_out_from_s)
     result = _run("--from-log", str(log), "--output", str(tmp_path / "out"), "--volume-m3",
-                  "2e-5", timeout=300)
+                  "2e-5", "--vacuum-source-pa", "-80000", timeout=300)
     assert result.returncode == 0, result.stdout + result.stderr
     written = plant_file.load(tmp_path / "out" / "plant.yaml")
     assert written.provenance["source"] == "identified"
     assert written.details["chamber_volume_m3"]["source"] == "measured"
+    assert written.details["vacuum_source_gauge_pa"]["source"] == "measured"
+    assert written.parameters.vacuum_source_gauge_pa == -80000.0
+    assert "(--vacuum-source-pa)" in written.provenance["vacuum_source"]
     assert "ci95" in written.details["supply_conductance"]
     assert written.parameters.supply_conductance == pytest.approx(1e-9, rel=0.05)
     report = (tmp_path / "out" / "identification.md").read_text()

@@ -612,12 +612,12 @@ def _timing_sensitivities(recording: Recording, grid: "_Grid", regulator_at, bia
 
 
 def _joint_pass(solve, residuals, jacobian, x0: np.ndarray, sensitivity: np.ndarray,
-                already_ms: np.ndarray):
+                already_ms: np.ndarray, bounds: tuple = STAGE3_BOUNDS):
     """(the solve's result, each timing's further shift, ms): the chamber values and the
     timings (:func:`_timing_sensitivities`) fitted together, the timings' effect linearised
     (``sensitivity`` [readings, timings], weighted residual per ms later); each timing's prior
     of SWITCH_PRIOR_MS and its bound of SWITCH_LIMIT_MS apply to its whole shift, ``already_ms``
-    plus this one."""
+    plus this one; ``bounds``: the chamber values' (those fitted)."""
     chamber, count = len(x0), sensitivity.shape[1]
     prior = np.hstack([np.zeros((count, chamber)), np.eye(count) / SWITCH_PRIOR_MS])
 
@@ -628,8 +628,8 @@ def _joint_pass(solve, residuals, jacobian, x0: np.ndarray, sensitivity: np.ndar
     def joint_jacobian(z):
         return np.vstack([np.hstack([jacobian(z[:chamber]), sensitivity]), prior])
 
-    low = np.concatenate([STAGE3_BOUNDS[0], -SWITCH_LIMIT_MS - already_ms])
-    high = np.concatenate([STAGE3_BOUNDS[1], SWITCH_LIMIT_MS - already_ms])
+    low = np.concatenate([bounds[0], -SWITCH_LIMIT_MS - already_ms])
+    high = np.concatenate([bounds[1], SWITCH_LIMIT_MS - already_ms])
     start = np.concatenate([x0, np.clip(np.zeros(count), low[chamber:] + 1e-6,
                                         high[chamber:] - 1e-6)])
     result = solve(start, "trf", joint_residuals, joint_jacobian, (low, high))
@@ -688,7 +688,7 @@ def _robust_covariance(jacobian: np.ndarray, residuals: np.ndarray, series: list
 
 
 def _pinned(x: np.ndarray, covariance: np.ndarray, weak=(), edge: float = 1e-3,
-            coupling: float = 0.9) -> dict:
+            coupling: float = 0.9, held=()) -> dict:
     """{stage-3 index: why its interval means nothing} for the values the fit left at an edge of
     its range (within ``edge`` of the range's span), the ``weak`` ones (already flagged as
     undetermined by the data: '' keeps their reason), and those correlated with one of either by
@@ -698,10 +698,12 @@ def _pinned(x: np.ndarray, covariance: np.ndarray, weak=(), edge: float = 1e-3,
     (bench_identify, drawn_2) the vacuum path's critical ratio ended at 0.95 with the source at
     -54.5 kPa (truth 0.3 and -80 kPa) inside +-1 % intervals, flagged by nothing: within the
     limits that pair chokes the flow just the same; and offline (drawn_1) the ratio came out
-    +-37 % about 0.79 (truth 0.3), the source -25 % off inside +-14 %."""
+    +-37 % about 0.79 (truth 0.3), the source -25 % off inside +-14 %. A ``held`` value
+    (measured, not fitted) is never at an edge, and has no variance to trade."""
     low, high = STAGE3_BOUNDS
     span = high - low
-    at_edge = [i for i in range(len(x)) if min(x[i] - low[i], high[i] - x[i]) <= edge * span[i]]
+    at_edge = [i for i in range(len(x)) if i not in held and
+               min(x[i] - low[i], high[i] - x[i]) <= edge * span[i]]
     reasons = {i: "at the edge of the fit's range: the data pushed it there, so they do not "
                "determine it (its interval is the range)" for i in at_edge}
     reasons.update({i: "" for i in weak if i not in reasons})
@@ -729,9 +731,14 @@ def _whiteness(residuals: np.ndarray) -> float:
 
 
 def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None = None,
-        progress=lambda text: None, max_seconds: float = math.inf) -> Identification:
+        progress=lambda text: None, max_seconds: float = math.inf,
+        vacuum_source_pa: float | None = None) -> Identification:
     """Fit ``recording`` (see the module docstring); ``base`` gives what the data cannot
     (the temperature, the supply's inlet, and V0 unless ``volume_m3`` is given).
+    ``vacuum_source_pa``: the pump's level (gauge Pa) as measured, held instead of fitted; within
+    the limits the vacuum path's flow hardly tells it from the path's critical ratio, and they
+    trade off, dragging the values beside them further than their intervals say
+    (docs/identification.md, "How far to trust a fit").
     ``progress(text)`` is told each stage. ValueError when the recording cannot be fitted."""
     started = time.perf_counter()
     recording.check()
@@ -739,6 +746,12 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
     if volume_m3 is not None:
         scale = volume_m3 / base.chamber_volume_m3
         base = dataclasses.replace(base, **{n: getattr(base, n) * scale for n in VOLUME_SCALED})
+    held = []  # stage-3 indices held at the base's value (measured)
+    if vacuum_source_pa is not None:
+        base = dataclasses.replace(base, vacuum_source_gauge_pa=float(vacuum_source_pa))
+        held.append(STAGE3.index("vacuum_source_gauge_pa"))
+    free = np.array([i for i in range(len(STAGE3)) if i not in held])
+    bounds = (STAGE3_BOUNDS[0][free], STAGE3_BOUNDS[1][free])
     rests = vented_rests(recording)
     progress(f"stage 1: sensor biases and noise from {len(rests)} vented rests")
     biases, noises = sensor_biases(recording, rests)
@@ -778,14 +791,23 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
     cache = {}
     evaluations = []
 
-    def batch(x):
-        """The predictions at ``x`` and at ``x`` moved along each coordinate, in one run."""
-        key = x.tobytes()
+    held_x = _stage3_vector(base)
+
+    def expand(z):
+        """The whole stage-3 vector from its free coordinates ``z`` (the held ones the base's)."""
+        x = held_x.copy()
+        x[free] = z
+        return x
+
+    def batch(z):
+        """The predictions at ``z`` and at ``z`` moved along each free coordinate, in one run."""
+        key = z.tobytes()
         if key not in cache:
+            x = expand(z)
             sets = [_stage3_parameters(x, base)]
-            for i, step in enumerate(STAGE3_STEPS):
+            for i in free:
                 shifted = x.copy()
-                shifted[i] += step
+                shifted[i] += STAGE3_STEPS[i]
                 sets.append(_stage3_parameters(shifted, base))
             cache.clear()
             cache[key] = grid.simulate(sets)
@@ -800,16 +822,17 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
 
     def jacobian(x):
         predictions = batch(x)
-        return ((predictions[1:] - predictions[0]) * grid.weight / STAGE3_STEPS[:, None]).T
+        return ((predictions[1:] - predictions[0]) * grid.weight /
+                STAGE3_STEPS[free, None]).T
 
-    def solve(x0, method: str, fun=residuals, jac=jacobian, bounds=STAGE3_BOUNDS):
+    def solve(x0, method: str, fun=residuals, jac=jacobian, bounds=bounds):
         return least_squares(fun, x0, jac=jac, method=method, bounds=bounds, x_scale="jac",
                              ftol=1e-8, xtol=1e-8, max_nfev=40)
 
-    def inside(x):  # strictly inside the bounds, as least_squares needs a start
-        return np.clip(x, STAGE3_BOUNDS[0] + 1e-6, STAGE3_BOUNDS[1] - 1e-6)
+    def inside(z):  # strictly inside the bounds, as least_squares needs a start
+        return np.clip(z, bounds[0] + 1e-6, bounds[1] - 1e-6)
 
-    x3 = inside(_stage3_vector(base))
+    x3 = inside(held_x[free])
     # Restarted while a pass stops on its step size (xtol) or its evaluation budget rather than
     # on the cost (ftol, gtol): the trust region had shrunk away from a minimum, in the valley
     # where the ratios and the conductances trade off. trf and dogbox stall at different places
@@ -840,18 +863,19 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
     # some time before its stamp (a sensor's filter; live, the simulated device's readings up to
     # 0.2 ms), and the supply path's critical ratio took that in (offline, drawn_1 with every
     # reading 0.2 ms stale: -11.6 %).
-    x3, chamber, timing_ms = stage3.x, len(STAGE3), {}
+    x3, chamber, timing_ms = stage3.x, len(free), {}  # x3: the free coordinates
     shifts_s, delays_s = {}, {}  # timing_ms split: the switches' (by index), the sensors'
     redated, previous_cost = recording, math.inf
     for joint_pass in range(1, REDATE_PASSES + 1):
         columns, timings = _timing_sensitivities(redated, grid, regulator_at, biases, weights,
-                                                 fitted_until, _stage3_parameters(x3, base))
+                                                 fitted_until,
+                                                 _stage3_parameters(expand(x3), base))
         progress(f"stage 3 again ({joint_pass}/{REDATE_PASSES}), with the times of "
                  f"{sum(isinstance(t, int) for t in timings)} valve switches and the sensors' "
                  "latencies")
         stage3, moved = _joint_pass(solve, residuals, jacobian, inside(x3),
                                     columns * grid.weight[:, None],
-                                    np.array([timing_ms.get(t, 0.0) for t in timings]))
+                                    np.array([timing_ms.get(t, 0.0) for t in timings]), bounds)
         x3 = stage3.x[:chamber]
         for timing, more in zip(timings, moved):
             timing_ms[timing] = timing_ms.get(timing, 0.0) + float(more)
@@ -869,14 +893,20 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
             break
         previous_cost = stage3.cost
     readings = len(grid.measured)
+    x3 = expand(x3)
     fitted = _stage3_parameters(x3, base)
     # the wider of the two per value (the sandwich alone can come out narrower by chance), each
     # the chamber values' block of the joint covariance: the switches' uncertainty marginalised
     series = [np.flatnonzero(grid.names == name)[np.argsort(grid.times[grid.names == name])]
               for name in recording.sensors]
-    joint_covariance = _covariance(stage3.jac, stage3.fun)
-    variances = np.maximum(np.diag(joint_covariance)[:chamber],
-                           np.diag(_robust_covariance(stage3.jac, stage3.fun, series, chamber)))
+    free_covariance = _covariance(stage3.jac, stage3.fun)
+    # over every stage-3 value, a held one's row and column zero
+    joint_covariance = np.zeros((len(STAGE3), len(STAGE3)))
+    joint_covariance[np.ix_(free, free)] = free_covariance[:chamber, :chamber]
+    variances = np.zeros(len(STAGE3))
+    variances[free] = np.maximum(
+        np.diag(free_covariance)[:chamber],
+        np.diag(_robust_covariance(stage3.jac, stage3.fun, series, chamber)))
     residual_pa = stage3.fun[:readings] / grid.weight
 
     estimates = {}
@@ -893,7 +923,8 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
         else:
             scale = 1.0 if kind == "" else kind
             interval = (value - half * scale, value + half * scale)
-        estimates[name] = Estimate(value, interval, "identified")
+        estimates[name] = (Estimate(value, (value, value), "measured") if i in held else
+                           Estimate(value, interval, "identified"))
     regulator_norms = np.linalg.norm(stage2.jac, axis=0)
     for i, name in enumerate(STAGE2):
         half = 1.96 * math.sqrt(max(regulator_cov[i, i], 0.0))
@@ -944,9 +975,10 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
             estimate.flag = (f"its 95 % interval is +-{100 * width / abs(estimate.value):.0f} %: "
                              "the data do not excite it enough")
             flags.append(f"{name}: {estimate.flag}")
-    column_norms = np.linalg.norm(stage3.jac[:readings, :chamber], axis=0)
+    column_norms = np.full(len(STAGE3), math.inf)  # a held value is not the data's to excite
+    column_norms[free] = np.linalg.norm(stage3.jac[:readings, :chamber], axis=0)
     for name, (i, _) in names_x.items():
-        if column_norms[i] < 1e-6 * max(column_norms.max(), 1e-30):
+        if column_norms[i] < 1e-6 * max(column_norms[free].max(), 1e-30):
             estimates[name].ci95 = (-math.inf, math.inf)
             estimates[name].flag = "not excited: the fit does not depend on it"
             flags.append(f"{name}: not excited by this recording")
@@ -960,14 +992,15 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
         # subsonic part of an evacuation tells them apart (live drawn_2: 0.92 and -55 kPa for
         # 0.3 and -80, inside +-15 % and +-7 % intervals and unflagged)
         for name in ("vacuum_critical_ratio", "vacuum_source_gauge_pa"):
-            if not estimates[name].flag:
+            if not estimates[name].flag and estimates[name].source == "identified":
                 estimates[name].flag = (
                     f"the fitted vacuum flow is subsonic over {100 * subsonic:.0f} % of the "
-                    "evacuations' readings: the data hardly tell the path's critical ratio from "
-                    "the pump's level (its interval is the range)")
+                    "evacuations' readings: the data hardly tell the path's critical ratio " +
+                    ("(the pump's level given)" if held else "from the pump's level") +
+                    " (its interval is the range)")
                 flags.append(f"{name}: {estimates[name].flag}")
                 weak.append(STAGE3.index(name))
-    for i, message in _pinned(x3, joint_covariance[:chamber, :chamber], weak).items():
+    for i, message in _pinned(x3, joint_covariance, weak, held=held).items():
         name = STAGE3[i]
         edges = sorted(getattr(end, name) for end in range_ends)
         estimates[name].ci95 = (edges[0], edges[1])

@@ -68,6 +68,10 @@ def parser() -> argparse.ArgumentParser:
                      "running the excitation")
     top.add_argument("--volume-m3", type=float, help="the channel's air volume at 0 Pa gauge, "
                      "measured (default: the base file's, said to be inherited)")
+    top.add_argument("--vacuum-source-pa", type=float, metavar="PA",
+                     help="the vacuum pump's level, gauge Pa (negative), measured: held instead "
+                     "of fitted (within the limits the data hardly tell it from the vacuum "
+                     "path's critical ratio; default: fitted, and likely flagged)")
     top.add_argument("--base", type=pathlib.Path, help="the plant file for what the data cannot "
                      "give (default: the controller's own)")
     top.add_argument("--quick", action="store_true", help="a shorter excitation (~19 s)")
@@ -81,6 +85,10 @@ def _check(args, error) -> None:
     if args.volume_m3 is not None and not (math.isfinite(args.volume_m3) and
                                            1e-7 <= args.volume_m3 <= 1e-3):
         error(f"--volume-m3 must lie in [1e-7, 1e-3] m^3, got {args.volume_m3}")
+    if args.vacuum_source_pa is not None and not (math.isfinite(args.vacuum_source_pa) and
+                                                  -101e3 <= args.vacuum_source_pa <= -1e3):
+        error("--vacuum-source-pa must lie in [-101000, -1000] Pa gauge, got "
+              f"{args.vacuum_source_pa}")
     if args.from_log is not None and not (args.from_log / "metadata.yaml").is_file():
         error(f"--from-log {args.from_log}: no rosbag2 log there (no metadata.yaml)")
     if args.output is not None and (args.output / "plant.yaml").exists():
@@ -355,12 +363,16 @@ def fit_log(log: pathlib.Path, args, output: pathlib.Path, progress, command: st
     base = plant_file.load(args.base) if args.base else plant_file.parse(
         info["base_plant"], "the log's base plant")
     progress(f"fitting {sum(len(t) for t, _ in recording.sensors.values())} readings")
-    result = identification.fit(recording, base.parameters, args.volume_m3, progress)
+    result = identification.fit(recording, base.parameters, args.volume_m3, progress,
+                                vacuum_source_pa=args.vacuum_source_pa)
     volume = (f"measured, {args.volume_m3:g} m^3 (--volume-m3)" if args.volume_m3 is not None
               else f"inherited, {base.parameters.chamber_volume_m3:g} m^3 from the base file")
     provenance = {"source": "identified", "date": datetime.date.today().isoformat(),
                   "tool": "softgrip_identify", "recording": str(output / "recording"),
                   "base": str(args.base or info.get("base_plant_file", "")), "volume": volume}
+    if args.vacuum_source_pa is not None:
+        provenance["vacuum_source"] = (f"measured, {args.vacuum_source_pa:g} Pa gauge "
+                                       "(--vacuum-source-pa)")
     written = write(result, base, provenance, output, command)
     for flag in result.flags:
         print(f"softgrip_identify: flagged: {flag}", file=sys.stderr)
