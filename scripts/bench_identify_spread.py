@@ -47,12 +47,13 @@ def positive_int(text: str) -> int:
     return value
 
 
-def run_fits(truths: list, seeds: list, quick: bool, jobs: int) -> tuple[list, list]:
+def run_fits(truths: list, seeds: list, quick: bool, jobs: int,
+             pump_level_given: bool = False) -> tuple[list, list]:
     """(fits, failures): every truth fitted at every seed, ``jobs`` at a time."""
     fits, failures = [], []
     tasks = [(name, seed) for name in truths for seed in seeds]
     with concurrent.futures.ProcessPoolExecutor(max_workers=jobs) as pool:
-        futures = {pool.submit(seeded_fit, name, seed, quick): (name, seed)
+        futures = {pool.submit(seeded_fit, name, seed, quick, pump_level_given): (name, seed)
                    for name, seed in tasks}
         for done, future in enumerate(concurrent.futures.as_completed(futures), 1):
             name, seed = futures[future]
@@ -74,14 +75,17 @@ def half_width(relative: float) -> str:
     return f"{100 * relative:.2f} %" if relative < 10.0 else "unbounded (flagged)"
 
 
-def markdown(spread: dict, per_truth: dict, fits: list, command: str, seconds: float) -> str:
+def markdown(spread: dict, per_truth: dict, fits: list, command: str, seconds: float,
+             pump_level_given: bool) -> str:
     truths = list(per_truth)
     seeds = sorted({fit["seed"] for fit in fits})
     lines = [
         f"Reproduce: `{command}` ({machine_line()}; {seconds / 60:.1f} min).", "",
         f"Each truth ({', '.join(truths)}: as in the live table above) recorded offline once per "
         f"noise seed ({seeds[0]}-{seeds[-1]}; the recovery tests use seed 3) and fitted as "
-        f"softgrip_identify fits it, the truth's volume given: {len(fits)} fits. Per value: the "
+        f"softgrip_identify fits it, the truth's volume given" +
+        (" and its pump's level (--vacuum-source-pa)" if pump_level_given else "") +
+        f": {len(fits)} fits. Per value: the "
         "share of fits within the issue's target (and per truth), the median and largest "
         "|relative error|, the share of 95 % intervals that hold the truth (nominally 0.95) and "
         "their median half width, and the share the fit flagged.", "",
@@ -94,12 +98,13 @@ def markdown(spread: dict, per_truth: dict, fits: list, command: str, seconds: f
         cells += [f"{per_truth[t][name]['within_target']:.2f}" for t in truths]
         exact = row["median_half_width"] < 1e-6
         cells += [f"{100 * row['median_abs_err']:.2f} %", f"{100 * row['max_abs_err']:.1f} %",
-                  "- (reports without noise)" if exact else f"{row['covered']:.2f}",
+                  "-" if exact else f"{row['covered']:.2f}",
                   half_width(row["median_half_width"]), f"{row['flagged']:.2f}"]
         lines.append("| " + " | ".join(cells) + " |")
-    lines += ["", "The regulator's reports carry no noise in these recordings, so its lag's "
-              "interval is rounding-sized; the vacuum path's critical ratio and the source's "
-              "level are flagged by design (see the live table's note). What these figures "
+    lines += ["", "-: an interval without width: the regulator's lag (its reports carry no noise "
+              "in these recordings) and a value given as measured. Unless the pump's level is "
+              "given, the vacuum path's critical ratio and the level are flagged by design (see "
+              "the live table's note). What these figures "
               "mean for a fit, and what is known about them, is in "
               "[identification.md](identification.md#how-far-to-trust-a-fit).", ""]
     return "\n".join(lines)
@@ -113,6 +118,9 @@ def main(argv=None) -> int:
     parser.add_argument("--truth", action="append",
                         help="slow_large, drawn_<seed> or a plant file to play the user's "
                         f"hardware (repeatable; default: {', '.join(TRUTHS)})")
+    parser.add_argument("--pump-level-given", action="store_true",
+                        help="give each fit its truth's vacuum pump level, as "
+                        "softgrip_identify --vacuum-source-pa does (its own section)")
     parser.add_argument("--jobs", type=positive_int, default=max(1, min(2, os.cpu_count() or 1)),
                         help="fits at a time (default: the cores, at most 2)")
     args = parser.parse_args(argv)
@@ -125,7 +133,7 @@ def main(argv=None) -> int:
             parser.error(str(error))
     started = time.perf_counter()
     progress(f"{len(truths) * len(seeds)} fits, {args.jobs} at a time")
-    fits, failures = run_fits(truths, seeds, args.quick, args.jobs)
+    fits, failures = run_fits(truths, seeds, args.quick, args.jobs, args.pump_level_given)
     seconds = time.perf_counter() - started
     spread = recovery_spread(fits)
     per_truth = {name: recovery_spread([f for f in fits if f["truth"] == name])
@@ -141,10 +149,15 @@ def main(argv=None) -> int:
         return 0
     command = "python scripts/bench_identify_spread.py" + (
         f" --seeds {args.seeds}" if args.seeds != 10 else "") + "".join(
-        f" --truth {name}" for name in (args.truth or []))
-    text = markdown(spread, per_truth, fits, command, seconds)
-    update_section("bench_identify_spread", "## How far an identification can be trusted "
-                   "(`scripts/bench_identify_spread.py`)\n\n" + text)
+        f" --truth {name}" for name in (args.truth or [])) + (
+        " --pump-level-given" if args.pump_level_given else "")
+    text = markdown(spread, per_truth, fits, command, seconds, args.pump_level_given)
+    if args.pump_level_given:
+        update_section("bench_identify_spread_pump_level", "### With the pump's level measured "
+                       "(`--pump-level-given`)\n\n" + text)
+    else:
+        update_section("bench_identify_spread", "## How far an identification can be trusted "
+                       "(`scripts/bench_identify_spread.py`)\n\n" + text)
     progress(f"done in {seconds:.0f} s; wrote docs/benchmarks.md")
     print(text)
     return 0

@@ -130,17 +130,20 @@ def truth(name: str) -> plant_file.PlantDescription:
     raise ValueError(f"unknown truth {name!r}: slow_large, drawn_<seed> or a plant file")
 
 
-def seeded_fit(name: str, seed: int, quick: bool = False) -> dict:
+def seeded_fit(name: str, seed: int, quick: bool = False, pump_level_given: bool = False) -> dict:
     """Truth ``name`` run through the excitation (``quick``: the short one) with the sensors'
     noise drawn from ``seed``, fitted as softgrip_identify fits (the truth's volume given, as a
-    user gives a measured one). Per value of RECOVERY_TARGETS: ``rel_err`` (fitted / true - 1),
-    ``rel_half_width`` (its 95 % interval's half width over the truth), ``covered`` (the
-    interval holds the truth) and ``flagged``."""
+    user gives a measured one; ``pump_level_given``: its vacuum pump's level too). Per value of
+    RECOVERY_TARGETS: ``rel_err`` (fitted / true - 1), ``rel_half_width`` (its 95 % interval's
+    half width over the truth), ``covered`` (the interval holds the truth) and ``flagged``."""
     description = truth(name)
     steps, held_out = identification.excitation(quick=quick)
     recording = record(description, steps, held_out, seed=seed)
-    result = identification.fit(recording, plant_file.default_description().parameters,
-                                volume_m3=description.parameters.chamber_volume_m3)
+    result = identification.fit(
+        recording, plant_file.default_description().parameters,
+        volume_m3=description.parameters.chamber_volume_m3,
+        vacuum_source_pa=description.parameters.vacuum_source_gauge_pa if pump_level_given
+        else None)
     true = {n: getattr(description.parameters, n) for n in RECOVERY_TARGETS if "." not in n}
     true.update({f"{sensor}.noise_std_pa": model.noise_std_pa
                  for sensor, model in description.sensors.items()})
