@@ -153,12 +153,15 @@ def test_bench_identify_quick_json_reports_every_key():
 
 
 @pytest.mark.slow
-def test_bench_identify_spread_quick_json_summarises_every_value_over_its_fits():
+@pytest.mark.parametrize("pump_level", [False, True])
+def test_bench_identify_spread_quick_json_summarises_every_value_over_its_fits(pump_level):
     """Two seeded offline fits of slow_large (quick excitation): every value of the issue's
-    targets summarised over both, with shares that are shares, and each fit in the output."""
+    targets summarised over both, with shares that are shares, and each fit in the output;
+    with --pump-level-given, the level held at the truth's in both."""
     from softgrip_ros.devtools.identification_sim import RECOVERY_TARGETS
 
-    result = run("scripts/bench_identify_spread.py", "--quick", "--json", timeout=600)
+    result = run("scripts/bench_identify_spread.py", "--quick", "--json",
+                 *(["--pump-level-given"] if pump_level else []), timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
     figures = json.loads(result.stdout)
     assert figures["failures"] == []
@@ -171,6 +174,11 @@ def test_bench_identify_spread_quick_json_summarises_every_value_over_its_fits()
             assert row[share] in (0.0, 0.5, 1.0), (name, share)
         assert 0.0 <= row["median_abs_err"] <= row["max_abs_err"], name
     assert figures["per_truth"]["slow_large"] == figures["spread"]
+    level = figures["spread"]["vacuum_source_gauge_pa"]
+    if pump_level:
+        assert (level["max_abs_err"], level["flagged"]) == (0.0, 0.0)
+    else:
+        assert level["max_abs_err"] > 0.0
     assert "fit 2/2" in result.stderr
 
 
