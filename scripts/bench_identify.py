@@ -63,7 +63,7 @@ def progress(text: str) -> None:
 
 
 def identify_live(truth_path: pathlib.Path, truth: plant_file.PlantDescription, quick: bool,
-                  workdir: pathlib.Path) -> dict:
+                  workdir: pathlib.Path, pump_level_given: bool = False) -> dict:
     channel = f"bench-identify-{uuid.uuid4().hex[:8]}"
     ros_args = ["--ros-args", "-p", "can.interface:=softgrip_ipc", "-p",
                 f"can.channel:={channel}", "--log-level", "warn"]
@@ -75,7 +75,9 @@ def identify_live(truth_path: pathlib.Path, truth: plant_file.PlantDescription, 
     try:
         time.sleep(2.0)  # the processes come up
         argv = ["--output", str(output), "--volume-m3", f"{truth.parameters.chamber_volume_m3!r}",
-                "--timeout", "30"] + (["--quick"] if quick else [])
+                "--timeout", "30"] + (["--quick"] if quick else []) + (
+                    ["--vacuum-source-pa", repr(truth.parameters.vacuum_source_gauge_pa)]
+                    if pump_level_given else [])
         with contextlib.redirect_stdout(sys.stderr):  # its progress; stdout is the JSON
             code = identify.main(argv)
     finally:
@@ -120,12 +122,14 @@ def evaluate(truth: plant_file.PlantDescription, identified_path: pathlib.Path,
     return figures
 
 
-def markdown(rows: list, command: str, seconds: float) -> str:
+def markdown(rows: list, command: str, seconds: float, pump_level_given: bool = False) -> str:
     lines = [
         f"Reproduce: `{command}` ({machine_line()}; {seconds / 60:.1f} min).", "",
         "softgrip_identify run live through `controller` (the shipped plant file) on `sim_device` "
         "with another truth, over DDS and a softgrip_ipc CAN bus; it is given the truth's chamber "
-        "volume (--volume-m3, as a user gives a measured one). Relative errors of the identified "
+        "volume (--volume-m3, as a user gives a measured one" + (
+            "; and its pump's level, --vacuum-source-pa" if pump_level_given else "") +
+        "). Relative errors of the identified "
         "values against the truth (flagged ones marked *); closed loop: a 25 kPa step on the "
         "truth with the controller's model the default file, then the identified one (targets: "
         "rise <= 1.3x the valve fully open, overshoot <= 3 %, steady state <= 0.2 kPa); "
@@ -180,6 +184,9 @@ def main(argv=None) -> int:
                               "nothing")
     parser.add_argument("--truth", type=pathlib.Path, action="append",
                         help="a plant file to play the user's hardware (repeatable)")
+    parser.add_argument("--pump-level-given", action="store_true",
+                        help="give softgrip_identify each truth's vacuum pump level "
+                        "(--vacuum-source-pa), as a user with a gauge would (its own section)")
     parser.add_argument("--workdir", type=pathlib.Path,
                         help="keep the truths' plant files, the recordings and the fits here "
                         "(default: a temporary directory, removed at the end)")
@@ -215,7 +222,7 @@ def run_benchmark(parser, args, workdir: pathlib.Path) -> int:
     for name, path, truth in truths:
         progress(f"truth {name}: identifying live")
         try:
-            live = identify_live(path, truth, args.quick, workdir)
+            live = identify_live(path, truth, args.quick, workdir, args.pump_level_given)
             progress(f"truth {name}: evaluating")
             figures = evaluate(truth, live["path"], runs)
         except (RuntimeError, ValueError, OSError) as error:
@@ -245,11 +252,17 @@ def run_benchmark(parser, args, workdir: pathlib.Path) -> int:
         print(json.dumps(summary, indent=2, default=float))
         return 0
     command = "python scripts/bench_identify.py" + (
-        "".join(f" --truth {p}" for p in args.truth) if args.truth else "")
-    update_section("bench_identify", "## Pneumatic identification (`scripts/bench_identify.py`)"
-                   "\n\n" + markdown(rows, command, seconds))
+        "".join(f" --truth {p}" for p in args.truth) if args.truth else "") + (
+        " --pump-level-given" if args.pump_level_given else "")
+    text = markdown(rows, command, seconds, args.pump_level_given)
+    if args.pump_level_given:
+        update_section("bench_identify_pump_level", "### With the pump's level measured "
+                       "(`--pump-level-given`)\n\n" + text)
+    else:
+        update_section("bench_identify", "## Pneumatic identification "
+                       "(`scripts/bench_identify.py`)\n\n" + text)
     progress(f"done in {seconds:.0f} s; wrote docs/benchmarks.md")
-    print(markdown(rows, command, seconds))
+    print(text)
     return 0
 
 

@@ -153,8 +153,8 @@ def main(argv=None) -> int:
         " --pump-level-given" if args.pump_level_given else "")
     text = markdown(spread, per_truth, fits, command, seconds, args.pump_level_given)
     if args.pump_level_given:
-        update_section("bench_identify_spread_pump_level", "### With the pump's level measured "
-                       "(`--pump-level-given`)\n\n" + text)
+        update_section("bench_identify_spread_pump_level", "### The same fits with the pump's "
+                       "level measured (`--pump-level-given`)\n\n" + text)
     else:
         update_section("bench_identify_spread", "## How far an identification can be trusted "
                        "(`scripts/bench_identify_spread.py`)\n\n" + text)

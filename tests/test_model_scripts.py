@@ -241,7 +241,7 @@ def test_bench_identify_names_a_truth_whose_live_run_fails_and_runs_the_others(m
         sys.path.pop(0)
     ran = []
 
-    def identify_live(path, truth, quick, workdir):
+    def identify_live(path, truth, quick, workdir, pump_level_given=False):
         ran.append(path.stem)
         raise RuntimeError("softgrip_identify exited 1")
 

@@ -26,20 +26,20 @@ the conductances and compliances are only as right as that volume.
 1. each sensor's bias and noise, from the vented rests (the true gauge pressure is 0 there, to
    well within the noise, once the chamber has vented for ``REST_S``);
 2. the regulator's time constant and rate limit, by least squares over its reports;
-3. the chamber: C and b of each path, both compliances and the vacuum source's level, by
-   least squares (scipy's trf and dogbox, restarted, see :func:`fit`) over every sensor
-   reading, weighted by its noise. The chamber rests wherever its valves stay closed or vented a
-   while; each segment, from one rest to the next, is simulated from the measured pressure at
-   its rest, all segments at once. A segment takes in the whole of a vent that ends it (the
-   vent path's decay) but only the first ``HOLD_FITTED_S`` of a closed hold: the hold repeats
-   one level, set by when the valve closed, and a millisecond's error in that time (a 40 ms
-   evacuation) weighed over the whole hold outweighed every flow the excitation measures.
-   Then once more with each valve switch's time and each sensor's latency as values too,
-   dated by the readings about them (their effect on them linearised, with a prior of
-   ``SWITCH_PRIOR_MS``), repeated on the re-dated recording until they settle or a pass no
-   longer gains ``REDATE_GAIN`` (``REDATE_PASSES``): switches dated a few tenths of a ms off
-   blurred every transient, and readings a tenth of a ms older than their stamps skewed every
-   fill, which the fit took for the critical ratios.
+3. the chamber: C and b of each path, both compliances and the vacuum source's level (unless given
+   as measured), by least squares (scipy's trf and dogbox, restarted, see :func:`fit`) over every
+   sensor reading, weighted by its noise. The chamber rests wherever its valves stay closed or
+   vented a while; each segment, from one rest to the next, is simulated from the measured pressure
+   at its rest, all segments at once. A segment takes in the whole of a vent that ends it (the vent
+   path's decay) but only the first ``HOLD_FITTED_S`` of a closed hold: the hold repeats one level,
+   set by when the valve closed, and a millisecond's error in that time (a 40 ms evacuation)
+   weighed over the whole hold outweighed every flow the excitation measures. Then once more with
+   each valve switch's time and each sensor's latency as values too, dated by the readings about
+   them (their effect on them linearised, with a prior of ``SWITCH_PRIOR_MS``), repeated on the
+   re-dated recording until they settle or a pass no longer gains ``REDATE_GAIN``
+   (``REDATE_PASSES``): switches dated a few tenths of a ms off blurred every transient, and
+   readings a tenth of a ms older than their stamps skewed every fill, which the fit took for the
+   critical ratios.
 
 Confidence intervals come from the Jacobian at the optimum: per value the wider of the
 Gauss-Newton covariance (scaled by the residual variance) and the sandwich covariance that keeps
@@ -894,7 +894,9 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
         previous_cost = stage3.cost
     readings = len(grid.measured)
     x3 = expand(x3)
-    fitted = _stage3_parameters(x3, base)
+    # a held value as it was given, not as it came back through the vector's units
+    fitted = dataclasses.replace(_stage3_parameters(x3, base),
+                                 **{STAGE3[i]: getattr(base, STAGE3[i]) for i in held})
     # the wider of the two per value (the sandwich alone can come out narrower by chance), each
     # the chamber values' block of the joint covariance: the switches' uncertainty marginalised
     series = [np.flatnonzero(grid.names == name)[np.argsort(grid.times[grid.names == name])]
