@@ -40,7 +40,8 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 40))
 
 import numpy as np
 
-from softgrip_ros.devtools.benchmarking import benchmark_parser, machine_line, update_section
+from softgrip_ros.devtools.benchmarking import (benchmark_parser, machine_line,
+                                                update_variant_section)
 from softgrip_ros.devtools.closed_loop import step_figures
 from softgrip_ros.devtools.estimator_simulation import anees
 from softgrip_ros.devtools.identification_sim import SLOW_LARGE, drawn, scaled
@@ -255,12 +256,10 @@ def run_benchmark(parser, args, workdir: pathlib.Path) -> int:
         "".join(f" --truth {p}" for p in args.truth) if args.truth else "") + (
         " --pump-level-given" if args.pump_level_given else "")
     text = markdown(rows, command, seconds, args.pump_level_given)
-    if args.pump_level_given:
-        update_section("bench_identify_pump_level", "### With the pump's level measured "
-                       "(`--pump-level-given`)\n\n" + text)
-    else:
-        update_section("bench_identify", "## Pneumatic identification "
-                       "(`scripts/bench_identify.py`)\n\n" + text)
+    update_variant_section("bench_identify", "## Pneumatic identification "
+                           "(`scripts/bench_identify.py`)", text,
+                           "pump_level" if args.pump_level_given else "",
+                           "### With the pump's level measured (`--pump-level-given`)")
     progress(f"done in {seconds:.0f} s; wrote docs/benchmarks.md")
     print(text)
     return 0

@@ -28,7 +28,7 @@ import sys  # noqa: E402
 import time  # noqa: E402
 
 from softgrip_ros.devtools.benchmarking import (benchmark_parser, machine_line,  # noqa: E402
-                                                update_section)
+                                                update_variant_section)
 from softgrip_ros.devtools.identification_sim import (recovery_spread, seeded_fit,  # noqa: E402
                                                       truth)
 
@@ -152,12 +152,11 @@ def main(argv=None) -> int:
         f" --truth {name}" for name in (args.truth or [])) + (
         " --pump-level-given" if args.pump_level_given else "")
     text = markdown(spread, per_truth, fits, command, seconds, args.pump_level_given)
-    if args.pump_level_given:
-        update_section("bench_identify_spread_pump_level", "### The same fits with the pump's "
-                       "level measured (`--pump-level-given`)\n\n" + text)
-    else:
-        update_section("bench_identify_spread", "## How far an identification can be trusted "
-                       "(`scripts/bench_identify_spread.py`)\n\n" + text)
+    update_variant_section("bench_identify_spread", "## How far an identification can be trusted "
+                           "(`scripts/bench_identify_spread.py`)", text,
+                           "pump_level" if args.pump_level_given else "",
+                           "### The same fits with the pump's level measured "
+                           "(`--pump-level-given`)")
     progress(f"done in {seconds:.0f} s; wrote docs/benchmarks.md")
     print(text)
     return 0

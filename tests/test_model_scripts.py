@@ -182,6 +182,21 @@ def test_bench_identify_spread_quick_json_summarises_every_value_over_its_fits(p
     assert "fit 2/2" in result.stderr
 
 
+def test_a_variant_run_writes_its_own_section_beside_the_main_one(tmp_path):
+    """bench_identify's and bench_identify_spread's --pump-level-given: each run replaces its
+    own table only."""
+    from softgrip_ros.devtools.benchmarking import update_variant_section
+
+    path = tmp_path / "benchmarks.md"
+    update_variant_section("bench_x", "## X", "main 1", path=path)
+    update_variant_section("bench_x", "## X", "variant 1", "pump_level", "### X, pump", path=path)
+    update_variant_section("bench_x", "## X", "variant 2", "pump_level", "### X, pump", path=path)
+    text = path.read_text()
+    assert "## X\n\nmain 1\n<!-- bench_x:end -->" in text
+    assert "<!-- bench_x_pump_level:start -->\n### X, pump\n\nvariant 2\n" in text
+    assert "variant 1" not in text and text.index("main 1") < text.index("variant 2")
+
+
 def test_bench_identify_spread_refuses_a_bad_seed_count():
     result = run("scripts/bench_identify_spread.py", "--seeds", "0", "--json")
     assert result.returncode == 2
@@ -246,7 +261,7 @@ def test_bench_identify_names_a_truth_whose_live_run_fails_and_runs_the_others(m
         raise RuntimeError("softgrip_identify exited 1")
 
     monkeypatch.setattr(bench_identify, "identify_live", identify_live)
-    monkeypatch.setattr(bench_identify, "update_section",
+    monkeypatch.setattr(bench_identify, "update_variant_section",
                         lambda *_: pytest.fail("docs/benchmarks.md written"))
     truths = [bench_identify.plant_file.save(bench_identify.scaled(bench_identify.SLOW_LARGE),
                                              tmp_path / f"bench-identify-{name}.yaml")

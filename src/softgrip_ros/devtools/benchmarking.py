@@ -93,6 +93,17 @@ def update_section(name: str, markdown: str, path: pathlib.Path = BENCHMARKS_MD)
     path.write_text(text)
 
 
+def update_variant_section(name: str, heading: str, markdown: str, variant: str = "",
+                           variant_heading: str = "", path: pathlib.Path = BENCHMARKS_MD) -> None:
+    """:func:`update_section` of ``name`` under ``heading``; for a run with a ``variant`` (an
+    option's, e.g. "pump_level"), its own section ``<name>_<variant>`` under ``variant_heading``
+    instead, so that both tables stand."""
+    if variant:
+        update_section(f"{name}_{variant}", f"{variant_heading}\n\n{markdown}", path)
+    else:
+        update_section(name, f"{heading}\n\n{markdown}", path)
+
+
 def verdict(value: float, target: float, smaller_is_better: bool = True) -> str:
     ok = value <= target if smaller_is_better else value >= target
     return "meets" if ok else "**misses**"
