@@ -95,7 +95,7 @@ def test_a_log_reads_back_and_is_fitted_into_a_plant_file_with_its_report(tmp_pa
     assert [c.valve for c in back.inputs] == [c.valve for c in recording.inputs]
     assert back.held_out_from_s == pytest.approx(recording.held_out_from_s)
     result = _run("--from-log", str(log), "--output", str(tmp_path / "out"), "--volume-m3",
-                  "2e-5", "--vacuum-source-pa", "-80000", timeout=300)
+                  "2e-5", "--vacuum-source-pa=-80e3", timeout=300)
     assert result.returncode == 0, result.stdout + result.stderr
     written = plant_file.load(tmp_path / "out" / "plant.yaml")
     assert written.provenance["source"] == "identified"

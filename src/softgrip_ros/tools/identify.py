@@ -69,9 +69,10 @@ def parser() -> argparse.ArgumentParser:
     top.add_argument("--volume-m3", type=float, help="the channel's air volume at 0 Pa gauge, "
                      "measured (default: the base file's, said to be inherited)")
     top.add_argument("--vacuum-source-pa", type=float, metavar="PA",
-                     help="the vacuum pump's level, gauge Pa (negative), measured: held instead "
-                     "of fitted (within the limits the data hardly tell it from the vacuum "
-                     "path's critical ratio; default: fitted, and likely flagged)")
+                     help="the vacuum pump's level, gauge Pa (negative: -80000, or "
+                     "--vacuum-source-pa=-80e3), measured: held instead of fitted (within the "
+                     "limits the data hardly tell it from the vacuum path's critical ratio; "
+                     "default: fitted, and likely flagged)")
     top.add_argument("--base", type=pathlib.Path, help="the plant file for what the data cannot "
                      "give (default: the controller's own)")
     top.add_argument("--quick", action="store_true", help="a shorter excitation (~19 s)")
