@@ -37,6 +37,39 @@ def suite(rclpy_context):
         user.destroy_node()
 
 
+def test_a_client_waiting_to_sense_waits_for_a_pressure_then_for_nothing_more():
+    """Just after bring-up grasp_state comes before the controller has seen a sensor, and a grasp
+    sent then is refused ("sensor timeout, bus silent", CI once). wait_until_ready(sensing=True)
+    waits for a pressure; without it, or when none comes by the deadline, the client is ready
+    once the server and the state are there."""
+    import threading
+    import time
+    from types import SimpleNamespace
+
+    from softgrip_ros.client import GripperClient
+
+    client = GripperClient.__new__(GripperClient)
+    client._lock = threading.Lock()
+    client._action = SimpleNamespace(server_is_ready=lambda: True)
+    client._state = SimpleNamespace(estimated_gauge_pressure_pa=math.nan)
+    seen = threading.Timer(0.3, lambda: setattr(
+        client, "_state", SimpleNamespace(estimated_gauge_pressure_pa=120.0)))
+    waited_from = time.monotonic()
+    seen.start()
+    try:
+        assert client.wait_until_ready(10.0, sensing=True)
+        # not before the pressure came (a bound on the order of events, not on speed)
+        assert time.monotonic() - waited_from >= 0.3
+        assert client.state().estimated_gauge_pressure_pa == 120.0
+    finally:
+        seen.cancel()
+    client._state = SimpleNamespace(estimated_gauge_pressure_pa=math.nan)
+    assert client.wait_until_ready(10.0)  # a vent does not wait for the pressure
+    assert client.wait_until_ready(0.1, sensing=True)  # none by the deadline: ready all the same
+    client._state = None
+    assert not client.wait_until_ready(0.1, sensing=True)  # no state: nothing answered
+
+
 def send(action_client, goal, feedback=None):
     future = action_client.send_goal_async(goal, feedback_callback=feedback)
     handle = wait_for(lambda: future.done() and future.result(), message="goal accepted")

@@ -154,7 +154,10 @@ def main(argv=None) -> int:
     rclpy.init()
     client = GripperClient(namespace=args.namespace, node_name="softgrip_cli")
     try:
-        if not client.wait_until_ready(args.timeout):
+        # a grasp, a pinch, an open or a clamp needs the pressure; a vent, or reading the state,
+        # must not wait for it
+        if not client.wait_until_ready(args.timeout, sensing=args.command in (
+                "grasp", "pinch", "open", "clamp")):
             print(f"softgrip: no gripper answered in {args.timeout:g} s on "
                   f"{client.action_name!r} (is the controller running, in this namespace and "
                   "ROS_DOMAIN_ID?)", file=sys.stderr)

@@ -144,14 +144,22 @@ class GripperClient:
         return self._send(GraspMode.STOP, command_id)
 
     # ---- the task's progress ----------------------------------------------------------------
-    def wait_until_ready(self, timeout_s: float = 10.0) -> bool:
-        """Whether the grasp action server and grasp_state were found within ``timeout_s``."""
+    def wait_until_ready(self, timeout_s: float = 10.0, sensing: bool = False) -> bool:
+        """Whether the grasp action server and grasp_state were found within ``timeout_s``.
+        ``sensing``: then also wait, within the same time, for grasp_state to show a pressure:
+        just after bring-up the controller has not seen its sensors yet and refuses a grasp for
+        that (seen in CI: "sensor timeout, bus silent" 0.9 s after the controller started). A
+        gripper whose pressure stays unknown is ready all the same at the deadline; its commands
+        then say why they are refused."""
         deadline = time.monotonic() + timeout_s
+        found = False
         while time.monotonic() < deadline:
-            if self._action.server_is_ready() and self.state() is not None:
+            found = found or (self._action.server_is_ready() and self.state() is not None)
+            if found and (not sensing or math.isfinite(
+                    self.state().estimated_gauge_pressure_pa)):
                 return True
             time.sleep(0.02)
-        return False
+        return found
 
     def is_task_complete(self) -> bool:
         """Whether the last task has ended (succeeded, failed, superseded, canceled or
