@@ -83,13 +83,13 @@ def parser() -> argparse.ArgumentParser:
 
 
 def _check(args, error) -> None:
-    if args.volume_m3 is not None and not (math.isfinite(args.volume_m3) and
-                                           1e-7 <= args.volume_m3 <= 1e-3):
-        error(f"--volume-m3 must lie in [1e-7, 1e-3] m^3, got {args.volume_m3}")
-    if args.vacuum_source_pa is not None and not (math.isfinite(args.vacuum_source_pa) and
-                                                  -101e3 <= args.vacuum_source_pa <= -1e3):
-        error("--vacuum-source-pa must lie in [-101000, -1000] Pa gauge, got "
-              f"{args.vacuum_source_pa}")
+    # a measured value within the plant file's range for it
+    for option, value, name in (("--volume-m3", args.volume_m3, "chamber_volume_m3"),
+                                ("--vacuum-source-pa", args.vacuum_source_pa,
+                                 "vacuum_source_gauge_pa")):
+        unit, low, high, _ = plant_file.PARAMETERS[name]
+        if value is not None and not (math.isfinite(value) and low <= value <= high):
+            error(f"{option} must lie in [{low:g}, {high:g}] {unit}, got {value}")
     if args.from_log is not None and not (args.from_log / "metadata.yaml").is_file():
         error(f"--from-log {args.from_log}: no rosbag2 log there (no metadata.yaml)")
     if args.output is not None and (args.output / "plant.yaml").exists():
