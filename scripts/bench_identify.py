@@ -44,7 +44,7 @@ from softgrip_ros.devtools.benchmarking import (benchmark_parser, machine_line,
                                                 update_variant_section)
 from softgrip_ros.devtools.closed_loop import step_figures
 from softgrip_ros.devtools.estimator_simulation import anees
-from softgrip_ros.devtools.identification_sim import SLOW_LARGE, drawn, scaled
+from softgrip_ros.devtools import identification_sim
 from softgrip_ros.devtools.processes import installed_executable, stop_process
 from softgrip_ros.estimation.identification import excitation
 from softgrip_ros.model import plant_file
@@ -213,10 +213,9 @@ def run_benchmark(parser, args, workdir: pathlib.Path) -> int:
             except ValueError as error:
                 parser.error(str(error))
     else:
-        cases = [("slow_large", scaled(SLOW_LARGE))]
-        if not args.quick:
-            cases += [(f"drawn_{seed}", drawn(seed)) for seed in (1, 2)]
-        for name, description in cases:
+        names = identification_sim.BENCHMARK_TRUTHS
+        for name in names[:1] if args.quick else names:
+            description = identification_sim.truth(name)
             path = plant_file.save(description, workdir / f"{name}.yaml")
             truths.append((name, path, description))
     rows, failed = [], []

@@ -29,10 +29,9 @@ import time  # noqa: E402
 
 from softgrip_ros.devtools.benchmarking import (benchmark_parser, machine_line,  # noqa: E402
                                                 update_variant_section)
-from softgrip_ros.devtools.identification_sim import (recovery_spread, seeded_fit,  # noqa: E402
-                                                      truth)
+from softgrip_ros.devtools.identification_sim import (BENCHMARK_TRUTHS,  # noqa: E402
+                                                      recovery_spread, seeded_fit, truth)
 
-TRUTHS = ("slow_large", "drawn_1", "drawn_2")
 FIRST_SEED = 20  # the recovery tests use seed 3: these draws are not the ones they were tuned on
 
 
@@ -117,14 +116,14 @@ def main(argv=None) -> int:
                         help="noise seeds per truth (default 10)")
     parser.add_argument("--truth", action="append",
                         help="slow_large, drawn_<seed> or a plant file to play the user's "
-                        f"hardware (repeatable; default: {', '.join(TRUTHS)})")
+                        f"hardware (repeatable; default: {', '.join(BENCHMARK_TRUTHS)})")
     parser.add_argument("--pump-level-given", action="store_true",
                         help="give each fit its truth's vacuum pump level, as "
                         "softgrip_identify --vacuum-source-pa does (its own section)")
     parser.add_argument("--jobs", type=positive_int, default=max(1, min(2, os.cpu_count() or 1)),
                         help="fits at a time (default: the cores, at most 2)")
     args = parser.parse_args(argv)
-    truths = args.truth or (["slow_large"] if args.quick else list(TRUTHS))
+    truths = args.truth or list(BENCHMARK_TRUTHS[:1] if args.quick else BENCHMARK_TRUTHS)
     seeds = list(range(FIRST_SEED, FIRST_SEED + (2 if args.quick else args.seeds)))
     for name in truths:
         try:

@@ -263,7 +263,7 @@ def test_bench_identify_names_a_truth_whose_live_run_fails_and_runs_the_others(m
     monkeypatch.setattr(bench_identify, "identify_live", identify_live)
     monkeypatch.setattr(bench_identify, "update_variant_section",
                         lambda *_: pytest.fail("docs/benchmarks.md written"))
-    truths = [bench_identify.plant_file.save(bench_identify.scaled(bench_identify.SLOW_LARGE),
+    truths = [bench_identify.plant_file.save(bench_identify.identification_sim.truth("slow_large"),
                                              tmp_path / f"bench-identify-{name}.yaml")
               for name in ("first", "second")]
     code = bench_identify.main([arg for path in truths for arg in ("--truth", str(path))])

@@ -40,6 +40,8 @@ RECOVERY_TARGETS = {
 # nearly all the way, and where it is not, its critical ratio and the source's level trade off;
 # the fit must then say so (a flag, and an interval that holds the truth)
 MAY_BE_FLAGGED = ("vacuum_critical_ratio", "vacuum_source_gauge_pa")
+# the benchmarks' truths: the issue's case, and two seeded draws (see :func:`truth`)
+BENCHMARK_TRUTHS = ("slow_large", "drawn_1", "drawn_2")
 PLANT_DT_S = 1e-3
 CONTROL_PERIOD_TICKS = 2  # 500 Hz
 REPORT_PERIOD_TICKS = 10  # the regulator's report, 100 Hz
