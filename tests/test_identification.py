@@ -322,12 +322,17 @@ def test_valve_switches_dated_tenths_of_a_millisecond_off_are_re_timed_by_the_fi
     dates each switch from the readings about it, and recovers the values within the targets.
     A vent's opening starts a transient, and is dated to within 0.12 ms rms of where it was; a
     supply valve closing on a chamber already at the regulator's level tells nothing, and is
-    left where it was recorded. One pass, which linearises the switches' effect about their
-    records, left the vent ratio +5.2 % off and the conductances 0.7 %; the passes on the
-    re-dated recording take them to -0.4 % and 0.2 %."""
+    left where it was recorded. The conductances come within 0.5 % of the truth, and every
+    chamber value within a quarter of its interval of what the exact times give: the vent ratio
+    -2.9 % against -1.8 %, inside +-13 % (without the re-dating +15.7 %, the vacuum conductance
+    +1.4 % against +0.1 %). How far either fit is from the truth is the noise's draw; a bound of
+    2.5 % from the truth on the vent ratio held on the draw of the 0.2 ms truth (-0.4 %) and not
+    on this one."""
     truth = identification_sim.drawn(1)
     steps, held_out = identification.excitation()
     recording = identification_sim.record(truth, steps, held_out, seed=5)
+    exact = identification.fit(recording, plant_file.default_description().parameters,
+                               volume_m3=truth.parameters.chamber_volume_m3)
     rng = np.random.default_rng(11)
     errors = 3e-4 * rng.standard_normal(len(recording.inputs))
     recording.inputs = [dataclasses.replace(c, time_s=c.time_s + error)
@@ -346,7 +351,11 @@ def test_valve_switches_dated_tenths_of_a_millisecond_off_are_re_timed_by_the_fi
     assert len(untold) >= 4 and max(map(abs, untold)) < 1e-5, untold
     _assert_recovered(result, truth.parameters)
     fitted, true = result.parameters, truth.parameters
-    assert fitted.vent_critical_ratio == pytest.approx(true.vent_critical_ratio, rel=0.025)
+    for name in identification.STAGE3:
+        estimate, reference = result.estimates[name], exact.estimates[name]
+        if not (estimate.flag or reference.flag):
+            half_width = 0.5 * (reference.ci95[1] - reference.ci95[0])
+            assert abs(estimate.value - reference.value) < 0.25 * half_width, name
     for name in ("supply_conductance", "vent_conductance"):
         assert getattr(fitted, name) == pytest.approx(getattr(true, name), rel=0.005), name
     assert result.validation_rmse_over_noise <= 1.1
