@@ -23,12 +23,11 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import concurrent.futures  # noqa: E402
-import json  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 
 from softgrip_ros.devtools.benchmarking import (benchmark_parser, machine_line,  # noqa: E402
-                                                update_variant_section)
+                                                strict_json, update_variant_section)
 from softgrip_ros.devtools.identification_sim import (BENCHMARK_TRUTHS,  # noqa: E402
                                                       recovery_spread, seeded_fit, truth)
 
@@ -140,11 +139,11 @@ def main(argv=None) -> int:
     summary = {"spread": spread, "per_truth": per_truth, "failures": failures, "fits": fits,
                "seconds": seconds}
     if failures:
-        print(json.dumps(summary, indent=2))
+        print(strict_json(summary))
         progress(f"{len(failures)} fits failed; docs/benchmarks.md not written")
         return 1
     if args.json or args.quick:
-        print(json.dumps(summary, indent=2))
+        print(strict_json(summary))
         return 0
     command = "python scripts/bench_identify_spread.py" + (
         f" --seeds {args.seeds}" if args.seeds != 10 else "") + "".join(

@@ -163,7 +163,8 @@ def test_bench_identify_spread_quick_json_summarises_every_value_over_its_fits(p
     result = run("scripts/bench_identify_spread.py", "--quick", "--json",
                  *(["--pump-level-given"] if pump_level else []), timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
-    figures = json.loads(result.stdout)
+    figures = json.loads(result.stdout, parse_constant=lambda name: pytest.fail(
+        f"{name} is not JSON: strict readers (jq) refuse the document"))
     assert figures["failures"] == []
     assert [(f["truth"], f["seed"]) for f in figures["fits"]] == [("slow_large", 20),
                                                                    ("slow_large", 21)]
@@ -180,6 +181,16 @@ def test_bench_identify_spread_quick_json_summarises_every_value_over_its_fits(p
     else:
         assert level["max_abs_err"] > 0.0
     assert "fit 2/2" in result.stderr
+
+
+def test_strict_json_writes_what_is_not_finite_as_null():
+    """A flagged value's unbounded interval came out as ``Infinity``, which Python reads and jq
+    does not."""
+    from softgrip_ros.devtools.benchmarking import strict_json
+
+    text = strict_json({"half": math.inf, "rows": [math.nan, 1.5, (-math.inf, 2)], "ok": True},
+                       indent=None)
+    assert text == '{"half": null, "rows": [null, 1.5, [null, 2]], "ok": true}'
 
 
 def test_a_variant_run_writes_its_own_section_beside_the_main_one(tmp_path):

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import json
+import math
 import os
 import pathlib
 import platform
@@ -102,6 +104,23 @@ def update_variant_section(name: str, heading: str, markdown: str, variant: str 
         update_section(f"{name}_{variant}", f"{variant_heading}\n\n{markdown}", path)
     else:
         update_section(name, f"{heading}\n\n{markdown}", path)
+
+
+def strict_json(figures, indent: int | None = 2) -> str:
+    """``figures`` as JSON that every reader takes: a value that is not finite (an interval
+    without bounds, a figure not computed) as null. Python's own ``Infinity`` and ``NaN`` are not
+    JSON, and jq or a browser refuse the whole document over one."""
+
+    def finite(value):
+        if isinstance(value, float) and not math.isfinite(value):
+            return None
+        if isinstance(value, dict):
+            return {key: finite(item) for key, item in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [finite(item) for item in value]
+        return value
+
+    return json.dumps(finite(figures), indent=indent, allow_nan=False)
 
 
 def verdict(value: float, target: float, smaller_is_better: bool = True) -> str:
