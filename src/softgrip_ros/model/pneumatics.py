@@ -47,8 +47,8 @@ R_AIR_J_PER_KG_K = 287.05
 RHO0_KG_PER_M3 = 1.185  # ISO 6358 reference density
 T0_K = 293.15  # ISO 6358 reference temperature
 # a simulated truth's longest step (PneumaticPlant.advance, extrapolated backward Euler): within
-# 2 Pa of the law on the benchmark truths' fills, vents and evacuations, where backward Euler
-# itself lagged up to 48 Pa at 0.2 ms steps (five solves per ms, against three now)
+# 5 Pa of the law on the benchmark truths' fills, vents and evacuations (most within 1 Pa), where
+# backward Euler itself lagged up to 48 Pa at 0.2 ms steps (five solves per ms, against three)
 TRUTH_STEP_S = 1e-3
 
 
