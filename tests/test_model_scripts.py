@@ -229,6 +229,11 @@ def test_bench_speed_accuracy_quick_json_runs_through_and_reports_every_key():
     for bounds in result_doc["bounds"].values():
         assert set(bounds["tip_error_bound_m"]) == {"free", "free_beyond", "contact"}
     assert {p["method"] for p in result_doc["estimators"]} >= {"kf", "ekf", "ukf"}
+    # the truth's extrapolated step: second order, so far closer than backward Euler at 1 ms
+    at_1ms = {p["method"]: p for p in result_doc["integrators"]["points"] if p["dt_s"] == 1e-3}
+    extrapolated = at_1ms["extrapolated backward Euler (truth)"]
+    assert extrapolated["error_pa"] < 0.1 * at_1ms["backward Euler (ours)"]["error_pa"]
+    assert extrapolated["stiff_physical"]
     assert all(p["cost_us"] > 0 for p in result_doc["estimators"]
                if p["method"] in ("kf", "ekf", "ukf"))
     # against the FE: every model with both calibrations, the FE itself, and a Pareto set
