@@ -39,18 +39,22 @@ the conductances and compliances are only as right as that volume.
    re-dated recording until they settle or a pass no longer gains ``REDATE_GAIN``
    (``REDATE_PASSES``): switches dated a few tenths of a ms off blurred every transient, and
    readings a tenth of a ms older than their stamps skewed every fill, which the fit took for the
-   critical ratios.
+   critical ratios. Last, the chamber's values once more on the re-dated recording, the timings
+   held.
 
-Confidence intervals come from the Jacobian at the optimum: per value the wider of the
-Gauss-Newton covariance (scaled by the residual variance) and the sandwich covariance that keeps
-the residuals' autocorrelation along each sensor's series (Newey-West, Bartlett weights, Andrews'
-bandwidth). A value is flagged, and never written silently, when its 95 % interval is wider
-than +-25 %, when the data do not excite it (the interval is then wide, or its column of the
-Jacobian vanishes), when the fit left it at an edge of its range, or when it trades off with one
-so left or so undetermined (:func:`_pinned`: the interval of each is then the range); the whole
-fit, when a sensor's normalised residuals are clearly not white (lag-one autocorrelation above
-``WHITENESS_LIMIT``), its residuals exceed 1.5x the noise, or the held-out excitation is
-predicted worse than ``VALIDATION_LIMIT`` times the noise (each reading over its own sensor's).
+Confidence intervals come from the Jacobian at the optimum: per value the wider of the Gauss-Newton
+covariance (scaled by the residual variance) and the sandwich covariance that keeps the residuals'
+autocorrelation along each sensor's series (Newey-West, Bartlett weights, Andrews' bandwidth); then
+each side is corrected for the cost's shape along the value, from its profile (the others refitted
+at trial values, :func:`_profiled_halves`): where values trade off along a curved valley the
+linearised interval is too narrow on the side it flattens towards. A value is flagged, and never
+written silently, when its 95 % interval is wider than +-25 %, when the data do not excite it (the
+interval is then wide, or its column of the Jacobian vanishes), when the fit left it at an edge of
+its range, or when it trades off with one so left or so undetermined (:func:`_pinned`: the interval
+of each is then the range); the whole fit, when a sensor's normalised residuals are clearly not
+white (lag-one autocorrelation above ``WHITENESS_LIMIT``), its residuals exceed 1.5x the noise, or
+the held-out excitation is predicted worse than ``VALIDATION_LIMIT`` times the noise (each reading
+over its own sensor's).
 """
 from __future__ import annotations
 
@@ -88,6 +92,7 @@ REDATE_SETTLED_MS = 0.02  # ... until no timing (a switch, a sensor's latency) m
 REDATE_GAIN = 1.92
 REPEATS = 3  # the excitation's extra vents from the top and the bottom, and refills
 BOTTOM_VENTS = 4  # ... and vents from the bottom alone, after them
+PROFILE_ITERATIONS = 4  # the profile's Gauss-Newton steps per trial (see _profiled_halves)
 STAGE3_METHODS = ("trf", "dogbox", "trf")  # the chamber fit's passes, at most (see fit)
 STAGE3 = ("supply_conductance", "vacuum_conductance", "vent_conductance", "supply_critical_ratio",
           "vacuum_critical_ratio", "vent_critical_ratio", "chamber_compliance_m3_per_pa",
@@ -722,6 +727,119 @@ def _pinned(x: np.ndarray, covariance: np.ndarray, weak=(), edge: float = 1e-3,
     return reasons
 
 
+def _profile_minima(weighted_residuals, starts: np.ndarray, pinned: list, bounds: tuple,
+                    steps: np.ndarray, iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """(each problem's least cost, its point): the cost minimised from each row of ``starts``
+    over every coordinate but its ``pinned`` one (None: over all), by Levenberg-Marquardt, all
+    problems simulated in one batch per step (a simulation's time goes to its steps far more
+    than to its width). The Jacobian is taken at the start only, and each step after it is a
+    chord step, six times cheaper (only the residuals are simulated): its optimum is where the
+    residuals are orthogonal to the start's Jacobian, a second-order distance from the true one
+    where the start is near it."""
+    count = starts.shape[1]
+    points = np.clip(starts, bounds[0], bounds[1])
+    moving = [np.array([j for j in range(count) if j != i]) for i in pinned]
+    best = [None] * len(points)  # each problem's (cost, point, residual) so far
+    jacobians = [None] * len(points)
+    damping = np.full(len(points), 1e-3)  # relative to the normal matrix's diagonal
+    for iteration in range(iterations + 1):
+        rows = []
+        for point, free in zip(points, moving):
+            rows.append(point)
+            for j in free if iteration == 0 else ():
+                shifted = point.copy()
+                shifted[j] += steps[j]
+                rows.append(shifted)
+        predicted = weighted_residuals(np.array(rows))
+        at = 0
+        for k, free in enumerate(moving):
+            residual = predicted[at]
+            if iteration == 0:
+                jacobians[k] = ((predicted[at + 1:at + 1 + len(free)] - residual) /
+                                steps[free, None]).T
+                at += len(free)
+            at += 1
+            cost = 0.5 * float(residual @ residual)
+            if iteration:  # Broyden's update: the Jacobian made to hold over the last step
+                moved = points[k][free] - best[k][1][free]
+                if moved @ moved > 0.0:
+                    jacobians[k] += np.outer(residual - best[k][2] - jacobians[k] @ moved,
+                                             moved / (moved @ moved))
+            if best[k] is None or cost < best[k][0]:
+                best[k] = (cost, points[k].copy(), residual)
+                damping[k] = max(damping[k] / 10.0, 1e-9)
+            else:  # a worse point: a shorter step from the best one
+                damping[k] *= 10.0
+            if iteration < iterations:
+                _, point, residual = best[k]
+                normal = jacobians[k].T @ jacobians[k]
+                step = np.linalg.solve(normal + damping[k] * np.diag(np.diag(normal) + 1e-12),
+                                       -jacobians[k].T @ residual)
+                points[k] = point.copy()
+                points[k][free] += step
+        points = np.clip(points, bounds[0], bounds[1])
+    return np.array([b[0] for b in best]), np.array([b[1] for b in best])
+
+
+def _profiled_halves(weighted_residuals, x: np.ndarray, bounds: tuple, halves: np.ndarray,
+                     information: np.ndarray, steps: np.ndarray,
+                     iterations: int = PROFILE_ITERATIONS) -> np.ndarray:
+    """[values, 2]: each value's interval half widths (below, above ``x``, in ``x``'s units) from
+    the cost's profile: the linearised ``halves`` corrected for the cost's shape on each side.
+
+    A linearised interval takes the cost as quadratic about the optimum. Where values trade off
+    along a curved valley it is not, and the interval comes out too narrow on the side the
+    valley flattens towards (seeded, slow_large's vacuum path: its values spread 1.3-3.7 times as
+    far as their intervals said). The profile follows the valley: at a trial value of one, the
+    cost minimised over the others (:func:`_profile_minima`, from the linear path). For a
+    quadratic cost, ``q = sqrt(2 (cost - optimum) [inv(information)]_ii)`` is the trial's
+    distance; a half width is where ``q`` reaches the linearised one, so that the profile gives
+    the shape and ``halves`` the scale (the sandwich's, and the timings' share). Two trials per
+    side: at the linearised half width, then where ``q``, taken as proportional to the distance,
+    would reach it; the half width is interpolated between them (one trial alone missed a
+    curved valley's by 10 %).
+
+    ``weighted_residuals(points)`` -> [points, readings], the fit's weighted residuals at each
+    point (rows of stage-3 coordinates); ``x``: their optimum; ``information``: J^T J there (its
+    inverse gives each trial's start); ``steps``: the finite-difference steps."""
+    count = len(x)
+    inverse = np.linalg.pinv(information)
+    corrected = np.column_stack([halves, halves]).astype(float)
+    sides = [(i, side, sign, (x[i] - bounds[0][i]) if sign < 0 else (bounds[1][i] - x[i]))
+             for i in range(count) if halves[i] > 0.0 and inverse[i, i] > 0.0
+             for side, sign in enumerate((-1.0, 1.0))]
+    sides = [(i, side, sign, room) for i, side, sign, room in sides if room > 0.0]
+    if not sides:
+        return corrected
+    pinned = [i for i, *_ in sides]
+    first = np.array([min(halves[i], 0.999 * room) for i, _, _, room in sides])
+    starts = np.array([x + sign * d * inverse[:, i] / inverse[i, i]
+                       for (i, _, sign, _), d in zip(sides, first)])
+    costs, points = _profile_minima(weighted_residuals, np.vstack([x, starts]), [None] + pinned,
+                                    bounds, steps, iterations)
+    optimum = costs[0]
+
+    def reached(cost, i):
+        return math.sqrt(2.0 * max(cost - optimum, 0.0) * inverse[i, i])
+
+    q_first = np.array([reached(cost, i) for cost, i in zip(costs[1:], pinned)])
+    second = np.array([min(d * halves[i] / q, 0.999 * room) if q > 0.0 else 0.999 * room
+                       for (i, _, _, room), d, q in zip(sides, first, q_first)])
+    # from the first trial's minimum, moved along the linear path to the second's value
+    starts = np.array([point + sign * (d2 - d1) * inverse[:, i] / inverse[i, i]
+                       for (i, _, sign, _), d1, d2, point in zip(sides, first, second,
+                                                                  points[1:])])
+    costs, _ = _profile_minima(weighted_residuals, starts, pinned, bounds, steps, iterations)
+    for (i, side, _, room), d1, d2, q1, cost in zip(sides, first, second, q_first, costs):
+        q2 = reached(cost, i)
+        if q2 > q1 and d2 != d1:  # the secant through both trials
+            corrected[i, side] = d1 + (halves[i] - q1) * (d2 - d1) / (q2 - q1)
+        else:  # flat between them: at least as far as the second
+            corrected[i, side] = d2 if q2 < halves[i] else d1
+        corrected[i, side] = min(max(corrected[i, side], 0.0), room)
+    return corrected
+
+
 def _whiteness(residuals: np.ndarray) -> float:
     if len(residuals) < 10:
         return 0.0
@@ -893,7 +1011,12 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
             break
         previous_cost = stage3.cost
     readings = len(grid.measured)
-    x3 = expand(x3)
+    # the chamber's values once more on the recording as finally re-dated, its timings held: the
+    # last pass had their effect linearised, and the profile of the intervals needs the optimum
+    # of what it evaluates
+    progress("stage 3's chamber values, on the re-dated recording")
+    centre = solve(inside(x3), "trf")
+    x3 = expand(centre.x)
     # a held value as it was given, not as it came back through the vector's units
     fitted = dataclasses.replace(_stage3_parameters(x3, base),
                                  **{STAGE3[i]: getattr(base, STAGE3[i]) for i in held})
@@ -909,7 +1032,19 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
     variances[free] = np.maximum(
         np.diag(free_covariance)[:chamber],
         np.diag(_robust_covariance(stage3.jac, stage3.fun, series, chamber)))
-    residual_pa = stage3.fun[:readings] / grid.weight
+    residual_pa = centre.fun / grid.weight
+    progress("intervals: the cost's profile along each value")
+
+    def weighted_residuals(points):
+        if time.perf_counter() - started > max_seconds:
+            raise TimeoutError(f"the fit ran over its {max_seconds:g} s budget")
+        sets = [_stage3_parameters(expand(z), base) for z in points]
+        return (grid.simulate(sets) - grid.measured) * grid.weight
+
+    halves = np.zeros((len(STAGE3), 2))  # each value's interval, below and above, x's units
+    halves[free] = _profiled_halves(weighted_residuals, x3[free], bounds,
+                                    1.96 * np.sqrt(np.maximum(variances[free], 0.0)),
+                                    centre.jac.T @ centre.jac, STAGE3_STEPS[free])
 
     estimates = {}
     names_x = {"supply_conductance": (0, "log"), "vacuum_conductance": (1, "log"),
@@ -918,13 +1053,13 @@ def fit(recording: Recording, base: PneumaticParameters, volume_m3: float | None
                "chamber_compliance_m3_per_pa": (6, 1e-10),
                "vacuum_compliance_m3_per_pa": (7, 1e-10), "vacuum_source_gauge_pa": (8, 1e3)}
     for name, (i, kind) in names_x.items():
-        half = 1.96 * math.sqrt(max(variances[i], 0.0))
+        below, above = halves[i]
         value = getattr(fitted, name)
         if kind == "log":
-            interval = (value * math.exp(-half), value * math.exp(half))
+            interval = (value * math.exp(-below), value * math.exp(above))
         else:
             scale = 1.0 if kind == "" else kind
-            interval = (value - half * scale, value + half * scale)
+            interval = (value - below * scale, value + above * scale)
         estimates[name] = (Estimate(value, (value, value), "measured") if i in held else
                            Estimate(value, interval, "identified"))
     regulator_norms = np.linalg.norm(stage2.jac, axis=0)
