@@ -40,7 +40,6 @@ Writes its section of docs/benchmarks.md; --json prints the figures instead.
 Reproduce: scripts/env.sh sourced, then  python scripts/bench_e2e.py
 """
 import bisect
-import json
 import os
 import signal
 import statistics
@@ -63,7 +62,7 @@ from demo_grasp import wait_phase
 from softgrip_interfaces.msg import GraspCommand, GripperState
 from softgrip_ros.client import grasp_command as command
 from softgrip_ros.devtools.benchmarking import (benchmark_parser, figure_rows, machine_line,
-                                                update_section)
+                                                update_section, strict_json)
 from softgrip_ros.canbus.codec import FrameCodec
 from softgrip_ros.canbus.reader import BatchReader
 from softgrip_ros.nodes.common import spinning, stamp_seconds
@@ -451,7 +450,7 @@ def main(argv=None) -> int:
     details = {**runs[-1][1], "runs": {key: [f[key] for f, _ in runs] for key in runs[0][0]}}
     if args.json or args.quick:
         print(
-            json.dumps({**figures, "details": details}, indent=2) if args.json else "\n".
+            strict_json({**figures, "details": details}) if args.json else "\n".
             join(figure_rows(figures, TARGETS)))
         return 0
     rows = figure_rows(figures, TARGETS)

@@ -11,7 +11,6 @@ ANEES inside the 95 % chi-square interval.
 Writes its section of docs/benchmarks.md and docs/estimator_speed_accuracy.png; --json prints
 the figures instead. Reproduce: scripts/env.sh sourced, then  python scripts/bench_estimator.py
 """
-import json
 import pathlib
 import statistics
 import sys
@@ -19,7 +18,7 @@ import time
 
 import numpy as np
 from softgrip_ros.devtools.benchmarking import (benchmark_parser, figure_rows, interleaved_seconds,
-                                                machine_line, update_section)
+                                                machine_line, update_section, strict_json)
 from softgrip_ros.devtools import estimator_simulation as sim
 from softgrip_ros.estimation.estimator import PressureEstimator
 from softgrip_ros.estimation.filters import FILTER_TYPES
@@ -135,7 +134,7 @@ def main(argv=None) -> int:
     figures, details = measure(args.repeat, args.runs)
     if args.json or args.quick:
         print(
-            json.dumps({**figures, "details": details}, indent=2) if args.json else "\n".
+            strict_json({**figures, "details": details}) if args.json else "\n".
             join(figure_rows(figures, TARGETS)))
         return 0
     chart(figures, details)

@@ -17,7 +17,6 @@ Keys of --json: ``limit_violations`` (must be 0), ``false_alarms_fault_free`` (m
 Writes its section of docs/benchmarks.md unless --json or --quick; exits 1 when a case fails.
 Reproduce: source scripts/env.sh; python scripts/bench_faults.py
 """
-import json
 import os
 import sys
 import time
@@ -27,7 +26,8 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 40))  # not the de
 
 import rclpy
 
-from softgrip_ros.devtools.benchmarking import benchmark_parser, machine_line, update_section
+from softgrip_ros.devtools.benchmarking import (benchmark_parser, machine_line, strict_json,
+                                                update_section)
 from softgrip_ros.devtools.fault_matrix import (FAULTS, FAULTS_BY_NAME, PHASES, Rig,
                                                 fault_free_grasps, run_case, summarise)
 
@@ -172,7 +172,7 @@ def main(argv=None) -> int:
         } for r in results if not r.passed]
     }
     if args.json:
-        print(json.dumps(figures, indent=2))
+        print(strict_json(figures))
     else:
         text = markdown(results, summary, fault_free, grasps, retried, seconds,
                         "python scripts/bench_faults.py" + (" --quick" if args.quick else ""))

@@ -23,7 +23,8 @@ import time
 
 import yaml
 
-from softgrip_ros.devtools.benchmarking import benchmark_parser, machine_line, update_section
+from softgrip_ros.devtools.benchmarking import (benchmark_parser, machine_line, strict_json,
+                                                update_section)
 from softgrip_ros.model.fe.finger import (CONVERGENCE_SIZES_M, FE_MODEL_VERSION,
                                           SWEEP_ELEMENT_SIZE_M, SWEEP_PRESSURES_PA,
                                           WALL_CONTACT_GAP_M, fe_available, sweep, INSTALL_HINT)
@@ -247,8 +248,7 @@ def main(argv=None) -> int:
     compliance_ = compliance(result)
     figures_["total_seconds"] = time.perf_counter() - started
     if args.json or args.quick:
-        print(json.dumps({**figures_, **compliance_, "vacuum_stop": result.vacuum_stop},
-                         indent=2))
+        print(strict_json({**figures_, **compliance_, "vacuum_stop": result.vacuum_stop}))
         if args.quick:
             return 0
     if args.json:

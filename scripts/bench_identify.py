@@ -26,7 +26,6 @@ softgrip_identify's non-zero exit) is named on stderr and the others still run; 
 Reproduce: source scripts/env.sh; python scripts/bench_identify.py
 """
 import contextlib
-import json
 import os
 import pathlib
 import subprocess
@@ -41,7 +40,7 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 40))
 import numpy as np
 
 from softgrip_ros.devtools.benchmarking import (benchmark_parser, machine_line,
-                                                update_variant_section)
+                                                update_variant_section, strict_json)
 from softgrip_ros.devtools.closed_loop import step_figures
 from softgrip_ros.devtools.estimator_simulation import anees
 from softgrip_ros.devtools import identification_sim
@@ -236,8 +235,7 @@ def run_benchmark(parser, args, workdir: pathlib.Path) -> int:
         rows.append({"name": name, "figures": figures})
     seconds = time.perf_counter() - started
     if failed:
-        print(json.dumps({"failed": failed, "identified": [row["name"] for row in rows]},
-                         indent=2))
+        print(strict_json({"failed": failed, "identified": [row["name"] for row in rows]}))
         progress(f"{len(failed)} of {len(truths)} truths failed; docs/benchmarks.md not written")
         return 1
     first = rows[0]["figures"]
@@ -249,7 +247,7 @@ def run_benchmark(parser, args, workdir: pathlib.Path) -> int:
     summary["flagged"] = first["flagged"]
     summary["truths"] = rows
     if args.json or args.quick:
-        print(json.dumps(summary, indent=2, default=float))
+        print(strict_json(summary))
         return 0
     command = "python scripts/bench_identify.py" + (
         "".join(f" --truth {p}" for p in args.truth) if args.truth else "") + (

@@ -4,13 +4,12 @@
 Writes its section of docs/benchmarks.md; --json prints the figures instead of a table.
 Reproduce: scripts/env.sh sourced, then  python scripts/bench_model.py
 """
-import json
 import sys
 
 import numpy as np
 
 from softgrip_ros.devtools.benchmarking import (benchmark_parser, machine_line, median_seconds,
-                                                update_section, verdict)
+                                                update_section, verdict, strict_json)
 from softgrip_ros.model.calibration import build_kinematics
 
 TARGETS_US = {
@@ -78,7 +77,7 @@ def main(argv=None) -> int:
         args.repeat = 3
     figures = measure(args.repeat)
     if args.json or args.quick:
-        print(json.dumps(figures, indent=2))
+        print(strict_json(figures))
         return 0
     rows = ["| key | what | median | target | |", "|---|---|---|---|---|"]
     what = {

@@ -13,7 +13,6 @@
 Writes its section of docs/benchmarks.md; --json prints the figures instead.
 Reproduce: source scripts/env.sh; python scripts/bench_pressure.py
 """
-import json
 import math
 import os
 import statistics
@@ -27,7 +26,7 @@ import numpy as np
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 from softgrip_ros.devtools.benchmarking import (benchmark_parser, figure_rows, machine_line,
-                                                median_seconds, update_section)
+                                                median_seconds, update_section, strict_json)
 from softgrip_ros.canbus.codec import FrameCodec
 from softgrip_ros.canbus.controller_link import make_control_loop, ControllerLink, SensorBinding
 from softgrip_ros.canbus.sim_device import SimDeviceConfig, SimulatedDevice
@@ -211,7 +210,7 @@ def main(argv=None) -> int:
                       lambda what: print(f"[bench_pressure] {what}", file=sys.stderr))
     if args.json or args.quick:
         print(
-            json.dumps(figures, indent=2) if args.json else "\n".
+            strict_json(figures) if args.json else "\n".
             join(figure_rows(figures, TARGETS)))
         return 0
     rows = figure_rows(figures, TARGETS)

@@ -26,7 +26,6 @@ prints the same keys and writes nothing: it checks that the script runs, not the
 Reproduce: bash scripts/setup.sh --with-reference; source scripts/env.sh;
 python scripts/bench_speed_accuracy.py   (about 2-4 minutes on 2 cores)
 """
-import json
 import math
 import pathlib
 import statistics
@@ -39,7 +38,7 @@ from scipy.integrate import solve_ivp
 from tqdm import tqdm
 
 from softgrip_ros.devtools.benchmarking import (benchmark_parser, machine_line, median_seconds,
-                                                update_section)
+                                                update_section, strict_json)
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.fidelity import (CONTACT_VALIDATED_RANGE_PA, FREE, MODELS, SCENE_CLASSES,
                                          ErrorBounds, Scene, SceneModel, cylinder_scene)
@@ -943,7 +942,7 @@ def main(argv=None) -> int:
             "error_pa", "method")
     }
     if args.json:
-        print(json.dumps(result, indent=2, default=float))
+        print(strict_json(result))
         return 0
     if args.quick:
         print("\n".join(target_rows(result)))

@@ -12,6 +12,13 @@ import pytest
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
+def strict_loads(text: str):
+    """A benchmark's --json as strict readers (jq, a browser) take it: Python's own ``NaN`` and
+    ``Infinity`` are not JSON, and they refuse the whole document over one."""
+    return json.loads(text, parse_constant=lambda name: pytest.fail(
+        f"{name} is not JSON: strict readers (jq) refuse the document"))
+
+
 def run(*args, timeout=300):
     return subprocess.run([sys.executable, *args], cwd=REPO_ROOT, capture_output=True, text=True,
                           timeout=timeout)
@@ -78,7 +85,7 @@ def test_bench_fe_quick_runs_the_checks_and_a_coarse_sweep():
 def test_bench_model_quick_json_reports_every_figure():
     result = run("scripts/bench_model.py", "--quick", "--json")
     assert result.returncode == 0, result.stderr
-    figures = json.loads(result.stdout)
+    figures = strict_loads(result.stdout)
     assert set(figures) >= {
         "l0_single_us", "l0_batch_us_per_pressure", "l1_single_us", "inverse_us"
     }
@@ -88,7 +95,7 @@ def test_bench_model_quick_json_reports_every_figure():
 def test_bench_estimator_quick_json_reports_every_filter_with_its_interleaved_costs():
     result = run("scripts/bench_estimator.py", "--quick", "--json")
     assert result.returncode == 0, result.stderr
-    figures = json.loads(result.stdout)
+    figures = strict_loads(result.stdout)
     quartiles = figures["details"]["step_us_quartiles"]
     for name in ("kf", "ekf", "ukf"):
         low, median, high = quartiles[name]
@@ -103,7 +110,7 @@ def test_bench_estimator_quick_json_reports_every_filter_with_its_interleaved_co
 def test_bench_pressure_quick_json_reports_every_figure():
     result = run("scripts/bench_pressure.py", "--quick", "--json", timeout=600)
     assert result.returncode == 0, result.stderr
-    figures = json.loads(result.stdout)
+    figures = strict_loads(result.stdout)
     for key in ("loop_period_p99_ms", "codec_frames_per_s", "rise_time_ratio", "overshoot_pct",
                 "steady_state_error_kpa", "bus_load_pct_500k", "loop_period_p99_ms_1khz"):
         assert figures[key] > 0 or key == "overshoot_pct", key
@@ -117,7 +124,7 @@ def test_bench_e2e_quick_json_reports_every_figure():
     table has, each a number (no timing is judged here)."""
     result = run("scripts/bench_e2e.py", "--quick", "--json", timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
-    figures = json.loads(result.stdout)
+    figures = strict_loads(result.stdout)
     for key in ("cmd_to_valve_frame_ms_median", "cmd_to_valve_frame_ms_p99",
                 "sensor_to_tip_pose_ms_median", "sensor_to_tip_pose_ms_p99",
                 "sensor_to_tip_pose_received_ms_p99", "controller_cpu_pct_idle",
@@ -140,7 +147,7 @@ def test_bench_identify_quick_json_reports_every_key():
     the numbers: a live run's timing on this shared host is not repeatable)."""
     result = run("scripts/bench_identify.py", "--quick", "--json", timeout=900)
     assert result.returncode == 0, result.stderr[-3000:]
-    figures = json.loads(result.stdout)
+    figures = strict_loads(result.stdout)
     assert set(figures) >= {
         "param_rel_err", "validation_rmse_over_noise", "default_rise_time_ratio",
         "default_overshoot_pct", "default_steady_state_error_kpa", "identified_rise_time_ratio",
@@ -163,8 +170,7 @@ def test_bench_identify_spread_quick_json_summarises_every_value_over_its_fits(p
     result = run("scripts/bench_identify_spread.py", "--quick", "--json",
                  *(["--pump-level-given"] if pump_level else []), timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
-    figures = json.loads(result.stdout, parse_constant=lambda name: pytest.fail(
-        f"{name} is not JSON: strict readers (jq) refuse the document"))
+    figures = strict_loads(result.stdout)
     assert figures["failures"] == []
     assert [(f["truth"], f["seed"]) for f in figures["fits"]] == [("slow_large", 20),
                                                                    ("slow_large", 21)]
@@ -191,6 +197,12 @@ def test_strict_json_writes_what_is_not_finite_as_null():
     text = strict_json({"half": math.inf, "rows": [math.nan, 1.5, (-math.inf, 2)], "ok": True},
                        indent=None)
     assert text == '{"half": null, "rows": [null, 1.5, [null, 2]], "ok": true}'
+    # and numpy's values, which bench_identify and bench_speed_accuracy print
+    import numpy as np
+
+    text = strict_json({"a": np.float32("nan"), "b": np.array([1.5, np.inf]), "c": np.bool_(1),
+                        "d": np.int64(3)}, indent=None)
+    assert text == '{"a": null, "b": [1.5, null], "c": true, "d": 3}'
 
 
 def test_a_variant_run_writes_its_own_section_beside_the_main_one(tmp_path):
@@ -220,7 +232,7 @@ def test_bench_speed_accuracy_quick_json_runs_through_and_reports_every_key():
     """#21: it died at the end on an import of a renamed function, and no test ran it."""
     result = run("scripts/bench_speed_accuracy.py", "--quick", "--json", timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
-    result_doc = json.loads(result.stdout)
+    result_doc = strict_loads(result.stdout)
     assert set(result_doc) >= {
         "kinematics", "bounds", "estimators", "integrators", "auto", "held_out", "bound_checks",
         "paper_rows", "pareto"

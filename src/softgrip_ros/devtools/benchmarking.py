@@ -17,6 +17,8 @@ import platform
 import statistics
 import time
 
+import numpy as np
+
 BENCHMARKS_MD = pathlib.Path(__file__).resolve().parents[3] / "docs" / "benchmarks.md"
 
 
@@ -112,6 +114,8 @@ def strict_json(figures, indent: int | None = 2) -> str:
     JSON, and jq or a browser refuse the whole document over one."""
 
     def finite(value):
+        if isinstance(value, (np.generic, np.ndarray)):  # numpy's as Python's own
+            value = value.tolist()
         if isinstance(value, float) and not math.isfinite(value):
             return None
         if isinstance(value, dict):
