@@ -497,9 +497,11 @@ def test_intervals_follow_the_cost_along_a_curved_trade_off():
     """Seeded, slow_large's vacuum path traded off along a curved valley, and its values spread
     1.3-3.7 times as far as their linearised intervals said. On the parabolic valley, v's
     profile rises to 1.92 at 2.04 below and 3.30 above, where the linearised interval says 2.19
-    either side (33 % short above); the profiled half widths are within 2 % above and 10 %
-    below. u's profile is quadratic, so its profiled interval is the linearised one (1.96) to
-    1 %, and scaled with it: given intervals twice as wide (the sandwich's, say), 3.92."""
+    either side (33 % short above); the profiled half width is within 2 % above, and below,
+    where the profile is steeper than the linearised cost, the linearised one (a profile only
+    widens: _side_end). u's profile is quadratic, so its profiled interval is the linearised one
+    (1.96) to 1 %, and scaled with it: given intervals twice as wide (the sandwich's, say),
+    3.92."""
     jacobian = np.array([[1.0, 0.0], [-0.5, 1.0]])  # at the optimum
     information = jacobian.T @ jacobian
     linear = 1.96 * np.sqrt(np.diag(np.linalg.inv(information)))
@@ -511,7 +513,7 @@ def test_intervals_follow_the_cost_along_a_curved_trade_off():
     assert (below, above) == pytest.approx((2.04, 3.30), abs=0.01)
     assert linear[1] == pytest.approx(2.19, abs=0.01)
     assert profiled[1, 1] == pytest.approx(above, rel=0.02)
-    assert profiled[1, 0] == pytest.approx(below, rel=0.10)
+    assert profiled[1, 0] == pytest.approx(linear[1], rel=1e-9) and below < linear[1]
     assert _exact_profile_halves(0) == pytest.approx([1.96, 1.96], abs=0.01)
     assert profiled[0] == pytest.approx([1.96, 1.96], rel=0.01)
     doubled = identification._profiled_halves(_parabolic_valley, np.zeros(2), wide, 2.0 * linear,
@@ -522,6 +524,38 @@ def test_intervals_follow_the_cost_along_a_curved_trade_off():
     capped = identification._profiled_halves(_parabolic_valley, np.zeros(2), near, linear,
                                              information, steps)
     assert capped[1, 1] <= 2.5 and capped[1, 1] == pytest.approx(2.5, rel=0.01)
+
+
+@pytest.mark.parametrize("trials, end", [
+    ([(1.0, 0.25), (2.0, 0.5)], 4.0),  # both inside: past the farther, along their secant
+    ([(1.0, 0.5), (4.0, 2.0)], 2.0),  # one each side: between them
+    # both beyond, the cost rising more slowly than the linearised: between the optimum and
+    # the nearer, past the linearised end
+    ([(2.0, 1.5), (1.5, 1.2)], 1.25),
+    # both beyond, rising faster: perhaps only stopped early, so the linearised end
+    ([(1.0, 3.0), (0.5, 2.0)], 1.0),
+    # the nearer trial stopped early, over the target and over the farther one: the secant
+    # through both ended at 1.4, past the farther, already over the target
+    ([(1.0, 1.2), (0.8, 1.3)], 1.0),
+    # a trial inside lies inside, whatever a nearer one stopped at: not short of it
+    ([(1.5, 2.0), (2.0, 0.8)], 2.0),
+])
+def test_a_profiled_side_ends_where_its_trials_say(trials, end):
+    """The linearised half width (the target) 1; each trial's q as far as it is from the optimum
+    on a quadratic cost."""
+    assert identification._side_end(trials, 1.0, 10.0) == pytest.approx(end, rel=1e-9)
+    assert identification._side_end(trials, 1.0, 0.9) == 0.9  # never past the fit's range
+
+
+def test_a_profiled_side_never_ends_short_of_a_trial_inside_or_the_linearised_end():
+    rng = np.random.default_rng(7)
+    for _ in range(500):
+        trials = [(float(d), float(q)) for d, q in rng.uniform(0.01, 3.0, size=(2, 2))]
+        room = float(rng.uniform(0.5, 5.0))
+        end = identification._side_end(trials, 1.0, room)
+        inside = [d for d, q in trials if q < 1.0]
+        assert end <= room, (trials, room)
+        assert end >= min(max(inside + [1.0]), room), (trials, room)
 
 
 @pytest.mark.parametrize("into_step", [0.1, 0.5, 0.9])

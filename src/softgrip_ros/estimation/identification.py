@@ -832,13 +832,37 @@ def _profiled_halves(weighted_residuals, x: np.ndarray, bounds: tuple, halves: n
                                                                   points[1:])])
     costs, _ = _profile_minima(weighted_residuals, starts, pinned, bounds, steps, iterations)
     for (i, side, _, room), d1, d2, q1, cost in zip(sides, first, second, q_first, costs):
-        q2 = reached(cost, i)
-        if q2 > q1 and d2 != d1:  # the secant through both trials
-            corrected[i, side] = d1 + (halves[i] - q1) * (d2 - d1) / (q2 - q1)
-        else:  # flat between them: at least as far as the second
-            corrected[i, side] = d2 if q2 < halves[i] else d1
-        corrected[i, side] = min(max(corrected[i, side], 0.0), room)
+        corrected[i, side] = _side_end([(d1, q1), (d2, reached(cost, i))], halves[i], room)
     return corrected
+
+
+def _side_end(trials: list, target: float, room: float) -> float:
+    """Where one side of a profiled interval ends: the distance from the optimum at which the
+    profile's ``q`` (:func:`_profiled_halves`) reaches ``target``, the linearised half width, from
+    the ``trials`` [(distance, q)] and the optimum itself (0, 0). Interpolated between the
+    farthest point known to lie inside and the nearest beyond it; past the farthest two when none
+    is beyond (at least the farthest, where the profile is flat there); never short of the
+    linearised ``target``; within ``room``.
+
+    A trial's cost is the least its few refitting steps found, never below the profile's: a
+    trial whose ``q`` is under the target lies inside for certain (a profile rises away from its
+    optimum), one over it may only have stopped early. So the profile widens an interval, and
+    does not narrow it below the linearised one: on seeded fits, where both trials came out over
+    the target, the nearer often rose faster than the farther (q 1.7 times its distance, against
+    1.5), which a profile does not do, and ending the side between the optimum and the nearer
+    put it as much as 42 % inside the linearised end. Nor does a side end past a trial already
+    over the target on the strength of a nearer one that stopped higher still: a secant through
+    the two trials alone did that."""
+    points = sorted([(0.0, 0.0), *trials])
+    far = max(point for point in points if point[1] < target)
+    beyond = [point for point in points if point[0] > far[0] and point[1] >= target]
+    if beyond:
+        distance, q = min(beyond)
+        end = far[0] + (target - far[1]) * (distance - far[0]) / (q - far[1])
+    else:
+        (d0, q0), (d1, q1) = points[-2:]
+        end = d1 + (target - q1) * (d1 - d0) / (q1 - q0) if q1 > q0 and d1 > d0 else d1
+    return min(max(end, far[0], target), room)
 
 
 def _whiteness(residuals: np.ndarray) -> float:
