@@ -41,6 +41,7 @@ HEARTBEAT_PERIOD_S = 0.1
 CONTROLLER_STATE = {PressureMode.INACTIVE: 0, PressureMode.FAULT: 2}
 # FRAMES_REJECTED is reported this long after the last rejected frame
 FRAMES_REJECTED_HOLD_S = 1.0
+IGNORED_IN_IDENTIFICATION = "pressure command ignored: identification mode"
 
 
 def acting(output) -> bool:
@@ -227,7 +228,7 @@ class ControllerLink:
         carries why until a command applies; an invalid one is refused with its reason."""
         if identification_topic != self.controller.identification:
             return ("identification command ignored: identification_mode is off"
-                    if identification_topic else "pressure command ignored: identification mode")
+                    if identification_topic else IGNORED_IN_IDENTIFICATION)
         refused = future_stamp_reason(stamp_s, now_s, tolerance_s)
         if refused:
             self.reject_command(f"pressure command {refused}")

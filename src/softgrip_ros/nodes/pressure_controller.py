@@ -19,7 +19,8 @@ from std_srvs.srv import Trigger
 
 from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 from softgrip_ros.canbus.codec import FrameCodec
-from softgrip_ros.canbus.controller_link import ControllerLink, SensorBinding, make_control_loop
+from softgrip_ros.canbus.controller_link import (IGNORED_IN_IDENTIFICATION, ControllerLink,
+                                                SensorBinding, make_control_loop)
 from softgrip_ros.control.pressure import PressureController
 from softgrip_ros.model.pneumatics import PneumaticPlant
 from softgrip_ros.control.reports import pressure_controller_report
@@ -73,6 +74,7 @@ class PressureControllerNode(LifecycleNode):
         self.bus = self.link = self.loop = None
         self.last_output = None
         self.last_note = ""
+        self.ignored_said = False  # in identification mode: the ignored pressure/command, said
         self.create_timer(1.0, self._publish_diagnostics)
         if self.values["autostart"] and self.trigger_configure(
         ) == TransitionCallbackReturn.SUCCESS:
@@ -149,6 +151,7 @@ class PressureControllerNode(LifecycleNode):
 
     def on_activate(self, state) -> TransitionCallbackReturn:
         self.controller.identification = self.values["identification_mode"]
+        self.ignored_said = False
         if self.controller.identification:
             self.get_logger().warn(
                 "identification mode: open loop, commands on ~/identification_command only; "
@@ -217,6 +220,14 @@ class PressureControllerNode(LifecycleNode):
                               self.get_clock().now().nanoseconds * 1e-9,
                               self.values["stamp_tolerance"], identification_topic,
                               on_applied=self._set_note)
+        if note == IGNORED_IN_IDENTIFICATION:
+            # said once: the grasp manager refreshes its command every second, and a live
+            # identification's log was a warning a second for a minute
+            if self.ignored_said:
+                return
+            self.ignored_said = True
+            note += (": pressure/command (the grasp manager's refresh too) is ignored until "
+                     "identification_mode is off; said once")
         if note:
             self.get_logger().warn(note, throttle_duration_sec=1.0)
 
