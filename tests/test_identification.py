@@ -541,9 +541,9 @@ def test_intervals_follow_the_cost_along_a_curved_trade_off():
     # both beyond, the cost rising more slowly than the linearised: between the optimum and
     # the nearer, past the linearised end
     ([(2.0, 1.5), (1.5, 1.2)], 1.25),
-    # both beyond, rising faster: perhaps only stopped early, so the linearised end
+    # both beyond, rising faster than the linearised: kept at the linearised end (caution)
     ([(1.0, 3.0), (0.5, 2.0)], 1.0),
-    # the nearer trial stopped early, over the target and over the farther one: the secant
+    # the nearer trial over the target and over the farther one: the secant
     # through both ended at 1.4, past the farther, already over the target
     ([(1.0, 1.2), (0.8, 1.3)], 1.0),
     # a trial inside lies inside, whatever a nearer one stopped at: not short of it
