@@ -551,8 +551,8 @@ class _Grid:
             # Newton's start where the inputs held over the last steps: the trajectory
             # extrapolated (quadratically, linearly after a change), near enough to the step's
             # root that fewer steps take three evaluations of the flow (at the truth: slow_large
-            # 2.0 a step, drawn_1 2.5, where each step took 2.9; a simulation 12-26 % faster, the
-            # same pressures to the solve's 1e-6 Pa)
+            # 2.0 a step instead of 2.8, drawn_1 2.5 instead of 2.7; a simulation 12-26 % faster,
+            # the same pressures to the solve's 1e-6 Pa)
             guess = np.where(fresh, np.nan, 2.0 * p_now - p_before)
             if k >= 3:
                 guess = np.where(fresh | fresh_all[:n, k - 2], guess,
