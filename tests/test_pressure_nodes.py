@@ -357,12 +357,14 @@ def test_lifecycle_deactivate_vents_and_activate_resumes(nodes):
     wait_for(commanded_and_reached, period=0.5, message="pressure after activate")
 
 
-def test_identification_mode_is_set_only_while_inactive_and_takes_its_own_topic(nodes):
+def test_identification_mode_is_set_only_while_inactive_and_takes_its_own_topic(nodes,
+                                                                                monkeypatch):
     """Explicit and lifecycle-guarded: refused while active; once set (inactive, then active) the
     controller obeys ~/identification_command open loop and ignores pressure/command, which the
     grasp manager keeps sending; off again, the reverse."""
     from rclpy.parameter import Parameter
     from softgrip_interfaces.msg import ControllerStatus, PressureCommand
+    from softgrip_ros.canbus.controller_link import IGNORED_IN_IDENTIFICATION
     from softgrip_ros.model.pneumatics import Valve
 
     controller, device, client = nodes
@@ -397,14 +399,15 @@ def test_identification_mode_is_set_only_while_inactive_and_takes_its_own_topic(
         def __getattr__(self, name):
             return getattr(self.logger, name)
 
-    said = controller._logger = Said(controller._logger)
+    said = Said(controller._logger)
+    monkeypatch.setattr(controller, "_logger", said)
     switch(True)
     for _ in range(3):  # as the grasp manager refreshes its command: past the 1 s throttle
         command(normal, 20e3, PressureCommand.SUPPLY)
         time.sleep(1.1)
     assert device.device.valves() != (Valve.SUPPLY,)  # pressure/command ignored
     # and said once, not at each command (a live identification logged one a second)
-    ignored = [text for text in said.warnings if "ignored: identification mode" in text]
+    ignored = [text for text in said.warnings if text.startswith(IGNORED_IN_IDENTIFICATION)]
     assert len(ignored) == 1 and "said once" in ignored[0], said.warnings
     command(open_loop, 15e3, PressureCommand.SUPPLY)
     wait_for(lambda: device.device.valves() == (Valve.SUPPLY,), message="the supply valve open")
