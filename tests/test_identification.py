@@ -507,10 +507,10 @@ def test_intervals_follow_the_cost_along_a_curved_trade_off():
     1.3-3.7 times as far as their linearised intervals said. On the parabolic valley, v's
     profile rises to 1.92 at 2.04 below and 3.30 above, where the linearised interval says 2.19
     either side (33 % short above); the profiled half width is within 2 % above, and below,
-    where the profile is steeper than the linearised cost, the linearised one (a profile only
-    widens: _side_end). u's profile is quadratic, so its profiled interval is the linearised one
-    (1.96) to 1 %, and scaled with it: given intervals twice as wide (the sandwich's, say),
-    3.92."""
+    where the profile is steeper than the linearised cost, the linearised one (_side_end keeps
+    that width there, for caution). u's profile is quadratic, so its profiled interval is the
+    linearised one (1.96) to 1 %, and scaled with it: given intervals twice as wide (the
+    sandwich's, say), 3.92."""
     jacobian = np.array([[1.0, 0.0], [-0.5, 1.0]])  # at the optimum
     information = jacobian.T @ jacobian
     linear = 1.96 * np.sqrt(np.diag(np.linalg.inv(information)))
