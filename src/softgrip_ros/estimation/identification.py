@@ -93,6 +93,14 @@ REDATE_GAIN = 1.92
 REPEATS = 3  # the excitation's extra vents from the top and the bottom, and refills
 BOTTOM_VENTS = 4  # ... and vents from the bottom alone, after them
 PROFILE_ITERATIONS = 4  # the profile's Levenberg-Marquardt steps per trial (_profile_minima)
+# a profile's side is tried at most this many times (_profiled_halves), each trial at most
+# PROFILE_REACH times as far out as the one before (a doubling, as a bracketing search steps):
+# seeded slow_large (seed 25) found one compliance's profile flat at the first trial, sent the
+# second to the range's end, and ended the side at 1.08 linearised half widths by interpolating
+# across the whole range; refitted to convergence, the profile reached its target some 3-4.5
+# half widths out (both compliances)
+PROFILE_TRIALS = 3
+PROFILE_REACH = 2.0
 STAGE3_METHODS = ("trf", "dogbox", "trf")  # the chamber fit's passes, at most (see fit)
 STAGE3 = ("supply_conductance", "vacuum_conductance", "vent_conductance", "supply_critical_ratio",
           "vacuum_critical_ratio", "vent_critical_ratio", "chamber_compliance_m3_per_pa",
@@ -817,10 +825,12 @@ def _profiled_halves(weighted_residuals, x: np.ndarray, bounds: tuple, halves: n
     cost minimised over the others (:func:`_profile_minima`, from the linear path). For a
     quadratic cost, ``q = sqrt(2 (cost - optimum) [inv(information)]_ii)`` is the trial's
     distance; a half width is where ``q`` reaches the linearised one, so that the profile gives
-    the shape and ``halves`` the scale (the sandwich's, and the timings' share). Two trials per
-    side: at the linearised half width, then where ``q``, taken as proportional to the distance,
-    would reach it; the half width is interpolated between them (one trial alone missed a
-    curved valley's by 10 %).
+    the shape and ``halves`` the scale (the sandwich's, and the timings' share). The first trial
+    per side at the linearised half width; while none has reached it, up to ``PROFILE_TRIALS``,
+    the next where the trials so far say ``q`` reaches it (taken as proportional to the distance
+    at first, then along their secant), at most ``PROFILE_REACH`` times as far out. The half width
+    is interpolated between the trials (one trial alone missed a curved valley's by 10 %), and a
+    side whose first trial already reached it keeps it (:func:`_side_end`).
 
     ``weighted_residuals(points)`` -> [points, readings], the fit's weighted residuals at each
     point (rows of stage-3 coordinates); ``x``: their optimum; ``information``: J^T J there (its
@@ -835,26 +845,44 @@ def _profiled_halves(weighted_residuals, x: np.ndarray, bounds: tuple, halves: n
     if not sides:
         return corrected
     pinned = [i for i, *_ in sides]
-    first = np.array([min(halves[i], 0.999 * room) for i, _, _, room in sides])
+    distances = np.array([min(halves[i], 0.999 * room) for i, _, _, room in sides])
     starts = np.array([x + sign * d * inverse[:, i] / inverse[i, i]
-                       for (i, _, sign, _), d in zip(sides, first)])
+                       for (i, _, sign, _), d in zip(sides, distances)])
     costs, points = _profile_minima(weighted_residuals, np.vstack([x, starts]), [None] + pinned,
                                     bounds, steps, iterations)
-    optimum = costs[0]
+    optimum, costs, points = costs[0], costs[1:], points[1:]
 
     def reached(cost, i):
         return math.sqrt(2.0 * max(cost - optimum, 0.0) * inverse[i, i])
 
-    q_first = np.array([reached(cost, i) for cost, i in zip(costs[1:], pinned)])
-    second = np.array([min(d * halves[i] / q, 0.999 * room) if q > 0.0 else 0.999 * room
-                       for (i, _, _, room), d, q in zip(sides, first, q_first)])
-    # from the first trial's minimum, moved along the linear path to the second's value
-    starts = np.array([point + sign * (d2 - d1) * inverse[:, i] / inverse[i, i]
-                       for (i, _, sign, _), d1, d2, point in zip(sides, first, second,
-                                                                  points[1:])])
-    costs, _ = _profile_minima(weighted_residuals, starts, pinned, bounds, steps, iterations)
-    for (i, side, _, room), d1, d2, q1, cost in zip(sides, first, second, q_first, costs):
-        corrected[i, side] = _side_end([(d1, q1), (d2, reached(cost, i))], halves[i], room)
+    trials = [[] for _ in sides]  # each side's [(distance, q)]
+    going = list(range(len(sides)))
+    for trial in range(1, PROFILE_TRIALS + 1):
+        for k, cost in zip(going, costs):
+            trials[k].append((distances[k], reached(cost, pinned[k])))
+        # on while no trial has reached the target and the range has room: where the trials so
+        # far say the side ends (q taken as proportional to the distance at first, then along
+        # their secant), but at most PROFILE_REACH times as far out, since where a trial found
+        # the profile flat q is no guide, and a trial at the range's end says nothing of where
+        # the profile starts to rise
+        going = [k for k in going if trial < PROFILE_TRIALS and
+                 max(q for _, q in trials[k]) < halves[pinned[k]] and
+                 distances[k] < 0.999 * sides[k][3]]
+        if not going:
+            break
+        aims = [_side_end(trials[k], halves[pinned[k]], sides[k][3]) for k in going]
+        further = [min(aim if aim > distances[k] else math.inf, PROFILE_REACH * distances[k],
+                       0.999 * sides[k][3]) for k, aim in zip(going, aims)]
+        # from the last trial's minimum, moved along the linear path to the next one's value
+        starts = np.array([points[k] + sides[k][2] * (d - distances[k]) *
+                           inverse[:, pinned[k]] / inverse[pinned[k], pinned[k]]
+                           for k, d in zip(going, further)])
+        costs, moved = _profile_minima(weighted_residuals, starts, [pinned[k] for k in going],
+                                       bounds, steps, iterations)
+        for k, d, point in zip(going, further, moved):
+            distances[k], points[k] = d, point
+    for (i, side, _, room), tried in zip(sides, trials):
+        corrected[i, side] = _side_end(tried, halves[i], room)
     return corrected
 
 
