@@ -95,10 +95,10 @@ BOTTOM_VENTS = 4  # ... and vents from the bottom alone, after them
 PROFILE_ITERATIONS = 4  # the profile's Levenberg-Marquardt steps per trial (_profile_minima)
 # a profile's side is tried at most this many times (_profiled_halves), each trial at most
 # PROFILE_REACH times as far out as the one before (a doubling, as a bracketing search steps):
-# seeded slow_large (seed 25) found one compliance's profile flat at the first trial, sent the
-# second to the range's end, and ended the side at 1.08 linearised half widths by interpolating
-# across the whole range; refitted to convergence, the profile reached its target some 3-4.5
-# half widths out (both compliances)
+# seeded slow_large (seed 25) found both compliances' profiles flat at the first trial, sent the
+# second trials to the range's end, and ended the sides at 1.08 and 1.4 linearised half widths
+# by interpolating across the whole range; refitted to convergence, the vacuum compliance's
+# profile reaches its target only 4.4 half widths out
 PROFILE_TRIALS = 3
 PROFILE_REACH = 2.0
 STAGE3_METHODS = ("trf", "dogbox", "trf")  # the chamber fit's passes, at most (see fit)
