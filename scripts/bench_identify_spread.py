@@ -23,6 +23,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import concurrent.futures  # noqa: E402
+import math  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 
@@ -86,21 +87,27 @@ def markdown(spread: dict, per_truth: dict, fits: list, command: str, seconds: f
         f": {len(fits)} fits. Per value: the "
         "share of fits within the issue's target (and per truth), the median and largest "
         "|relative error|, the share of 95 % intervals that hold the truth (nominally 0.95) and "
-        "their median half width, and the share the fit flagged.", "",
+        "their median half width, the errors' spread over the intervals (the rms of each error "
+        "over its interval's sigma on the truth's side, half width / 1.96, over the unflagged "
+        "fits: 1 for intervals as wide as the errors spread, above 1 for narrow ones), and the "
+        "share the fit flagged.", "",
         "| value | target | within | " + " | ".join(truths) +
         " | median \\|error\\| | largest | interval holds the truth | median half width | "
-        "flagged |",
-        "|---|---|---|" + "---|" * len(truths) + "---|---|---|---|---|"]
+        "spread over interval | flagged |",
+        "|---|---|---|" + "---|" * len(truths) + "---|---|---|---|---|---|"]
     for name, row in spread.items():
         cells = [f"`{name}`", f"{100 * row['target']:.0f} %", f"{row['within_target']:.2f}"]
         cells += [f"{per_truth[t][name]['within_target']:.2f}" for t in truths]
         exact = row["median_half_width"] < 1e-6
         cells += [f"{100 * row['median_abs_err']:.2f} %", f"{100 * row['max_abs_err']:.1f} %",
                   "-" if exact else f"{row['covered']:.2f}",
-                  half_width(row["median_half_width"]), f"{row['flagged']:.2f}"]
+                  half_width(row["median_half_width"]),
+                  "-" if exact or math.isnan(row["spread_over_interval"])
+                  else f"{row['spread_over_interval']:.2f}", f"{row['flagged']:.2f}"]
         lines.append("| " + " | ".join(cells) + " |")
     lines += ["", "-: an interval without width: the regulator's lag (its reports carry no noise "
-              "in these recordings) and a value given as measured. Unless the pump's level is "
+              "in these recordings) and a value given as measured; for the spread, also a value "
+              "flagged in every fit. Unless the pump's level is "
               "given, the vacuum path's critical ratio and the level are flagged by design (see "
               "the live table's note). What these figures "
               "mean for a fit, and what is known about them, is in "

@@ -233,11 +233,12 @@ def _assert_recovered(result, truth: PneumaticParameters) -> None:
 
 def test_the_spread_over_seeded_fits_counts_targets_and_intervals():
     """recovery_spread (bench_identify_spread's table): per value, the share within its target,
-    the median and largest |error|, and the share of intervals holding the truth, over the fits
-    that have the value."""
+    the median and largest |error|, the share of intervals holding the truth, over the fits
+    that have the value; and the errors' spread over the unflagged intervals' sigma."""
     def fit(error, half_width, covered, flagged=False):
         return {"vent_critical_ratio": {"rel_err": error, "rel_half_width": half_width,
-                                        "covered": covered, "flagged": flagged}}
+                                        "covered": covered, "flagged": flagged,
+                                        "reach": abs(error) / half_width}}
     fits = [{"values": fit(0.04, 0.05, True)}, {"values": fit(-0.12, 0.10, False)},
             {"values": fit(0.09, 0.08, False, flagged=True)}, {"values": fit(-0.02, 0.30, True)}]
     fits.append({"values": {}})  # a fit without the value does not count
@@ -252,6 +253,14 @@ def test_the_spread_over_seeded_fits_counts_targets_and_intervals():
     assert row["covered"] == pytest.approx(0.5)
     assert row["median_half_width"] == pytest.approx(0.09)
     assert row["flagged"] == pytest.approx(0.25)
+    # reaches 0.8, 1.2 and 1/15 (the flagged one left out)
+    assert row["spread_over_interval"] == pytest.approx(
+        1.96 * math.sqrt((0.8**2 + 1.2**2 + (1 / 15)**2) / 3))
+    widthless = {"vent_critical_ratio": {"rel_err": 0.0, "rel_half_width": 0.0, "covered": True,
+                                         "flagged": False, "reach": None}}
+    alone = identification_sim.recovery_spread([{"values": widthless}],
+                                               {"vent_critical_ratio": 0.10})
+    assert math.isnan(alone["vent_critical_ratio"]["spread_over_interval"])
 
 
 def test_a_benchmark_truth_is_named_or_a_file_or_refused(tmp_path):

@@ -180,6 +180,8 @@ def test_bench_identify_spread_quick_json_summarises_every_value_over_its_fits(p
         for share in ("within_target", "covered", "flagged"):
             assert row[share] in (0.0, 0.5, 1.0), (name, share)
         assert 0.0 <= row["median_abs_err"] <= row["max_abs_err"], name
+        # null where every fit flagged the value or gave it no width (strict JSON has no NaN)
+        assert row["spread_over_interval"] is None or row["spread_over_interval"] >= 0.0, name
     assert figures["per_truth"]["slow_large"] == figures["spread"]
     level = figures["spread"]["vacuum_source_gauge_pa"]
     if pump_level:
