@@ -896,13 +896,13 @@ def _side_end(trials: list, target: float, room: float) -> float:
 
     A trial's cost is the least its few refitting steps found, never below the profile's: a
     trial whose ``q`` is under the target lies inside for certain (a profile rises away from its
-    optimum). Where both trials come out over it, the cost rose faster than the linearised one
+    optimum). Where the trials come out over it, the cost rose faster than the linearised one
     near the optimum, and the profile alone would narrow the side: on 30 seeded fits, 41 sides,
-    by up to 42 %. The side keeps the linearised width there, a choice for caution: the
-    intervals already held the truth less often than they should (77-93 % of seeded fits against
-    95 %; docs/identification.md), which gives a narrowing no support. Nor does a side end past a
-    trial already over the target on the strength of a nearer one that came out higher still: a
-    secant through the two trials alone did that."""
+    by up to 42 % (two trials per side then). The side keeps the linearised width there, a
+    choice for caution: the intervals already held the truth less often than they should (77-93 %
+    of seeded fits against 95 %; docs/identification.md), which gives a narrowing no support.
+    Nor does a side end past a trial already over the target on the strength of a nearer one that
+    came out higher still: a secant through the two trials alone did that."""
     points = sorted([(0.0, 0.0), *trials])
     far = max(point for point in points if point[1] < target)
     beyond = [point for point in points if point[0] > far[0] and point[1] >= target]
