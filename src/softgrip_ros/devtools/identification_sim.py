@@ -189,7 +189,7 @@ def recovery_spread(fits: list, targets: dict = RECOVERY_TARGETS) -> dict:
             "median_half_width": float(np.median([row["rel_half_width"] for row in rows])),
             "flagged": float(np.mean([row["flagged"] for row in rows]))}
         reaches = [row["reach"] for row in rows
-                   if not row["flagged"] and row.get("reach") is not None]
+                   if not row["flagged"] and row["reach"] is not None]
         spread[name]["spread_over_interval"] = (
             float(1.96 * np.sqrt(np.mean(np.square(reaches)))) if reaches else math.nan)
     return spread

@@ -845,9 +845,14 @@ def _profiled_halves(weighted_residuals, x: np.ndarray, bounds: tuple, halves: n
     if not sides:
         return corrected
     pinned = [i for i, *_ in sides]
+
+    def along(point, k, distance):
+        """``point`` moved along side ``k``'s linear path by ``distance``."""
+        i, _, sign, _ = sides[k]
+        return point + sign * distance * inverse[:, i] / inverse[i, i]
+
     distances = np.array([min(halves[i], 0.999 * room) for i, _, _, room in sides])
-    starts = np.array([x + sign * d * inverse[:, i] / inverse[i, i]
-                       for (i, _, sign, _), d in zip(sides, distances)])
+    starts = np.array([along(x, k, d) for k, d in enumerate(distances)])
     costs, points = _profile_minima(weighted_residuals, np.vstack([x, starts]), [None] + pinned,
                                     bounds, steps, iterations)
     optimum, costs, points = costs[0], costs[1:], points[1:]
@@ -874,8 +879,7 @@ def _profiled_halves(weighted_residuals, x: np.ndarray, bounds: tuple, halves: n
         further = [min(aim if aim > distances[k] else math.inf, PROFILE_REACH * distances[k],
                        0.999 * sides[k][3]) for k, aim in zip(going, aims)]
         # from the last trial's minimum, moved along the linear path to the next one's value
-        starts = np.array([points[k] + sides[k][2] * (d - distances[k]) *
-                           inverse[:, pinned[k]] / inverse[pinned[k], pinned[k]]
+        starts = np.array([along(points[k], k, d - distances[k])
                            for k, d in zip(going, further)])
         costs, moved = _profile_minima(weighted_residuals, starts, [pinned[k] for k in going],
                                        bounds, steps, iterations)
