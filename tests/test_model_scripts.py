@@ -271,6 +271,71 @@ def test_demo_grasps_with_the_controller_executable_and_exits_cleanly(tmp_path):
     assert "Traceback" not in result.stderr
 
 
+def _bench_identify_module():
+    sys.path.insert(0, str(REPO_ROOT / "scripts"))
+    try:
+        import bench_identify
+    finally:
+        sys.path.pop(0)
+    return bench_identify
+
+
+def test_bench_identify_keeps_the_recording_of_a_truth_that_missed_a_target(monkeypatch, capsys,
+                                                                            tmp_path):
+    """A truth whose fit ran over its budget, or left a value outside its recovery target
+    unflagged, is named with what it missed, and its recording and fit outlive the temporary
+    workdir (a live run is not repeatable, a fit from its log is); a truth that met every target
+    keeps nothing. Misses of flagged values and of values without a target are not misses."""
+    temporary = tmp_path / "tmp"
+    temporary.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temporary))
+    bench_identify = _bench_identify_module()
+
+    def identify_live(path, truth, quick, workdir, pump_level_given=False):
+        output = workdir / f"identified-{path.stem}"
+        (output / "recording").mkdir(parents=True)
+        (output / "recording" / "recording.mcap").write_bytes(b"log of " + path.stem.encode())
+        return {"path": output / "plant.yaml", "wall_s": 1.0}
+
+    def evaluate(truth, identified_path, runs):
+        missed = "missed" in identified_path.parent.name
+        figures = {key: 0.0 for key in (
+            "validation_rmse_over_noise", "default_rise_time_ratio", "default_overshoot_pct",
+            "default_steady_state_error_kpa", "identified_rise_time_ratio",
+            "identified_overshoot_pct", "identified_steady_state_error_kpa")}
+        figures.update({
+            "param_rel_err": {"vent_critical_ratio": 0.246 if missed else 0.099,
+                              "vacuum_critical_ratio": 0.63, "vent_conductance": -0.049,
+                              "regulator_rate_limit_pa_per_s": 0.5},
+            "flagged": ["vacuum_critical_ratio"], "fit_s": 82.2 if missed else 60.0,
+            "nees_default_in_bounds": False, "nees_identified_in_bounds": True})
+        return figures
+
+    monkeypatch.setattr(bench_identify, "identify_live", identify_live)
+    monkeypatch.setattr(bench_identify, "evaluate", evaluate)
+    truths = [bench_identify.plant_file.save(bench_identify.identification_sim.truth("drawn_1"),
+                                             tmp_path / f"bench-identify-{name}.yaml")
+              for name in ("missed", "met")]
+    code = bench_identify.main(["--json"] + [a for p in truths for a in ("--truth", str(p))])
+    out, err = capsys.readouterr()
+    assert code == 0
+    rows = {row["name"]: row["figures"] for row in json.loads(out)["truths"]}
+    assert rows["bench-identify-missed"]["missed"] == [
+        "the fit took 82.2 s (budget 60 s)",
+        "vent_critical_ratio +24.6 %, unflagged (target +-10 %)"]
+    assert rows["bench-identify-met"]["missed"] == [] and "kept_in" not in rows[
+        "bench-identify-met"]
+    kept = pathlib.Path(rows["bench-identify-missed"]["kept_in"])
+    assert kept.name == "identified-bench-identify-missed" and kept.parent.parent == temporary
+    assert (kept / "recording" / "recording.mcap").read_bytes() == b"log of bench-identify-missed"
+    assert (kept.parent / "bench-identify-missed.yaml").read_text() == truths[0].read_text()
+    assert list(temporary.iterdir()) == [kept.parent]  # the workdir itself removed
+    assert (f"truth bench-identify-missed: missed: the fit took 82.2 s (budget 60 s); "
+            f"vent_critical_ratio +24.6 %, unflagged (target +-10 %). Its recording and fit are "
+            f"kept in {kept}; refit: softgrip_identify --from-log {kept / 'recording'}") in err
+    assert "bench-identify-met: missed" not in err
+
+
 def test_bench_identify_names_a_truth_whose_live_run_fails_and_runs_the_others(monkeypatch,
                                                                                capsys, tmp_path):
     """A live run that fails (here: softgrip_identify exits 1 on the first truth) is a line
@@ -279,11 +344,7 @@ def test_bench_identify_names_a_truth_whose_live_run_fails_and_runs_the_others(m
     temporary = tmp_path / "tmp"
     temporary.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(temporary))
-    sys.path.insert(0, str(REPO_ROOT / "scripts"))
-    try:
-        import bench_identify
-    finally:
-        sys.path.pop(0)
+    bench_identify = _bench_identify_module()
     ran = []
 
     def identify_live(path, truth, quick, workdir, pump_level_given=False):
