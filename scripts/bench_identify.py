@@ -50,7 +50,7 @@ from softgrip_ros.devtools.closed_loop import step_figures
 from softgrip_ros.devtools.estimator_simulation import anees
 from softgrip_ros.devtools import identification_sim
 from softgrip_ros.devtools.processes import installed_executable, stop_process
-from softgrip_ros.estimation.identification import excitation
+from softgrip_ros.estimation.identification import FIT_BUDGET_S, excitation
 from softgrip_ros.model import plant_file
 from softgrip_ros.model.pneumatics import PneumaticPlant
 from softgrip_ros.tools import identify
@@ -98,9 +98,9 @@ def target_misses(figures: dict) -> list:
     """What one truth's run missed of the issue's targets, in words: a fit over its budget, and
     each value outside its recovery target that the fit did not flag."""
     misses = []
-    if figures["fit_s"] > identification_sim.FIT_BUDGET_S:
+    if figures["fit_s"] > FIT_BUDGET_S:
         misses.append(f"the fit took {figures['fit_s']:.1f} s "
-                      f"(budget {identification_sim.FIT_BUDGET_S:g} s)")
+                      f"(budget {FIT_BUDGET_S:g} s)")
     for name, error in figures["param_rel_err"].items():
         target = identification_sim.RECOVERY_TARGETS.get(name)
         if target is not None and name not in figures["flagged"] and abs(error) > target:
@@ -187,7 +187,7 @@ def markdown(rows: list, command: str, seconds: float, pump_level_given: bool = 
                        ("nees_identified", "ANEES, identified"),
                        ("fit_flags", "flags the fit raised (values and residuals)"),
                        ("excitation_s", "excitation (gripper s, <= 60)"),
-                       ("fit_s", f"fit (s, <= {identification_sim.FIT_BUDGET_S:g})")):
+                       ("fit_s", f"fit (s, <= {FIT_BUDGET_S:g})")):
         cells = []
         for row in rows:
             value = row["figures"][key]

@@ -423,10 +423,42 @@ def test_the_joint_passes_stop_once_one_no_longer_lowers_the_cost(monkeypatch):
 
     monkeypatch.setattr(identification, "_joint_pass", joint_pass)
     monkeypatch.setattr(identification, "REDATE_SETTLED_MS", 0.0)
-    identification.fit(recording, plant_file.default_description().parameters,
-                       volume_m3=truth.parameters.chamber_volume_m3)
+    result = identification.fit(recording, plant_file.default_description().parameters,
+                                volume_m3=truth.parameters.chamber_volume_m3)
     assert passes == costs[:3]
     assert identification.REDATE_PASSES >= 4
+    # no budget by default: the passes end on the cost alone, and nothing says otherwise
+    assert not any("re-dating" in flag for flag in result.flags)
+
+
+def test_the_re_dating_stops_early_and_says_so_when_the_fit_would_overrun_its_budget(
+        monkeypatch):
+    """softgrip_identify's fit has FIT_BUDGET_S; live drawn_1 once took 82 s, its four re-dating
+    passes all used. The re-dating starts no pass it expects to end past REDATE_SHARE of the
+    budget (each pass taken to last as long as the one before), and flags the result when its
+    timings had not settled. Here the clock moves only while a pass runs, 10 s a pass, and the
+    passes never settle: a 40 s budget leaves room for two (20 s, then 30 s > 24 s). (Without a
+    budget nothing stops them: the test above.)"""
+    truth = identification_sim.drawn(1)
+    steps, held_out = identification.excitation(quick=True)
+    recording = identification_sim.record(truth, steps, held_out, seed=5)
+    real_pass, clock, passes = identification._joint_pass, [0.0], []
+
+    def joint_pass(*args):
+        clock[0] += 10.0
+        passes.append(clock[0])
+        return real_pass(*args)
+
+    monkeypatch.setattr(identification, "_joint_pass", joint_pass)
+    monkeypatch.setattr(identification.time, "perf_counter", lambda: clock[0])
+    monkeypatch.setattr(identification, "REDATE_SETTLED_MS", 0.0)
+    monkeypatch.setattr(identification, "REDATE_GAIN", -math.inf)
+    result = identification.fit(recording, plant_file.default_description().parameters,
+                                volume_m3=truth.parameters.chamber_volume_m3, budget_s=40.0)
+    assert passes == [10.0, 20.0] and identification.REDATE_PASSES > 2
+    stopped = [flag for flag in result.flags if "re-dating" in flag]
+    assert len(stopped) == 1 and "after 2 of 4 passes" in stopped[0], result.flags
+    assert "40 s budget" in stopped[0]
 
 
 def test_readings_older_than_their_stamps_are_dated_by_the_fit():

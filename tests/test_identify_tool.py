@@ -27,6 +27,8 @@ def _run(*args, timeout=120):
     (["--vacuum-source-pa", "nan"], "--vacuum-source-pa must lie in"),
     (["--from-log", "/nonexistent"], "no rosbag2 log there"),
     (["--timeout", "0"], "--timeout must be > 0"),
+    (["--fit-budget-s", "0"], "--fit-budget-s must be > 0"),
+    (["--fit-budget-s", "nan"], "--fit-budget-s must be > 0"),
 ])
 def test_bad_arguments_exit_2_with_the_reason(args, message):
     result = _run(*args)

@@ -36,7 +36,6 @@ RECOVERY_TARGETS = {
     "regulator_time_constant_s": 0.10, "chamber_compliance_m3_per_pa": 0.10,
     "vacuum_compliance_m3_per_pa": 0.10, "vacuum_source_gauge_pa": 0.10,
     "chamber_a.noise_std_pa": 0.20, "chamber_b.noise_std_pa": 0.20}
-FIT_BUDGET_S = 60.0  # the budget for the fit (#23), on the 2-core machine
 # what the pressure limits leave unexcited: within [-60, 50] kPa the vacuum path's flow is choked
 # nearly all the way, and where it is not, its critical ratio and the source's level trade off;
 # the fit must then say so (a flag, and an interval that holds the truth)

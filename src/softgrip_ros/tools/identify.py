@@ -77,6 +77,11 @@ def parser() -> argparse.ArgumentParser:
                      "give (default: the controller's own)")
     top.add_argument("--quick", action="store_true", help="a shorter excitation (~19 s)")
     top.add_argument("--seed", type=int, default=0, help="the PRBS's seed")
+    top.add_argument("--fit-budget-s", type=float, default=identification.FIT_BUDGET_S,
+                     metavar="S", help="the time the fit should take (default %(default)g s): "
+                     "the fit starts no pass re-dating the valve switches that would end past "
+                     f"{100 * identification.REDATE_SHARE:g} %% of it, and flags the result if "
+                     "they had not settled; inf for no limit")
     top.add_argument("--timeout", type=float, default=15.0,
                      help="seconds to wait for the controller's services")
     return top
@@ -94,6 +99,8 @@ def _check(args, error) -> None:
         error(f"--from-log {args.from_log}: no rosbag2 log there (no metadata.yaml)")
     if args.output is not None and (args.output / "plant.yaml").exists():
         error(f"{args.output / 'plant.yaml'} exists: choose another --output")
+    if not args.fit_budget_s > 0.0:
+        error(f"--fit-budget-s must be > 0 (inf for no limit), got {args.fit_budget_s}")
     if args.timeout <= 0.0:
         error("--timeout must be > 0")
 
@@ -365,7 +372,8 @@ def fit_log(log: pathlib.Path, args, output: pathlib.Path, progress, command: st
         info["base_plant"], "the log's base plant")
     progress(f"fitting {sum(len(t) for t, _ in recording.sensors.values())} readings")
     result = identification.fit(recording, base.parameters, args.volume_m3, progress,
-                                vacuum_source_pa=args.vacuum_source_pa)
+                                vacuum_source_pa=args.vacuum_source_pa,
+                                budget_s=args.fit_budget_s)
     volume = (f"measured, {args.volume_m3:g} m^3 (--volume-m3)" if args.volume_m3 is not None
               else f"inherited, {base.parameters.chamber_volume_m3:g} m^3 from the base file")
     provenance = {"source": "identified", "date": datetime.date.today().isoformat(),
