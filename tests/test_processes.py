@@ -54,6 +54,33 @@ def controller(tmp_path):
         log.close()
 
 
+def test_a_ctrl_c_while_the_suite_is_built_closes_the_nodes_already_made(rclpy_context,
+                                                                        monkeypatch):
+    """The test below once saw the controller end -11 (SIGSEGV) after "stopped during start-up"
+    (a CI run, 2026-12-05). make_nodes closed what it had made on an Exception only: a Ctrl-C
+    while it built the rest left the device's and the pressure controller's threads running
+    into the interpreter's exit, a likely cause. Whatever ends the start-up, they are closed (and
+    the context fixture finds no thread left)."""
+    from rclpy.parameter import Parameter
+    from softgrip_ros.nodes import controller as composed
+
+    closed, real_close_all = [], composed.close_all
+
+    def close_all(nodes):
+        closed.extend(node.get_name() for node in nodes)
+        real_close_all(nodes)
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(composed, "close_all", close_all)
+    monkeypatch.setattr(composed, "EstimatorNode", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        composed.make_nodes(rclpy_context, {
+            "pressure_controller": [Parameter("can.channel", value=unique("startup"))]})
+    assert sorted(closed) == ["pressure_controller", "sim_device"]
+
+
 def test_ctrl_c_to_the_process_group_ends_everything_quietly(controller):
     """#20.10: Ctrl-C in a terminal (SIGINT to the whole process group, the L2 child included)
     printed Traceback ... KeyboardInterrupt."""

@@ -74,7 +74,7 @@ def make_nodes(context=None, overrides: dict | None = None) -> list:
         grasp_manager.command_listeners.append(controller.on_command)
         estimator.estimate_listeners += [kinematics.on_estimate, grasp_manager.on_estimate]
         estimator.consistency_listeners.append(controller.on_consistency)
-    except Exception:
+    except BaseException:  # a Ctrl-C too: their threads must not run into the interpreter's exit
         close_all(nodes)
         raise
     return nodes
