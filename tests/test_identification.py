@@ -31,7 +31,10 @@ def test_the_vectorised_step_is_the_plants_backward_euler_step(valve):
                                      vacuum_compliance_m3_per_pa=0.5e-10)
     plant = PneumaticPlant(parameters)
     rng = np.random.default_rng(1)
-    chambers = P_ATM_PA + rng.uniform(-55e3, 45e3, 200)
+    # a quarter within a step's reach of atmosphere, where the compliances differ: the step is
+    # split there (PneumaticPlant.chamber_step)
+    chambers = P_ATM_PA + np.where(np.arange(200) % 4 == 0, rng.uniform(-400.0, 400.0, 200),
+                                   rng.uniform(-55e3, 45e3, 200))
     regulator = rng.uniform(-30e3, 45e3, 200)
     conductance, b = parameters.path(valve)
     sources = np.array([plant.source(valve, r)[0] for r in regulator])
@@ -40,6 +43,8 @@ def test_the_vectorised_step_is_the_plants_backward_euler_step(valve):
     theirs = np.array([plant.chamber_step(p, valve, r, 1e-3)[0]
                        for p, r in zip(chambers, regulator)])
     assert np.max(np.abs(ours - theirs)) < 1e-6
+    if valve != Valve.VENT:  # a vent's source is atmosphere: nothing crosses it
+        assert np.sum((theirs - P_ATM_PA) * (chambers - P_ATM_PA) < 0.0) >= 5
     # Newton started from a guess (the simulation's extrapolated trajectory) ends at the same
     # root, wherever the guess lies: near it, at it, past the source, at p_n or the source, NaN
     kinds = np.arange(200) % 6
@@ -124,22 +129,17 @@ def test_grids_stacked_into_one_simulation_predict_what_each_predicts_alone():
     assert np.max(np.abs(together[2] - together[0])) > 100.0
 
 
-def test_the_fits_simulation_follows_the_law_at_its_1_ms_steps():
-    """A real chamber (and the simulated device, PneumaticPlant.advance) follows the continuous
-    law. One backward-Euler step per millisecond strayed from it by up to 216 Pa in this fast
-    plant's fill, vent, evacuation and refill (a sensor's noise: 150-300 Pa): against such a
-    truth the fit put drawn_1's supply critical ratio 17 % off. The grid's steps are BDF2, from
-    a backward-Euler step wherever the inputs change: within 60 Pa."""
-    truth = identification_sim.drawn(1).parameters
+def _fit_model_error(truth: PneumaticParameters, plan: list, law_step_s: float):
+    """(times, the fit's 1 ms simulation of ``plan`` [(seconds, valve, regulator setpoint)] minus
+    the law's: PneumaticPlant.advance at ``law_step_s``), from rest at atmosphere."""
     plant = PneumaticPlant(truth)
-    plan = [(0.05, Valve.CLOSED, 42750.0), (0.6, Valve.SUPPLY, 42750.0), (0.9, Valve.VENT, 0.0),
-            (0.25, Valve.VACUUM, 0.0), (0.9, Valve.VENT, 0.0), (0.8, Valve.SUPPLY, 20000.0)]
     inputs, now = [], 0.0
     state, times, reference = plant.initial_state(), [], []
     for duration, valve, setpoint_pa in plan:
         inputs.append(identification.InputChange(now, int(valve), setpoint_pa, True))
         for _ in range(int(round(duration / 1e-3))):
-            state = plant.advance(state, PlantInputs(setpoint_pa, True, (valve,)), 1e-3, 1e-5)
+            state = plant.advance(state, PlantInputs(setpoint_pa, True, (valve,)), 1e-3,
+                                  law_step_s)
             now += 1e-3
             times.append(now)
             reference.append(state.chamber_pa[0] - P_ATM_PA)
@@ -153,9 +153,40 @@ def test_the_fits_simulation_follows_the_law_at_its_1_ms_steps():
 
     grid = identification._Grid(recording, [identification.Episode(0.0, now, 0.0)],
                                 regulator_at, {"s": 0.0}, {"s": 1.0})
-    error = grid.simulate([truth])[0] - grid.measured
+    return grid.times, grid.simulate([truth])[0] - grid.measured
+
+
+def test_the_fits_simulation_follows_the_law_at_its_1_ms_steps():
+    """A real chamber (and the simulated device, PneumaticPlant.advance) follows the continuous
+    law. One backward-Euler step per millisecond strayed from it by up to 216 Pa in this fast
+    plant's fill, vent, evacuation and refill (a sensor's noise: 150-300 Pa): against such a
+    truth the fit put drawn_1's supply critical ratio 17 % off. The grid's steps are BDF2, from
+    a backward-Euler step wherever the inputs change: within 60 Pa."""
+    truth = identification_sim.drawn(1).parameters
+    plan = [(0.05, Valve.CLOSED, 42750.0), (0.6, Valve.SUPPLY, 42750.0), (0.9, Valve.VENT, 0.0),
+            (0.25, Valve.VACUUM, 0.0), (0.9, Valve.VENT, 0.0), (0.8, Valve.SUPPLY, 20000.0)]
+    error = _fit_model_error(truth, plan, 1e-5)[1]
     assert np.max(np.abs(error)) < 60.0, np.max(np.abs(error))
     assert np.sqrt(np.mean(error**2)) < 15.0
+
+
+def test_the_fits_simulation_crosses_atmosphere_as_the_law_does():
+    """slow_large's chamber balloons out twice as readily as it is drawn in, so dp/dt jumps at
+    atmosphere. BDF2 on p took that jump inside a step and into the next one's formula: each
+    fill from vacuum and each evacuation from a positive level 12 Pa off the law (4.1 Pa rms),
+    weighed over every reading after it (the simulated device was 2.8 Pa off, the other way: the
+    fits' values moved by up to a sigma). On the air's mass, whose rate does not jump, and with
+    the step after an input change taken as the device takes its own: within 2 Pa (0.34 Pa).
+    Detecting the crossing and taking that step otherwise was tried: the finite differences of
+    the fit's Jacobian then saw the switch, and intervals came out up to 9 times too narrow."""
+    truth = identification_sim.truth("slow_large").parameters
+    assert truth.chamber_compliance_m3_per_pa > 1.5 * truth.vacuum_compliance_m3_per_pa
+    plan = [(0.05, Valve.CLOSED, 42750.0), (0.3, Valve.VACUUM, 42750.0),
+            (0.6, Valve.SUPPLY, 42750.0), (0.4, Valve.VACUUM, 0.0), (0.5, Valve.SUPPLY, 20000.0),
+            (0.3, Valve.VACUUM, 0.0)]
+    times, error = _fit_model_error(truth, plan, 5e-5)
+    assert np.max(np.abs(error)) < 2.0, np.max(np.abs(error))
+    assert np.sqrt(np.mean(error**2)) < 0.5
 
 
 @pytest.mark.parametrize("quick", [False, True])
@@ -329,9 +360,10 @@ def test_a_measured_pump_level_is_held_and_the_vacuum_ratio_is_then_identified()
     assert ratio.value == pytest.approx(truth.parameters.vacuum_critical_ratio, rel=0.10)
     # the cost rises more slowly above the ratio than below it (the curved trade-off with the
     # vacuum conductance and the compliances): its interval follows the cost's profile, lopsided
-    # (here -10.4 / +15.4 % of the value, where the linearised interval was +-7.1 %)
+    # (here -9.9 / +11.8 % of the value; -10.4 / +15.4 %, and 1.2 asked, while the model strayed
+    # 12 Pa from the law where the chamber crosses atmosphere, which skewed the profile)
     below, above = ratio.value - ratio.ci95[0], ratio.ci95[1] - ratio.value
-    assert above > 1.2 * below
+    assert above > 1.15 * below
     for name in identification.STAGE3[:8]:
         low, high = result.estimates[name].ci95
         assert low <= getattr(truth.parameters, name) <= high, name

@@ -9,10 +9,11 @@ the pressure controller runs open loop (its identification mode), or reads back 
 first-order lag and rate limit, integrated exactly, and the chamber with the ISO 6358 flow of
 each valve path and a two-sided compliance. :class:`_Grid` steps it with numpy for many episodes
 and parameter sets at once, with the plant's backward-Euler solve (:func:`chamber_steps`, the
-same step as :meth:`PneumaticPlant.chamber_step`; tests compare them) taken as BDF2: a 1 ms
-backward-Euler step strays from the law by up to half a step's worth of the response (200 Pa in
-a small chamber's fill, as much as a sensor's noise), and the fit took that out of the critical
-ratios; BDF2 stays within 60 Pa at the same cost.
+same step as :meth:`PneumaticPlant.chamber_step`, on the air's mass; tests compare them) taken as
+BDF2: a 1 ms backward-Euler step strays from the law by up to half a step's worth of the response
+(200 Pa in a small chamber's fill, as much as a sensor's noise), and the fit took that out of the
+critical ratios; BDF2 stays within 60 Pa at the same cost, and within a few Pa where the step
+after an input change is taken as the simulated device takes its steps (Richardson).
 
 **What pressure data can determine.** dp/dt = R T m / (V + p dV/dp), and the mass flow m is
 proportional to the path's conductance C. Scaling every volume (V0, both compliances, the floor)
@@ -222,12 +223,13 @@ class Identification:
 
 
 # ---- the model, vectorised ----------------------------------------------------------------------
-def _rates(p, source, gain, critical_ratio, par: dict):
-    """(dp/dt, d(dp/dt)/dp) of chambers at absolute ``p`` joined to ``source`` (arrays that
-    broadcast): the same law as PneumaticPlant.rate_and_slopes. ``gain``: the path's sonic
-    conductance times the density at the reference and sqrt(T0 / T); ``par`` holds the volume
-    and temperature terms as arrays too. Written for few array operations: the fit's time is
-    this function's, some 2 per step of every simulation."""
+def _flows(p, source, gain, critical_ratio, par: dict):
+    """(q = R T m_dot, the rate of p V into chambers at absolute ``p`` joined to ``source``;
+    dq/dp; p V(p); the capacitance d(pV)/dp) (arrays that broadcast): the same law as
+    PneumaticPlant.flow_and_slopes. ``gain``: the path's sonic conductance times the density at
+    the reference and sqrt(T0 / T); ``par`` holds the volume and temperature terms as arrays too.
+    Written for few array operations: the fit's time is this function's, some 2 per step of
+    every simulation."""
     upstream = np.maximum(source, p)
     ratio = np.minimum(source, p) / upstream
     b = critical_ratio
@@ -236,48 +238,68 @@ def _rates(p, source, gain, critical_ratio, par: dict):
     phi = np.sqrt(np.maximum(1.0 - s * s, 0.0))
     dphi = s / ((b - 1.0) * np.maximum(phi, 1e-9))  # d phi / d ratio
     inflow = source >= p
-    magnitude = gain * upstream * phi
+    magnitude = (par["rt"] * gain) * upstream * phi
     flow = np.where(inflow, magnitude, -magnitude)
-    dflow_dp = gain * np.where(inflow, dphi, ratio * dphi - phi)
+    flow_p = (par["rt"] * gain) * np.where(inflow, dphi, ratio * dphi - phi)
     compliance = np.where(p >= P_ATM_PA, par["kpos"], par["kneg"])
     volume = par["v0"] + compliance * (p - P_ATM_PA)
     swelling = np.where(volume > par["vmin"], compliance, 0.0)
-    inverse = 1.0 / (np.maximum(volume, par["vmin"]) + p * swelling)  # 1 / the capacitance
-    rate = par["rt"] * flow * inverse
-    return rate, (par["rt"] * dflow_dp - 2.0 * swelling * rate) * inverse
+    held = np.maximum(volume, par["vmin"])
+    return flow, flow_p, p * held, held + p * swelling
+
+
+def air_pv(p, par: dict):
+    """p V(p) (Pa m^3) of chambers at absolute ``p``: PneumaticPlant.air_terms' first."""
+    compliance = np.where(p >= P_ATM_PA, par["kpos"], par["kneg"])
+    return p * np.maximum(par["v0"] + compliance * (p - P_ATM_PA), par["vmin"])
+
+
+def pressure_of_pv(pv, par: dict):
+    """The absolute pressure whose p V(p) is ``pv`` (the inverse of :func:`air_pv`, which rises
+    with p): the positive root of k p^2 + (V0 - k p_atm) p = pV on its side of atmosphere, or
+    pV / V_min on the floor."""
+    above = pv >= P_ATM_PA * par["v0"]
+    k = np.where(above, par["kpos"], par["kneg"])
+    linear = par["v0"] - k * P_ATM_PA
+    p = 2.0 * pv / (linear + np.sqrt(linear * linear + 4.0 * k * pv))
+    return np.where(par["v0"] + k * (p - P_ATM_PA) > par["vmin"], p, pv / par["vmin"])
 
 
 def chamber_steps(p_n, source, conductance, critical_ratio, par: dict, dt: float,
-                  tolerance_pa: float = 1e-9, guess=None):
-    """One backward-Euler step of every chamber (arrays that broadcast, ``dt`` too): the root of
-    p - p_n - dt f(p) between p_n and the source, by Newton kept inside that bracket (bisection
-    when it leaves), to ``tolerance_pa`` (the plant's own: 1e-9 Pa). Newton starts from
-    ``guess`` where it lies strictly inside the bracket (the simulation's: its trajectory
-    extrapolated), elsewhere (NaN, outside) from the square-root first guess of
-    PneumaticPlant._first_guess; only a call that needs the latter evaluates the flow at p_n for
-    it (one evaluation in three, when every step did)."""
+                  tolerance_pa: float = 1e-9, guess=None, pv_start=None):
+    """One backward-Euler step of every chamber's air (arrays that broadcast, ``dt`` too): the
+    root of p V(p) - p_n V(p_n) - dt q(p) between p_n and the source (PneumaticPlant.chamber_step:
+    on the air's mass, continuous where the compliance changes at atmosphere), by Newton kept
+    inside that bracket (bisection when it leaves), to ``tolerance_pa`` (the plant's own: 1e-9
+    Pa). ``pv_start``: the p V to start from instead (BDF2's combination; ``p_n`` then the
+    pressure it has, :func:`pressure_of_pv`). Newton starts from ``guess`` where it lies strictly
+    inside the bracket (the simulation's: its trajectory extrapolated), elsewhere (NaN, outside)
+    from the square-root first guess of PneumaticPlant._first_guess; only a call that needs the
+    latter evaluates the flow at p_n for it (one evaluation in three, when every step did)."""
     p_n, source = np.broadcast_arrays(p_n, source)
     moving = (conductance > 0.0) & (source != p_n)
     gain = np.where(moving, conductance, 1.0) * RHO0_KG_PER_M3 * np.sqrt(
         T0_K / par["temperature_k"])
     low, high = np.minimum(p_n, source), np.maximum(p_n, source)
+    if pv_start is None:
+        pv_start = air_pv(p_n, par)
     if guess is None:
         p, first = p_n, moving
     else:
         p = np.where(moving, guess, p_n)
         first = moving & ~((p > low) & (p < high))  # NaN: no guess
     if first.any():
-        rate_n, _ = _rates(p_n, source, gain, critical_ratio, par)
+        flow_n, _, _, capacitance_n = _flows(p_n, source, gain, critical_ratio, par)
         safe_gap = np.where(moving, np.abs(source - p_n), 1.0)
-        k_dt = dt * np.abs(rate_n) / np.sqrt(safe_gap)
+        k_dt = dt * np.abs(flow_n / capacitance_n) / np.sqrt(safe_gap)
         root_gap = 0.5 * (np.sqrt(k_dt * k_dt + 4.0 * safe_gap) - k_dt)
         p = np.where(first, source - np.sign(source - p_n) * root_gap * root_gap, p)
     done_within = tolerance_pa + 4e-16 * high  # the root's own rounding, at most
     active = moving.copy()
     for _ in range(NEWTON_ITERATIONS):
-        rate, slope = _rates(p, source, gain, critical_ratio, par)
-        residual = p - p_n - dt * rate
-        step = residual / (1.0 - dt * slope)
+        flow, flow_p, pv, capacitance = _flows(p, source, gain, critical_ratio, par)
+        residual = pv - pv_start - dt * flow
+        step = residual / (capacitance - dt * flow_p)
         done = np.abs(step) <= done_within
         # an inactive chamber's p no longer moves: its bracket may follow it
         above = residual > 0.0
@@ -426,6 +448,7 @@ class _Grid:
         count = len(episodes)
         self.valve = np.full((count, steps), int(Valve.CLOSED))
         self.regulator = np.zeros((count, steps))
+        self.regulator_mid = np.zeros((count, steps))  # ... at the step's middle
         self.enabled = np.ones((count, steps), bool)
         # the part of each step its valve is open: a valve opening or closing inside a step acts
         # for that part only (the plant's flow is proportional to C, so a backward-Euler step
@@ -450,6 +473,7 @@ class _Grid:
             # the chamber's step sees the regulator at the step's end, as PneumaticPlant.step
             # advances the regulator first
             self.regulator[e] = regulator_at(grid_times + 0.5 * DT_S)
+            self.regulator_mid[e] = regulator_at(grid_times)
         self.start = np.array([P_ATM_PA + e.start_gauge_pa for e in episodes])
         # BDF2 needs the step before under the same inputs: backward Euler where they changed
         partial = self.open_part < 1.0
@@ -496,7 +520,8 @@ class _Grid:
         grid = copy.copy(grids[0])
         offsets = np.cumsum([0] + [len(g.episodes) for g in grids[:-1]])
         grid.episodes = [e for g in grids for e in g.episodes]
-        for name in ("valve", "regulator", "enabled", "open_part", "fresh", "start"):
+        for name in ("valve", "regulator", "regulator_mid", "enabled", "open_part", "fresh",
+                     "start"):
             setattr(grid, name, np.concatenate([getattr(g, name) for g in grids]))
         for name in ("names", "position", "measured", "weight", "times"):
             setattr(grid, name, np.concatenate([getattr(g, name) for g in grids]))
@@ -517,6 +542,16 @@ class _Grid:
         rank = np.empty_like(self.longest_first)
         rank[self.longest_first] = np.arange(len(rank))
         self.row = rank[self.episode]  # each reading's episode in that order
+
+    @staticmethod
+    def _extrapolated(p_n, source_mid, source, conductance, critical_ratio, par: dict, whole):
+        """One DT_S step of PneumaticPlant.extrapolated_step for every chamber given (flat
+        arrays; ``source_mid``: the source at the step's middle; ``whole``: backward Euler's
+        step over it): 2 x halves - whole, never past the source."""
+        half = chamber_steps(p_n, source_mid, conductance, critical_ratio, par, 0.5 * DT_S, 1e-6)
+        halves = chamber_steps(half, source, conductance, critical_ratio, par, 0.5 * DT_S, 1e-6)
+        combined = 2.0 * halves - whole
+        return np.where(np.sign(combined - source) != np.sign(halves - source), source, combined)
 
     def simulate(self, parameter_sets: list) -> np.ndarray:
         """Every reading's predicted gauge pressure under each parameter set: [sets, readings]."""
@@ -546,35 +581,62 @@ class _Grid:
         order, alive = self.longest_first, self.alive
         c_all, b_all, source_all = c_all[:, order], b_all[:, order], source_all[:, order]
         fresh_all = self.fresh[order]
-        # BDF2, p = (4 p_n - p_n-1) / 3 + (2 dt / 3) f(p): the backward-Euler solve from the
-        # extrapolated start with two thirds of the step
+        # the steps just after an input change with a valve open (each episode's, and any's),
+        # and the supply's pressure at their middles
+        changed = fresh_all & (self.valve[order] != Valve.CLOSED)
+        changed_any = changed.any(axis=0)
+        supplied, supply_mid = supply[0][order], P_ATM_PA + self.regulator_mid[order]
+        # BDF2 on the air's mass (chamber_steps), p V = (4 (pV)_n - (pV)_n-1) / 3 + (2 dt / 3) q:
+        # the backward-Euler solve from the extrapolated start with two thirds of the step. On
+        # p, BDF2's formula took the jump of dp/dt at atmosphere (the compliances differ) into
+        # its next step too: fills from vacuum and evacuations from a positive level 12 Pa off
+        # the law ever after (slow_large), weighed over every reading after them
         trajectory = np.empty((sets, len(self.episodes), self.steps))
         p = np.broadcast_to(self.start[order], (sets, len(self.episodes))).copy()
         trajectory[:, :, 0] = p
-        previous = p.copy()
+        pv = air_pv(p, par)  # and the two steps before: BDF2's history, Newton's start
+        pv_previous, pv_older = pv.copy(), pv.copy()
         for k in range(1, self.steps):
             n = alive[k]
             if n == 0:
                 break
-            p_now, p_before = p[:, :n], previous[:, :n]
+            p_now = p[:, :n]
             source = source_all[:, :n, k - 1]
             fresh = fresh_all[:n, k - 1]
-            start = np.where(fresh, p_now, (4.0 * p_now - p_before) / 3.0)
-            # the extrapolation may pass the source, which the flow never does
-            start = np.where((source - p_now) * (source - start) < 0.0, source, start)
-            step = np.where(fresh, DT_S, 2.0 * DT_S / 3.0)
-            # Newton's start where the inputs held over the last steps: the trajectory
+            pv_now = pv[:, :n]
+            pv_start = np.where(fresh, pv_now, (4.0 * pv_now - pv_previous[:, :n]) / 3.0)
+            # Newton's start where the inputs held over the last steps: the air's p V
             # extrapolated (quadratically, linearly after a change), near enough to the step's
             # root that fewer steps take three evaluations of the flow (at the truth: slow_large
             # 2.0 a step instead of 2.8, drawn_1 2.5 instead of 2.7; a simulation 12-26 % faster,
             # the same pressures to the solve's 1e-6 Pa)
-            guess = np.where(fresh, np.nan, 2.0 * p_now - p_before)
+            pv_guess = 2.0 * pv_now - pv_previous[:, :n]
             if k >= 3:
-                guess = np.where(fresh | fresh_all[:n, k - 2], guess,
-                                 3.0 * (p_now - p_before) + trajectory[:, :n, k - 3])
-            new = chamber_steps(start, source, c_all[:, :n, k - 1], b_all[:, :n, k - 1], par,
-                                step, tolerance_pa=1e-6, guess=guess)
-            previous[:, :n] = p_now
+                pv_guess = np.where(fresh_all[:n, k - 2], pv_guess,
+                                    3.0 * (pv_now - pv_previous[:, :n]) + pv_older[:, :n])
+            start, guess = pressure_of_pv(np.stack([pv_start, pv_guess]), par)
+            start = np.where(fresh, p_now, start)
+            guess = np.where(fresh, np.nan, guess)
+            # the extrapolation may pass the source, which the flow never does; and a chamber at
+            # its source stays there (p V's inverse would move it by its rounding)
+            start = np.where((source - p_now) * (source - start) <= 0.0, source, start)
+            step = np.where(fresh, DT_S, 2.0 * DT_S / 3.0)
+            c = c_all[:, :n, k - 1]
+            new = chamber_steps(start, source, c, b_all[:, :n, k - 1], par, step,
+                                tolerance_pa=1e-6, guess=guess, pv_start=pv_start)
+            if changed_any[k - 1]:
+                # after an input change, the step as the simulated device takes every step
+                # (PneumaticPlant.extrapolated_step): backward Euler alone there (first order)
+                # left a fill from a rest 8 Pa off the law (slow_large)
+                at = np.broadcast_to(changed[:n, k - 1], c.shape) & (c > 0.0)
+                source_mid = np.where(supplied[:n, k - 1], supply_mid[:n, k - 1], source)
+                new[at] = self._extrapolated(
+                    p_now[at], source_mid[at], source[at], c[at], b_all[:, :n, k - 1][at],
+                    {key: np.broadcast_to(value, at.shape)[at] for key, value in par.items()},
+                    new[at])
+            pv_older[:, :n] = pv_previous[:, :n]
+            pv_previous[:, :n] = pv_now
+            pv[:, :n] = air_pv(new, par)
             p[:, :n] = new
             trajectory[:, :n, k] = new
         before = trajectory[:, self.row, self.before]

@@ -259,6 +259,20 @@ class PneumaticPlant:
 
         At r -> 1 the subsonic branch's slope is infinite; it is capped at a finite large value
         so that the implicit-step Jacobian stays defined (it then tends to the exact limit)."""
+        if conductance == 0.0:
+            return 0.0, 0.0, 0.0
+        flow, flow_p, flow_s = self.flow_and_slopes(chamber_pa, source_pa, conductance,
+                                                    critical_ratio)
+        _, capacitance, swelling = self.air_terms(chamber_pa)
+        rate = flow / capacitance
+        return (rate, (flow_p - flow * 2.0 * swelling / capacitance) / capacitance,
+                flow_s / capacitance)
+
+    def flow_and_slopes(self, chamber_pa: float, source_pa: float, conductance: float,
+                        critical_ratio: float | None = None) -> tuple[float, float, float]:
+        """(R T m_dot, the rate of p V into the chamber; its partial derivatives by the chamber
+        and by the source pressure) of one chamber joined to a source (see
+        :meth:`rate_and_slopes`); zeros through a closed path."""
         par = self.parameters
         if conductance == 0.0:
             return 0.0, 0.0, 0.0
@@ -272,22 +286,25 @@ class PneumaticPlant:
             s = (ratio - b) / (1.0 - b)
             phi = math.sqrt(max(1.0 - s * s, 0.0))
             dphi = -s / (max(phi, 1e-9) * (1.0 - b))
-        gain = conductance * RHO0_KG_PER_M3 * math.sqrt(T0_K / par.temperature_k)
+        gain = (conductance * RHO0_KG_PER_M3 * math.sqrt(T0_K / par.temperature_k) *
+                par.gas_constant_times_temperature)
         if inflow:
-            flow, dflow_dp, dflow_ds = gain * upstream * phi, gain * dphi, gain * (phi -
-                                                                                   ratio * dphi)
+            flow, flow_p, flow_s = gain * upstream * phi, gain * dphi, gain * (phi - ratio * dphi)
         else:
-            flow, dflow_dp, dflow_ds = -gain * upstream * phi, -gain * (phi -
-                                                                        ratio * dphi), -gain * dphi
+            flow, flow_p, flow_s = (-gain * upstream * phi, -gain * (phi - ratio * dphi),
+                                    -gain * dphi)
+        return flow, flow_p, flow_s
+
+    def air_terms(self, chamber_pa: float) -> tuple[float, float, float]:
+        """(p V, R T times the air's mass; the capacitance d(pV)/dp = V + p dV/dp; dV/dp) of one
+        chamber at an absolute pressure; scalar, plain floats (the filters' hot path)."""
+        par = self.parameters
         compliance = (par.chamber_compliance_m3_per_pa if chamber_pa >= P_ATM_PA else
                       par.vacuum_compliance_m3_per_pa)
         volume = par.chamber_volume_m3 + compliance * (chamber_pa - P_ATM_PA)
         swelling = compliance if volume > par.min_chamber_volume_m3 else 0.0
-        capacitance = max(volume, par.min_chamber_volume_m3) + chamber_pa * swelling
-        rt = par.gas_constant_times_temperature
-        rate = rt * flow / capacitance
-        return (rate, rt * (dflow_dp - flow * 2.0 * swelling / capacitance) / capacitance,
-                rt * dflow_ds / capacitance)
+        held = max(volume, par.min_chamber_volume_m3)
+        return chamber_pa * held, held + chamber_pa * swelling, swelling
 
     def regulator_target_gauge_pa(self, inputs: PlantInputs) -> float:
         par = self.parameters
@@ -352,23 +369,32 @@ class PneumaticPlant:
 
     def chamber_step(self, chamber_pa: float, valve: Valve, regulator_gauge_pa: float, dt: float,
                      sources_live: bool = True) -> tuple[float, float, float]:
-        """One backward-Euler step of one chamber: (p_next, dp_next/dp, dp_next/d regulator).
+        """One backward-Euler step of one chamber's air: (p_next, dp_next/dp, dp_next/d regulator).
 
-        p_next solves g(p) = p - p_n - dt f(p) = 0, which rises strictly from p_n to the source,
-        so a Newton iteration kept inside that bracket (bisection when it leaves) converges.
-        The derivatives follow from the implicit function theorem: 1/(1 - dt f_p) and
-        dt f_s/(1 - dt f_p), with f_s = 0 unless the valve joins the regulator."""
+        The step is taken on the air's mass (R T m = p V(p), :meth:`air_terms`), not on p: p_next
+        solves g(p) = p V(p) - p_n V(p_n) - dt R T m_dot(p) = 0. Where the two compliances differ,
+        the capacitance d(pV)/dp = V + p dV/dp jumps at atmosphere and so does dp/dt, but the mass
+        flow does not: a step on p across atmosphere took one side's law for the whole step, which
+        put the simulated device's fill from vacuum 21 Pa off the law ever after (and the
+        identification's model, which steps the same way, 12 Pa on slow_large; a sigma of a fit's
+        values). g rises strictly from p_n to the source (p V rises with p, the inflow falls), so
+        a Newton iteration kept inside that bracket (bisection when it leaves) converges. The
+        derivatives follow from the implicit function theorem: C(p_n)/g'(p_next) and
+        dt R T m_dot_s/g'(p_next), with C = d(pV)/dp, g' = C - dt R T m_dot_p, and m_dot_s = 0
+        unless the valve joins the regulator."""
         source_pa, conductance = self.source(valve, regulator_gauge_pa, sources_live)
         b = self.parameters.path(valve)[1]
         p_n = float(chamber_pa)
         if conductance == 0.0 or source_pa == p_n:
             return p_n, 1.0, 0.0
         low, high = (p_n, source_pa) if source_pa > p_n else (source_pa, p_n)
+        pv_n, capacitance_n, _ = self.air_terms(p_n)
         p = self._first_guess(p_n, source_pa, conductance, dt, b)
         for _ in range(100):
-            rate, slope_p, _ = self.rate_and_slopes(p, source_pa, conductance, b)
-            residual = p - p_n - dt * rate
-            step = residual / (1.0 - dt * slope_p)
+            flow, flow_p, _ = self.flow_and_slopes(p, source_pa, conductance, b)
+            pv, capacitance, _ = self.air_terms(p)
+            residual = pv - pv_n - dt * flow
+            step = residual / (capacitance - dt * flow_p)
             if abs(step) <= 1e-9 + 4e-16 * abs(p):
                 p -= step
                 break
@@ -379,9 +405,9 @@ class PneumaticPlant:
             p = p - step if low < p - step < high else 0.5 * (low + high)
             if high - low <= 1e-9:
                 break
-        rate, slope_p, slope_s = self.rate_and_slopes(p, source_pa, conductance, b)
-        denominator = 1.0 - dt * slope_p
-        return p, 1.0 / denominator, (dt * slope_s / denominator if valve == Valve.SUPPLY else 0.0)
+        _, flow_p, flow_s = self.flow_and_slopes(p, source_pa, conductance, b)
+        slope = self.air_terms(p)[1] - dt * flow_p
+        return (p, capacitance_n / slope, (dt * flow_s / slope if valve == Valve.SUPPLY else 0.0))
 
     def _first_guess(self, p_n: float, source_pa: float, conductance: float, dt: float,
                      critical_ratio: float) -> float:
