@@ -241,17 +241,21 @@ def _flows(p, source, gain, critical_ratio, par: dict):
     magnitude = (par["rt"] * gain) * upstream * phi
     flow = np.where(inflow, magnitude, -magnitude)
     flow_p = (par["rt"] * gain) * np.where(inflow, dphi, ratio * dphi - phi)
+    volume, swelling = _volume(p, par)
+    return flow, flow_p, p * volume, volume + p * swelling
+
+
+def _volume(p, par: dict):
+    """(V, dV/dp) of chambers at absolute ``p``: the two-sided compliance above its floor
+    (PneumaticPlant.air_terms, vectorised)."""
     compliance = np.where(p >= P_ATM_PA, par["kpos"], par["kneg"])
     volume = par["v0"] + compliance * (p - P_ATM_PA)
-    swelling = np.where(volume > par["vmin"], compliance, 0.0)
-    held = np.maximum(volume, par["vmin"])
-    return flow, flow_p, p * held, held + p * swelling
+    return np.maximum(volume, par["vmin"]), np.where(volume > par["vmin"], compliance, 0.0)
 
 
 def air_pv(p, par: dict):
-    """p V(p) (Pa m^3) of chambers at absolute ``p``: PneumaticPlant.air_terms' first."""
-    compliance = np.where(p >= P_ATM_PA, par["kpos"], par["kneg"])
-    return p * np.maximum(par["v0"] + compliance * (p - P_ATM_PA), par["vmin"])
+    """p V(p) (Pa m^3) of chambers at absolute ``p``: R T times their air's mass."""
+    return p * _volume(p, par)[0]
 
 
 def pressure_of_pv(pv, par: dict):

@@ -297,7 +297,9 @@ class PneumaticPlant:
 
     def air_terms(self, chamber_pa: float) -> tuple[float, float, float]:
         """(p V, R T times the air's mass; the capacitance d(pV)/dp = V + p dV/dp; dV/dp) of one
-        chamber at an absolute pressure; scalar, plain floats (the filters' hot path)."""
+        chamber at an absolute pressure; scalar, plain floats (the filters' and the simulated
+        device's hot path: :meth:`chamber_mass_kg` and :meth:`capacitance` are the same law on
+        arrays, several times slower per call on a scalar)."""
         par = self.parameters
         compliance = (par.chamber_compliance_m3_per_pa if chamber_pa >= P_ATM_PA else
                       par.vacuum_compliance_m3_per_pa)
