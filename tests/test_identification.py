@@ -11,8 +11,8 @@ import pytest
 from softgrip_ros.devtools import identification_sim
 from softgrip_ros.estimation import identification
 from softgrip_ros.model import plant_file
-from softgrip_ros.model.pneumatics import (P_ATM_PA, PlantInputs, PneumaticParameters,
-                                           PneumaticPlant, Valve)
+from softgrip_ros.model.pneumatics import (P_ATM_PA, PlantInputs, PlantState,
+                                           PneumaticParameters, PneumaticPlant, Valve)
 
 
 def _par(parameters: PneumaticParameters) -> dict:
@@ -54,6 +54,35 @@ def test_the_vectorised_step_is_the_plants_backward_euler_step(valve):
     guessed = identification.chamber_steps(chambers, sources, np.full(200, conductance),
                                            np.full(200, b), _par(parameters), 1e-3, guess=guess)
     assert np.max(np.abs(guessed - theirs)) < 1e-6
+
+
+@pytest.mark.parametrize("valve", [Valve.SUPPLY, Valve.VACUUM, Valve.VENT])
+def test_the_grids_step_after_an_input_change_is_the_plants_extrapolated_step(valve):
+    """The fit takes the step after an input change as the simulated device takes each of its
+    steps: the same chambers, the regulator slewing to its target, give the same pressures to
+    1e-5 Pa, across atmosphere (where the compliances differ) too."""
+    parameters = dataclasses.replace(PneumaticParameters(), vent_critical_ratio=0.4,
+                                     vacuum_compliance_m3_per_pa=0.5e-10)
+    plant = PneumaticPlant(parameters)
+    rng = np.random.default_rng(2)
+    chambers = P_ATM_PA + np.where(np.arange(60) % 3 == 0, rng.uniform(-400.0, 400.0, 60),
+                                   rng.uniform(-55e3, 45e3, 60))
+    regulator, target = rng.uniform(-30e3, 45e3, 60), rng.uniform(-30e3, 45e3, 60)
+    theirs, middles, ends = [], [], []
+    for p, r, t in zip(chambers, regulator, target):
+        inputs = PlantInputs(t, True, (valve,))
+        theirs.append(plant.extrapolated_step(PlantState(r, np.array([p])), inputs,
+                                              1e-3).chamber_pa[0])
+        middles.append(plant.source(valve, plant.regulator_step(r, inputs, 5e-4)[0])[0])
+        ends.append(plant.source(valve, plant.regulator_step(r, inputs, 1e-3)[0])[0])
+    conductance, b = np.full(60, parameters.path(valve)[0]), np.full(60, parameters.path(valve)[1])
+    par = {key: np.full(60, value) for key, value in _par(parameters).items()}
+    whole = identification.chamber_steps(chambers, np.array(ends), conductance, b, par, 1e-3)
+    ours = identification._Grid._extrapolated(chambers, np.array(middles), np.array(ends),
+                                              conductance, b, par, whole)
+    assert np.max(np.abs(ours - np.array(theirs))) < 1e-5
+    if valve != Valve.VENT:
+        assert np.sum((ours - P_ATM_PA) * (chambers - P_ATM_PA) < 0.0) >= 3
 
 
 def test_volume_and_conductances_cannot_be_told_apart_by_pressure_alone():
