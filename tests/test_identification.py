@@ -25,16 +25,21 @@ def _par(parameters: PneumaticParameters) -> dict:
     return par
 
 
-@pytest.mark.parametrize("valve", [Valve.SUPPLY, Valve.VACUUM, Valve.VENT])
-def test_the_vectorised_step_is_the_plants_backward_euler_step(valve):
+def _two_sided_chambers(count: int, seed: int):
+    """(parameters, plant, rng, absolute chamber pressures): compliances that differ, and a
+    quarter of the chambers within a step's reach of atmosphere, where dp/dt jumps."""
     parameters = dataclasses.replace(PneumaticParameters(), vent_critical_ratio=0.4,
                                      vacuum_compliance_m3_per_pa=0.5e-10)
-    plant = PneumaticPlant(parameters)
-    rng = np.random.default_rng(1)
-    # a quarter within a step's reach of atmosphere, where the compliances differ: the step is
-    # split there (PneumaticPlant.chamber_step)
-    chambers = P_ATM_PA + np.where(np.arange(200) % 4 == 0, rng.uniform(-400.0, 400.0, 200),
-                                   rng.uniform(-55e3, 45e3, 200))
+    rng = np.random.default_rng(seed)
+    chambers = P_ATM_PA + np.where(np.arange(count) % 4 == 0,
+                                   rng.uniform(-400.0, 400.0, count),
+                                   rng.uniform(-55e3, 45e3, count))
+    return parameters, PneumaticPlant(parameters), rng, chambers
+
+
+@pytest.mark.parametrize("valve", [Valve.SUPPLY, Valve.VACUUM, Valve.VENT])
+def test_the_vectorised_step_is_the_plants_backward_euler_step(valve):
+    parameters, plant, rng, chambers = _two_sided_chambers(200, seed=1)
     regulator = rng.uniform(-30e3, 45e3, 200)
     conductance, b = parameters.path(valve)
     sources = np.array([plant.source(valve, r)[0] for r in regulator])
@@ -61,12 +66,7 @@ def test_the_grids_step_after_an_input_change_is_the_plants_extrapolated_step(va
     """The fit takes the step after an input change as the simulated device takes each of its
     steps: the same chambers, the regulator slewing to its target, give the same pressures to
     1e-5 Pa, across atmosphere (where the compliances differ) too."""
-    parameters = dataclasses.replace(PneumaticParameters(), vent_critical_ratio=0.4,
-                                     vacuum_compliance_m3_per_pa=0.5e-10)
-    plant = PneumaticPlant(parameters)
-    rng = np.random.default_rng(2)
-    chambers = P_ATM_PA + np.where(np.arange(60) % 3 == 0, rng.uniform(-400.0, 400.0, 60),
-                                   rng.uniform(-55e3, 45e3, 60))
+    parameters, plant, rng, chambers = _two_sided_chambers(60, seed=2)
     regulator, target = rng.uniform(-30e3, 45e3, 60), rng.uniform(-30e3, 45e3, 60)
     theirs, middles, ends = [], [], []
     for p, r, t in zip(chambers, regulator, target):
