@@ -350,21 +350,48 @@ class DeviceChecker:
         measured.append(f"VENT {self._chamber() / 1e3:+.1f} kPa")
         if vented is None:
             problems.append(f"VENT: the chamber still at {self._chamber() / 1e3:+.1f} kPa")
-        # the vacuum source is not regulated: the check closes the channel itself, and each
-        # command's OpenLifetime closes it too should the check stall
         start = self._chamber()
-        self._set_command(0.0, True, valves(VACUUM))
-        drew = self._wait_for(lambda: self._chamber() <= start - 0.25 * target,
-                              min(c.response_timeout_s, 0.5))
-        self._set_command(0.0, True, valves(CLOSED))
+        drew = self._vacuum_pulses(channel, start - 0.25 * target)
         measured.append(f"VACUUM {self._chamber() / 1e3:+.1f} kPa")
-        if drew is None:
+        if not drew:
             problems.append(f"VACUUM: the chamber went from {start / 1e3:+.1f} to "
                             f"{self._chamber() / 1e3:+.1f} kPa")
         self._set_command(0.0, True, valves(VENT))
         self._wait_for(lambda: abs(self._chamber()) <= 1000.0, c.response_timeout_s)
         return Row(f"valve channel {channel} answers ValveCommand", not problems,
                    ", ".join(measured), "; ".join(problems))
+
+    def _vacuum_pulses(self, channel: int, stop_pa: float) -> bool:
+        """Draw the chamber toward ``stop_pa`` with VACUUM pulses, each one ValveCommand whose
+        OpenLifetime ends it, followed by CLOSED; True once a reading is at or below ``stop_pa``.
+
+        The vacuum source is not regulated. Opening the channel until a reading shows the drop
+        lets the chamber go on falling for as long as the sensor period, the check's polling and
+        the next frame take together (30 ms and more on a loaded host, ~10 kPa). A pulse's depth
+        is set by its lifetime instead. A pulse that moved the chamber less than a quarter of what
+        is left is followed by one twice as long (a slow valve), up to the DBC's 255 ms."""
+        c = self.config
+        closed = tuple(CLOSED for _ in range(VALVE_CHANNELS))
+        vacuum = tuple(VACUUM if i == channel else CLOSED for i in range(VALVE_CHANNELS))
+        self._set_command(0.0, True, closed, send_valves=False)
+        self._wait(2.0 * c.control_period_s)  # no periodic CLOSED in flight to cut a pulse short
+        pulse_s, before = c.lifetime_s, self._chamber()
+        deadline = time.monotonic() + c.response_timeout_s
+        try:
+            while time.monotonic() < deadline:
+                self._send("ValveCommand", self._valve_signals(vacuum, pulse_s))
+                # a device that ignores its lifetime is closed by the check as well
+                self._wait(pulse_s)
+                self._send("ValveCommand", self._valve_signals(closed, pulse_s))
+                now = self._chamber_mean(0.05)
+                if now <= stop_pa:
+                    return True
+                if before - now < 0.25 * (before - stop_pa):
+                    pulse_s = min(2.0 * pulse_s, 0.255)
+                before = now
+            return False
+        finally:
+            self._set_command(0.0, True, closed)
 
     def _lifetime_row(self) -> Row:
         """One SUPPLY command with a short OpenLifetime, then none: the chamber must stop filling
