@@ -74,12 +74,17 @@ def test_envelop_clamp_40mm_then_release_over_topics(suite):
     held = states[hold_start:]
     # >= 10 Hz (20 Hz configured)
     assert len(held) >= 30 and all(s.phase == S.HOLDING for s in held)
-    assert max(abs(s.estimated_gauge_pressure_pa - target) for s in held) < 3e3
-    # what each state without a force said (CI, once: one such state in a hold whose pressures
-    # were all within 3 kPa of the target, so its pressure was likely unknown)
-    assert all(s.clamp_force_n > 0.0 for s in held), [
+    # a starved host can leave a tick with neither a fresh estimate nor a fresh reading (CI,
+    # twice: one state of ~40 with a NaN pressure and std); such a state says its force is
+    # unknown, and the rest hold on the target with a force
+    known = [s for s in held if math.isfinite(s.estimated_gauge_pressure_pa)]
+    assert len(known) >= 0.9 * len(held), [s.estimated_gauge_pressure_pa for s in held]
+    assert max(abs(s.estimated_gauge_pressure_pa - target) for s in known) < 3e3
+    assert all(s.clamp_force_n > 0.0 for s in known), [
         (s.estimated_gauge_pressure_pa, s.estimated_gauge_pressure_std_pa, s.clamp_force_n,
-         s.message) for s in held if not s.clamp_force_n > 0.0]
+         s.message) for s in known if not s.clamp_force_n > 0.0]
+    assert all(math.isnan(s.clamp_force_n) for s in held
+               if not math.isfinite(s.estimated_gauge_pressure_pa))
     # the clamp is a contact scene: the grasp reports L2, and kinematics poses the fingers on the
     # object
     assert all(s.model_fidelity == S.FIDELITY_L2 for s in held)

@@ -632,9 +632,11 @@ class GraspStateMachine:
                             now, "released")
             elif elapsed > c.releasing_timeout_s:
                 self._timeout(now, "releasing")
+        # a clamp whose pressure is unknown for a tick (a starved host: the estimate and the
+        # sensors both stale) has a force nobody knows, not none
         holding = s.phase in (Phase.CLAMPING, Phase.HOLDING)
-        s.clamp_force_n = self.force_law.normal_force_n(estimate_gauge_pa, self._contact_pa) \
-            if holding and math.isfinite(estimate_gauge_pa) else 0.0
+        s.clamp_force_n = (0.0 if not holding else math.nan if not math.isfinite(estimate_gauge_pa)
+                           else self.force_law.normal_force_n(estimate_gauge_pa, self._contact_pa))
         return s
 
     def _check_hold(self, now: float, estimate: float) -> None:
