@@ -30,7 +30,8 @@ import time  # noqa: E402
 from softgrip_ros.devtools.benchmarking import (benchmark_parser, machine_line,  # noqa: E402
                                                 strict_json, update_variant_section)
 from softgrip_ros.devtools.identification_sim import (BENCHMARK_TRUTHS,  # noqa: E402
-                                                      recovery_spread, seeded_fit, truth)
+                                                      recovery_spread, seeded_fit,
+                                                      spread_seeds, truth)
 
 FIRST_SEED = 20  # the recovery tests use seed 3: these draws are not the ones they were tuned on
 
@@ -46,11 +47,12 @@ def positive_int(text: str) -> int:
     return value
 
 
-def run_fits(truths: list, seeds: list, quick: bool, jobs: int,
+def run_fits(seeds: dict, quick: bool, jobs: int,
              pump_level_given: bool = False) -> tuple[list, list]:
-    """(fits, failures): every truth fitted at every seed, ``jobs`` at a time."""
+    """(fits, failures): every truth fitted at each of its seeds, ``jobs`` at a time."""
     fits, failures = [], []
-    tasks = [(name, seed) for name in truths for seed in seeds]
+    truths = list(seeds)
+    tasks = [(name, seed) for name in truths for seed in seeds[name]]
     with concurrent.futures.ProcessPoolExecutor(max_workers=jobs) as pool:
         futures = {pool.submit(seeded_fit, name, seed, quick, pump_level_given): (name, seed)
                    for name, seed in tasks}
@@ -77,12 +79,14 @@ def half_width(relative: float) -> str:
 def markdown(spread: dict, per_truth: dict, fits: list, command: str, seconds: float,
              pump_level_given: bool) -> str:
     truths = list(per_truth)
-    seeds = sorted({fit["seed"] for fit in fits})
+    seeds = {name: sorted(fit["seed"] for fit in fits if fit["truth"] == name) for name in truths}
     lines = [
         f"Reproduce: `{command}` ({machine_line()}; {seconds / 60:.1f} min).", "",
         f"Each truth ({', '.join(truths)}: as in the live table above) recorded offline once per "
-        f"noise seed ({seeds[0]}-{seeds[-1]}; the recovery tests use seed 3) and fitted as "
-        f"softgrip_identify fits it, the truth's volume given" +
+        "noise seed, each truth its own seeds (" +
+        ", ".join(f"{name} {s[0]}-{s[-1]}" for name, s in seeds.items()) +
+        "; the recovery tests use seed 3) and fitted as "
+        "softgrip_identify fits it, the truth's volume given" +
         (" and its pump's level (--vacuum-source-pa)" if pump_level_given else "") +
         f": {len(fits)} fits. Per value: the "
         "share of fits within the issue's target (and per truth), the median and largest "
@@ -130,15 +134,15 @@ def main(argv=None) -> int:
                         help="fits at a time (default: the cores, at most 2)")
     args = parser.parse_args(argv)
     truths = args.truth or list(BENCHMARK_TRUTHS[:1] if args.quick else BENCHMARK_TRUTHS)
-    seeds = list(range(FIRST_SEED, FIRST_SEED + (2 if args.quick else args.seeds)))
+    seeds = spread_seeds(truths, 2 if args.quick else args.seeds, FIRST_SEED)
     for name in truths:
         try:
             truth(name)
         except (ValueError, OSError) as error:
             parser.error(str(error))
     started = time.perf_counter()
-    progress(f"{len(truths) * len(seeds)} fits, {args.jobs} at a time")
-    fits, failures = run_fits(truths, seeds, args.quick, args.jobs, args.pump_level_given)
+    progress(f"{sum(map(len, seeds.values()))} fits, {args.jobs} at a time")
+    fits, failures = run_fits(seeds, args.quick, args.jobs, args.pump_level_given)
     seconds = time.perf_counter() - started
     spread = recovery_spread(fits)
     per_truth = {name: recovery_spread([f for f in fits if f["truth"] == name])

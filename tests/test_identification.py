@@ -336,6 +336,19 @@ def test_the_spread_over_seeded_fits_counts_targets_and_intervals():
     assert math.isnan(alone["vent_critical_ratio"]["spread_over_interval"])
 
 
+
+def test_each_truth_of_a_spread_draws_its_noise_from_seeds_of_its_own():
+    """One seed gives every truth the same noise (the same excitation, drawn reading by
+    reading): the spread's truths take disjoint blocks of seeds, so that their fits are
+    independent draws."""
+    seeds = identification_sim.spread_seeds(["slow_large", "drawn_1", "drawn_2"], 10, 20)
+    assert seeds == {"slow_large": list(range(20, 30)), "drawn_1": list(range(30, 40)),
+                     "drawn_2": list(range(40, 50))}
+    one = identification_sim.spread_seeds(["slow_large"], 2, 20)
+    assert one == {"slow_large": [20, 21]}
+    with pytest.raises(ValueError, match="count must be at least 1"):
+        identification_sim.spread_seeds(["slow_large"], 0, 20)
+
 def test_a_benchmark_truth_is_named_or_a_file_or_refused(tmp_path):
     assert identification_sim.truth("drawn_2").parameters == (
         identification_sim.drawn(2).parameters)
