@@ -37,6 +37,28 @@ def _two_sided_chambers(count: int, seed: int):
     return parameters, PneumaticPlant(parameters), rng, chambers
 
 
+
+@pytest.mark.parametrize("valve, regulator_gauge_pa", [(Valve.VACUUM, 0.0),
+                                                        (Valve.SUPPLY, -10e3)])
+def test_the_vectorised_step_is_the_plants_across_the_volume_floor(valve, regulator_gauge_pa):
+    """A chamber drawn in to min_chamber_volume_m3 (here at -45 kPa) has a second kink in its
+    capacitance: the fit's step and its p V inverse agree with the plant there too, and steps
+    cross the floor both ways."""
+    parameters = dataclasses.replace(PneumaticParameters(), vacuum_compliance_m3_per_pa=4e-10)
+    plant, par = PneumaticPlant(parameters), _par(parameters)
+    floor_pa = P_ATM_PA - 45e3
+    chambers = floor_pa + np.random.default_rng(3).uniform(-4e3, 4e3, 200)
+    assert np.allclose(identification.pressure_of_pv(identification.air_pv(chambers, par), par),
+                       chambers, rtol=0.0, atol=1e-6)
+    source, conductance = plant.source(valve, regulator_gauge_pa)
+    b = parameters.path(valve)[1]
+    ours = identification.chamber_steps(chambers, np.full(200, source),
+                                        np.full(200, conductance), np.full(200, b), par, 2e-3)
+    theirs = np.array([plant.chamber_step(p, valve, regulator_gauge_pa, 2e-3)[0]
+                       for p in chambers])
+    assert np.max(np.abs(ours - theirs)) < 1e-6
+    assert np.sum((theirs - floor_pa) * (chambers - floor_pa) < 0.0) >= 5
+
 @pytest.mark.parametrize("valve", [Valve.SUPPLY, Valve.VACUUM, Valve.VENT])
 def test_the_vectorised_step_is_the_plants_backward_euler_step(valve):
     parameters, plant, rng, chambers = _two_sided_chambers(200, seed=1)
