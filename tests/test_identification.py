@@ -351,11 +351,16 @@ def test_the_spread_over_seeded_fits_counts_targets_and_intervals():
     # reaches 0.8, 1.2 and 1/15 (the flagged one left out)
     assert row["spread_over_interval"] == pytest.approx(
         1.96 * math.sqrt((0.8**2 + 1.2**2 + (1 / 15)**2) / 3))
-    widthless = {"vent_critical_ratio": {"rel_err": 0.0, "rel_half_width": 0.0, "covered": True,
+    widthless = {"vent_critical_ratio": {"rel_err": 0.0, "rel_half_width": 0.0, "covered": None,
                                          "flagged": False, "reach": None}}
     alone = identification_sim.recovery_spread([{"values": widthless}],
                                                {"vent_critical_ratio": 0.10})
     assert math.isnan(alone["vent_critical_ratio"]["spread_over_interval"])
+    # an interval without width is not judged: the share is over the others
+    assert math.isnan(alone["vent_critical_ratio"]["covered"])
+    mixed = identification_sim.recovery_spread([{"values": widthless}, fits[0]],
+                                               {"vent_critical_ratio": 0.10})
+    assert mixed["vent_critical_ratio"]["covered"] == 1.0
 
 
 

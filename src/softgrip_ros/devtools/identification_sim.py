@@ -40,6 +40,10 @@ RECOVERY_TARGETS = {
 # nearly all the way, and where it is not, its critical ratio and the source's level trade off;
 # the fit must then say so (a flag, and an interval that holds the truth)
 MAY_BE_FLAGGED = ("vacuum_critical_ratio", "vacuum_source_gauge_pa")
+# an interval narrower than this (relative half width) has no width: a value given, or one
+# fitted from noise-free reports (the regulator's lag, to 1e-15)
+WIDTHLESS = 1e-9
+
 # the benchmarks' truths: the issue's case, and two seeded draws (see :func:`truth`)
 BENCHMARK_TRUTHS = ("slow_large", "drawn_1", "drawn_2")
 PLANT_DT_S = 1e-3
@@ -137,7 +141,8 @@ def seeded_fit(name: str, seed: int, quick: bool = False, pump_level_given: bool
     noise drawn from ``seed``, fitted as softgrip_identify fits (the truth's volume given, as a
     user gives a measured one; ``pump_level_given``: its vacuum pump's level too). Per value of
     RECOVERY_TARGETS: ``rel_err`` (fitted / true - 1), ``rel_half_width`` (its 95 % interval's
-    half width over the truth), ``covered`` (the interval holds the truth), ``reach`` (how far
+    half width over the truth), ``covered`` (the interval holds the truth; None for an interval
+    without width, which rounding alone puts beside the truth), ``reach`` (how far
     out the truth lies, in the interval's side towards it: at most 1 where it holds it; None for
     an interval without width there) and ``flagged``."""
     description = truth(name)
@@ -156,9 +161,11 @@ def seeded_fit(name: str, seed: int, quick: bool = False, pump_level_given: bool
         estimate = result.estimates[value_name]
         low, high = estimate.ci95
         side = estimate.value - low if true_value < estimate.value else high - estimate.value
+        rel_half_width = 0.5 * (high - low) / abs(true_value)
         values[value_name] = {"rel_err": estimate.value / true_value - 1.0,
-                              "rel_half_width": 0.5 * (high - low) / abs(true_value),
-                              "covered": bool(low <= true_value <= high),
+                              "rel_half_width": rel_half_width,
+                              "covered": (bool(low <= true_value <= high)
+                                          if rel_half_width > WIDTHLESS else None),
                               "reach": abs(estimate.value - true_value) / side if side > 0.0
                               else None,
                               "flagged": bool(estimate.flag)}
@@ -184,7 +191,8 @@ def spread_seeds(truths: list, count: int, first: int) -> dict:
 def recovery_spread(fits: list, targets: dict = RECOVERY_TARGETS) -> dict:
     """Over ``fits`` (seeded_fit's), per value of ``targets``: how many fits, the share within
     its target, the median and largest |relative error|, the share whose 95 % interval holds the
-    truth (nominally 0.95), the median interval's half width, the share flagged, and
+    truth (nominally 0.95; over the intervals with width, NaN without one), the median
+    interval's half width, the share flagged, and
     ``spread_over_interval``: over the unflagged fits with an interval, the rms of each error
     over its interval's sigma on the truth's side (half width / 1.96), 1 for intervals as wide
     as the errors spread (NaN without such a fit). Finer than the share that holds the truth,
@@ -199,7 +207,8 @@ def recovery_spread(fits: list, targets: dict = RECOVERY_TARGETS) -> dict:
             "target": target, "fits": len(rows),
             "within_target": float(np.mean(errors <= target)),
             "median_abs_err": float(np.median(errors)), "max_abs_err": float(errors.max()),
-            "covered": float(np.mean([row["covered"] for row in rows])),
+            "covered": (float(np.mean(judged)) if (judged := [
+                row["covered"] for row in rows if row["covered"] is not None]) else math.nan),
             "median_half_width": float(np.median([row["rel_half_width"] for row in rows])),
             "flagged": float(np.mean([row["flagged"] for row in rows]))}
         reaches = [row["reach"] for row in rows
