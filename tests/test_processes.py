@@ -54,8 +54,12 @@ def controller(tmp_path):
         log.close()
 
 
-def test_a_ctrl_c_while_the_suite_is_built_closes_the_nodes_already_made(rclpy_context,
-                                                                        monkeypatch):
+@pytest.mark.parametrize("interrupted_at, made", [
+    ("EstimatorNode", ["pressure_controller", "sim_device"]),
+    # the estimator's and the kinematics' threads (and the L2 child) run by then too
+    ("GraspManagerNode", ["estimator", "kinematics", "pressure_controller", "sim_device"])])
+def test_a_ctrl_c_while_the_suite_is_built_closes_the_nodes_already_made(
+        rclpy_context, monkeypatch, interrupted_at, made):
     """The test below once saw the controller end -11 (SIGSEGV) after "stopped during start-up"
     (a CI run, 2026-12-05). make_nodes closed what it had made on an Exception only: a Ctrl-C
     while it built the rest left the device's and the pressure controller's threads running
@@ -74,11 +78,11 @@ def test_a_ctrl_c_while_the_suite_is_built_closes_the_nodes_already_made(rclpy_c
         raise KeyboardInterrupt
 
     monkeypatch.setattr(composed, "close_all", close_all)
-    monkeypatch.setattr(composed, "EstimatorNode", interrupted)
+    monkeypatch.setattr(composed, interrupted_at, interrupted)
     with pytest.raises(KeyboardInterrupt):
         composed.make_nodes(rclpy_context, {
             "pressure_controller": [Parameter("can.channel", value=unique("startup"))]})
-    assert sorted(closed) == ["pressure_controller", "sim_device"]
+    assert sorted(closed) == made
 
 
 def test_ctrl_c_to_the_process_group_ends_everything_quietly(controller):

@@ -61,13 +61,16 @@ def make_nodes(context=None, overrides: dict | None = None) -> list:
                         Parameter("can.interface", value=interface),
                         Parameter("can.channel", value=channel)
                     ]))
+        # each kept as soon as it is made: its threads run from then on
         estimator = EstimatorNode(in_process=True, context=context,
                                   parameter_overrides=overrides.get("estimator", []))
+        nodes.append(estimator)
         kinematics = KinematicsNode(in_process=True, context=context,
                                     parameter_overrides=overrides.get("kinematics", []))
+        nodes.append(kinematics)
         grasp_manager = GraspManagerNode(in_process=True, context=context,
                                          parameter_overrides=overrides.get("grasp_manager", []))
-        nodes += [estimator, kinematics, grasp_manager]
+        nodes.append(grasp_manager)
         controller.sensor_listeners.append(estimator.on_sensor_samples)
         controller.status_listeners += [estimator.on_status, grasp_manager.on_status]
         grasp_manager.scene_listeners.append(kinematics.on_scene)
