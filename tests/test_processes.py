@@ -85,6 +85,36 @@ def test_a_ctrl_c_while_the_suite_is_built_closes_the_nodes_already_made(
     assert sorted(closed) == made
 
 
+
+def test_a_ctrl_c_while_the_kinematics_is_built_closes_its_l2_child_and_threads(rclpy_context,
+                                                                                monkeypatch):
+    """The kinematics spawns its L2 child and starts its solve thread before the rest of its
+    start: a Ctrl-C in between leaves a node nobody gets to close, so it closes itself (the
+    context fixture finds no thread left) and its child ends."""
+    from rclpy.parameter import Parameter
+    from softgrip_ros.nodes import kinematics as module
+
+    children = []
+    real_solver = module.LatestSolveThread
+
+    def solver(model, **kwargs):
+        children.extend(model._rod_solver._children)
+        return real_solver(model, **kwargs)
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(module, "LatestSolveThread", solver)
+    monkeypatch.setattr(module, "NodeTimers", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        module.KinematicsNode(in_process=True, context=rclpy_context, parameter_overrides=[
+            Parameter("fidelity", value="auto")])
+    assert children
+    for child in children:
+        child.join(timeout=5.0)
+        assert not child.is_alive()
+
+
 def test_ctrl_c_to_the_process_group_ends_everything_quietly(controller):
     """#20.10: Ctrl-C in a terminal (SIGINT to the whole process group, the L2 child included)
     printed Traceback ... KeyboardInterrupt."""

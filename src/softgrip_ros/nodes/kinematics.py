@@ -61,6 +61,18 @@ class KinematicsNode(Node):
         self.rod_solver = (RodSolverProcess(
             self.values["gripper_model"], self.values["l2_nice_increment"], ROD_CONTINUATION_STEPS)
                            if self.values["fidelity"] in ("l2", "auto") else None)
+        self.solver = self.periodic = None
+        try:
+            self._build(in_process)
+        except BaseException:
+            # a Ctrl-C too: this node is never returned, so nobody else would close the child
+            # and the threads it has started
+            self.close()
+            self.destroy_node()
+            raise
+
+    def _build(self, in_process: bool) -> None:
+        """Everything after the L2 child's spawn, up to the timers' start."""
         self.model = SceneModel(self.values["fidelity"], self.values["tolerance_m"],
                                 self.values["gripper_model"],
                                 resolve_pressure_pa=self.values["resolve_pressure_pa"],
@@ -91,14 +103,18 @@ class KinematicsNode(Node):
         self.periodic.start()
 
     def close(self) -> None:
-        """Nothing to vent: the kinematics only listens. Later in-process estimates are ignored."""
-        self.periodic.stop()
+        """Nothing to vent: the kinematics only listens. Later in-process estimates are ignored.
+        Also what a construction cut short had started."""
+        if self.periodic is not None:
+            self.periodic.stop()
         with self._lock:
             self.closed = True
-        self.solver.stop()
+        if self.solver is not None:
+            self.solver.stop()
         if self.rod_solver is not None:  # first: it ends a running solve the thread waits on
             self.rod_solver.close()
-        self.solver.close()
+        if self.solver is not None:
+            self.solver.close()
 
     def on_scene(self, scene: Scene) -> None:
         """What the fingers meet from now on (the grasp manager's call)."""
