@@ -97,6 +97,11 @@ class CheckConfig:
                              f"{self.channels!r}")
 
 
+def _only(channel: int, state: int) -> tuple:
+    """Every valve channel's state: ``state`` on ``channel``, the others CLOSED."""
+    return tuple(state if i == channel else CLOSED for i in range(VALVE_CHANNELS))
+
+
 def _pressure_signal(message: str) -> str | None:
     """The pressure a device message carries: a sensor's reading, the regulator's output (None:
     no pressure)."""
@@ -326,11 +331,8 @@ class DeviceChecker:
         target = c.test_pressure_pa
         problems, measured = [], []
 
-        def valves(state):
-            return tuple(state if i == channel else CLOSED for i in range(VALVE_CHANNELS))
-
         start = self._chamber()
-        self._set_command(target, True, valves(SUPPLY))
+        self._set_command(target, True, _only(channel, SUPPLY))
         rose = self._wait_for(lambda: self._chamber() - start >= 0.5 * (target - start),
                               c.response_timeout_s)
         measured.append(f"SUPPLY {self._chamber() / 1e3:+.1f} kPa")
@@ -338,14 +340,14 @@ class DeviceChecker:
             problems.append(f"SUPPLY: the chamber went from {start / 1e3:+.1f} to "
                             f"{self._chamber() / 1e3:+.1f} kPa, toward a "
                             f"{target / 1e3:.1f} kPa regulator")
-        self._set_command(target, True, valves(CLOSED))
+        self._set_command(target, True, _only(channel, CLOSED))
         self._wait(0.1)
         held = self._chamber_mean(0.2)
         drift = abs(self._chamber_mean(0.2) - held)
         measured.append(f"CLOSED {drift / 1e3:.2f} kPa drift")
         if drift > max(500.0, 0.1 * abs(held)):
             problems.append(f"CLOSED: the chamber moved {drift / 1e3:.1f} kPa in 0.2 s")
-        self._set_command(0.0, True, valves(VENT))
+        self._set_command(0.0, True, _only(channel, VENT))
         vented = self._wait_for(lambda: abs(self._chamber()) <= 1000.0, c.response_timeout_s)
         measured.append(f"VENT {self._chamber() / 1e3:+.1f} kPa")
         if vented is None:
@@ -356,7 +358,7 @@ class DeviceChecker:
         if not drew:
             problems.append(f"VACUUM: the chamber went from {start / 1e3:+.1f} to "
                             f"{self._chamber() / 1e3:+.1f} kPa")
-        self._set_command(0.0, True, valves(VENT))
+        self._set_command(0.0, True, _only(channel, VENT))
         self._wait_for(lambda: abs(self._chamber()) <= 1000.0, c.response_timeout_s)
         return Row(f"valve channel {channel} answers ValveCommand", not problems,
                    ", ".join(measured), "; ".join(problems))
@@ -371,8 +373,7 @@ class DeviceChecker:
         is set by its lifetime instead. A pulse that moved the chamber less than a quarter of what
         is left is followed by one twice as long (a slow valve), up to the DBC's 255 ms."""
         c = self.config
-        closed = tuple(CLOSED for _ in range(VALVE_CHANNELS))
-        vacuum = tuple(VACUUM if i == channel else CLOSED for i in range(VALVE_CHANNELS))
+        closed, vacuum = (CLOSED,) * VALVE_CHANNELS, _only(channel, VACUUM)
         self._set_command(0.0, True, closed, send_valves=False)
         self._wait(2.0 * c.control_period_s)  # no periodic CLOSED in flight to cut a pulse short
         pulse_s, before = c.lifetime_s, self._chamber()
@@ -405,7 +406,7 @@ class DeviceChecker:
         self._wait_for(lambda: abs(self._latest_value("RegulatorStatus") - target) <= 1000.0,
                        c.response_timeout_s, samples=3)
         start = self._chamber_mean(0.05)
-        valves = tuple(SUPPLY if i == channel else CLOSED for i in range(VALVE_CHANNELS))
+        valves = _only(channel, SUPPLY)
         self._set_command(target, True, valves, send_valves=False)
         # no periodic ValveCommand in flight any more, then the one
         self._wait(2.0 * c.control_period_s)
