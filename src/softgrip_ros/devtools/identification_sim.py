@@ -181,7 +181,7 @@ def spread_seeds(truths: list, count: int, first: int) -> dict:
     :func:`record` draws the noise reading by reading from its seed, and every truth runs the
     same excitation, so one seed gives every truth the same noise. Shared seeds made the truths'
     errors move together (their correlation over ten seeds: 0.95 between slow_large's and
-    drawn_2's vent values, 0.6-0.9 for most others), and thirty fits weighed as a dozen."""
+    drawn_2's vent values, 0.3-0.9 for most others), and thirty fits weighed as a dozen."""
     if count < 1:
         raise ValueError(f"count must be at least 1, got {count}")
     return {name: list(range(first + k * count, first + (k + 1) * count))
