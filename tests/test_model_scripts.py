@@ -190,6 +190,10 @@ def test_bench_identify_spread_quick_json_summarises_every_value_over_its_fits(p
     assert figures["spread"]["regulator_time_constant_s"]["covered"] is None
     assert all(fit["values"]["regulator_time_constant_s"]["covered"] is None
                for fit in figures["fits"])
+    # nor spread: an error of 1e-15 over a side of 1e-15 said 1.95
+    assert figures["spread"]["regulator_time_constant_s"]["spread_over_interval"] is None
+    assert all(fit["values"]["regulator_time_constant_s"]["reach"] is None
+               for fit in figures["fits"])
     level = figures["spread"]["vacuum_source_gauge_pa"]
     if pump_level:
         assert (level["max_abs_err"], level["flagged"]) == (0.0, 0.0)

@@ -143,8 +143,8 @@ def seeded_fit(name: str, seed: int, quick: bool = False, pump_level_given: bool
     RECOVERY_TARGETS: ``rel_err`` (fitted / true - 1), ``rel_half_width`` (its 95 % interval's
     half width over the truth), ``covered`` (the interval holds the truth; None for an interval
     without width, which rounding alone puts beside the truth), ``reach`` (how far
-    out the truth lies, in the interval's side towards it: at most 1 where it holds it; None for
-    an interval without width there) and ``flagged``."""
+    out the truth lies, in the interval's side towards it: at most 1 where it holds it; None
+    where that side has no width, as for ``covered``) and ``flagged``."""
     description = truth(name)
     steps, held_out = identification.excitation(quick=quick)
     recording = record(description, steps, held_out, seed=seed)
@@ -166,8 +166,8 @@ def seeded_fit(name: str, seed: int, quick: bool = False, pump_level_given: bool
                               "rel_half_width": rel_half_width,
                               "covered": (bool(low <= true_value <= high)
                                           if rel_half_width > WIDTHLESS else None),
-                              "reach": abs(estimate.value - true_value) / side if side > 0.0
-                              else None,
+                              "reach": (abs(estimate.value - true_value) / side
+                                        if side > WIDTHLESS * abs(true_value) else None),
                               "flagged": bool(estimate.flag)}
     return {"truth": name, "seed": seed, "values": values,
             "validation_rmse_over_noise": result.validation_rmse_over_noise,
