@@ -115,6 +115,45 @@ def test_a_ctrl_c_while_the_kinematics_is_built_closes_its_l2_child_and_threads(
         assert not child.is_alive()
 
 
+def test_a_ctrl_c_as_the_simulated_device_starts_stops_it_and_closes_its_bus(rclpy_context,
+                                                                            monkeypatch):
+    """The composed controller builds the simulated device first: a Ctrl-C just as its device
+    thread started left that thread running (the context fixture finds it) and the bus open, with
+    no node returned to close them. It now stops its device and shuts its own bus."""
+    from rclpy.parameter import Parameter
+    from softgrip_ros.nodes import sim_device as module
+
+    buses, real_open_bus, real_start = [], module.open_bus, module.SimulatedDevice.start
+
+    def open_bus(*args, **kwargs):
+        buses.append(real_open_bus(*args, **kwargs))
+        return buses[-1]
+
+    def started_then_interrupted(device):
+        real_start(device)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(module, "open_bus", open_bus)
+    monkeypatch.setattr(module.SimulatedDevice, "start", started_then_interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        module.SimDeviceNode(context=rclpy_context,
+                             parameter_overrides=[Parameter("can.channel", value=unique("sim"))])
+    assert len(buses) == 1 and buses[0]._is_shutdown
+
+
+def test_a_bad_plant_file_is_refused_before_the_simulated_device_opens_its_bus(
+        rclpy_context, monkeypatch, tmp_path):
+    from rclpy.parameter import Parameter
+    from softgrip_ros.nodes import sim_device as module
+
+    opened = []
+    monkeypatch.setattr(module, "open_bus", lambda *args, **kwargs: opened.append(args))
+    with pytest.raises(ValueError, match="missing.yaml"):
+        module.SimDeviceNode(context=rclpy_context, parameter_overrides=[
+            Parameter("plant_file", value=str(tmp_path / "missing.yaml"))])
+    assert opened == []
+
+
 def test_ctrl_c_to_the_process_group_ends_everything_quietly(controller):
     """#20.10: Ctrl-C in a terminal (SIGINT to the whole process group, the L2 child included)
     printed Traceback ... KeyboardInterrupt."""

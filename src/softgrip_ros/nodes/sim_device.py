@@ -70,24 +70,30 @@ class SimDeviceNode(Node):
         super().__init__("sim_device", **kwargs)
         self.specs = {s.name: s for s in SPECS}
         values = declare(self, SPECS)
-        self._own_bus = bus is None
-        # its frames reach the controller stamped when their readings were taken
-        self.bus = bus or open_bus(values["can.interface"], values["can.channel"],
-                                   values["can.bitrate"], preserve_timestamps=True)
-        truth = load_plant(values)
+        truth = load_plant(values)  # a bad file refused before the bus is open
         sensors = tuple(dataclasses.replace(s, noise_std_pa=truth.sensor(s.name).noise_std_pa,
                                             bias_pa=truth.sensor(s.name).bias_pa)
                         for s in DEFAULT_SENSORS)
         config = SimDeviceConfig(plant=truth.parameters, sensors=sensors,
                                  plant_rate_hz=values["plant_rate_hz"],
                                  seed=None if values["seed"] < 0 else values["seed"])
-        self.device = SimulatedDevice(self.bus, config)
-        for name in FAULTS:
-            self.device.set_fault(name, values[f"fault.{name}"])
-        self.add_on_set_parameters_callback(self._on_set)
-        self.device.start()
-        self.get_logger().info(
-            f"simulated device on {values['can.interface']}:{values['can.channel']}")
+        self._own_bus, self.device = bus is None, None
+        # its frames reach the controller stamped when their readings were taken
+        self.bus = bus or open_bus(values["can.interface"], values["can.channel"],
+                                   values["can.bitrate"], preserve_timestamps=True)
+        try:
+            self.device = SimulatedDevice(self.bus, config)
+            for name in FAULTS:
+                self.device.set_fault(name, values[f"fault.{name}"])
+            self.add_on_set_parameters_callback(self._on_set)
+            self.get_logger().info(
+                f"simulated device on {values['can.interface']}:{values['can.channel']}")
+            self.device.start()
+        except BaseException:
+            # a Ctrl-C in the composed controller's start-up: nobody holds this node to close
+            # it, and a device thread left running into the interpreter's exit may crash it
+            self.close()
+            raise
 
     def _on_set(self, parameters):
 
@@ -107,7 +113,9 @@ class SimDeviceNode(Node):
         return check_all(self.specs, parameters, apply)
 
     def close(self) -> None:
-        self.device.stop()
+        """Stop the device and shut the bus it opened; also for a node built part-way."""
+        if self.device is not None:
+            self.device.stop()
         if self._own_bus:
             self.bus.shutdown()
 
