@@ -141,6 +141,39 @@ def test_a_ctrl_c_as_the_simulated_device_starts_stops_it_and_closes_its_bus(rcl
     assert len(buses) == 1 and buses[0]._is_shutdown
 
 
+def test_a_ctrl_c_as_the_pressure_controller_activates_stops_its_loop_and_closes_its_bus(
+        rclpy_context, monkeypatch):
+    """Autostarted, the pressure controller configures (opens its bus) and activates (starts its
+    control loop) at the end of its construction: a Ctrl-C just as the loop started left the
+    loop's threads running (the context fixture finds them) and the bus open."""
+    from rclpy.parameter import Parameter
+    from softgrip_ros.nodes import pressure_controller as module
+
+    buses, real_open_bus, real_make_loop = [], module.open_bus, module.make_control_loop
+
+    def open_bus(*args, **kwargs):
+        buses.append(real_open_bus(*args, **kwargs))
+        return buses[-1]
+
+    def make_control_loop(*args, **kwargs):
+        loop = real_make_loop(*args, **kwargs)
+        real_start = loop.start
+
+        def started_then_interrupted():
+            real_start()
+            raise KeyboardInterrupt
+
+        loop.start = started_then_interrupted
+        return loop
+
+    monkeypatch.setattr(module, "open_bus", open_bus)
+    monkeypatch.setattr(module, "make_control_loop", make_control_loop)
+    with pytest.raises(KeyboardInterrupt):
+        module.PressureControllerNode(in_process=True, context=rclpy_context, parameter_overrides=[
+            Parameter("can.channel", value=unique("ctl"))])
+    assert len(buses) == 1 and buses[0]._is_shutdown
+
+
 def test_a_bad_plant_file_is_refused_before_the_simulated_device_opens_its_bus(
         rclpy_context, monkeypatch, tmp_path):
     from rclpy.parameter import Parameter

@@ -76,9 +76,15 @@ class PressureControllerNode(LifecycleNode):
         self.last_note = ""
         self.ignored_said = False  # in identification mode: the ignored pressure/command, said
         self.create_timer(1.0, self._publish_diagnostics)
-        if self.values["autostart"] and self.trigger_configure(
-        ) == TransitionCallbackReturn.SUCCESS:
-            self.trigger_activate()
+        if self.values["autostart"]:
+            try:
+                if self.trigger_configure() == TransitionCallbackReturn.SUCCESS:
+                    self.trigger_activate()
+            except BaseException:
+                # a Ctrl-C in the start-up (rclpy's transitions pass it on): no node is returned
+                # to be closed, and its control loop would run into the interpreter's exit
+                self.close()
+                raise
 
     # ---- parameters ---------------------------------------------------------------------------
     def _on_set(self, parameters):
