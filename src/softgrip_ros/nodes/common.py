@@ -174,6 +174,19 @@ def close_all(nodes) -> None:
 
 
 @contextlib.contextmanager
+def closed_if_cut_short(node):
+    """The rest of ``node``'s construction, from where it starts what must be stopped (a thread,
+    a child, a bus): whatever ends it early, a bad value or a Ctrl-C, closes and destroys the
+    node before passing on, as no caller is handed a node to close. ``node.close()`` must take a
+    node built part-way."""
+    try:
+        yield
+    except BaseException:
+        close_all([node])
+        raise
+
+
+@contextlib.contextmanager
 def spinning(*nodes, context=None, threads: int = 4):
     """Spin ``nodes`` in a background thread (a SingleThreadedExecutor for ``threads=1``, whose
     per-callback cost is far lower); stop and join on exit. For tools that drive nodes from their

@@ -36,7 +36,7 @@ from softgrip_ros.health import Health, Report
 from softgrip_ros.model.fidelity import FREE, ROD_CONTINUATION_STEPS, Scene, SceneModel
 from softgrip_ros.checks import future_stamp_reason
 from softgrip_ros.nodes import messages
-from softgrip_ros.nodes.common import (NodeTimers, listened, publish,
+from softgrip_ros.nodes.common import (NodeTimers, closed_if_cut_short, listened, publish,
                                        run_node, stamp_msg, stamp_seconds)
 from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import KINEMATICS_SPECS as SPECS
@@ -62,14 +62,8 @@ class KinematicsNode(Node):
             self.values["gripper_model"], self.values["l2_nice_increment"], ROD_CONTINUATION_STEPS)
                            if self.values["fidelity"] in ("l2", "auto") else None)
         self.solver = self.periodic = None
-        try:
+        with closed_if_cut_short(self):
             self._build(in_process)
-        except BaseException:
-            # a Ctrl-C too: this node is never returned, so nobody else would close the child
-            # and the threads it has started
-            self.close()
-            self.destroy_node()
-            raise
 
     def _build(self, in_process: bool) -> None:
         """Everything after the L2 child's spawn, up to the timers' start."""

@@ -26,8 +26,8 @@ from softgrip_ros.model.pneumatics import PneumaticPlant
 from softgrip_ros.control.reports import pressure_controller_report
 from softgrip_ros.nodes import messages
 from softgrip_ros.canbus import open_bus
-from softgrip_ros.nodes.common import (listened, notify, publish, run_node, stamp_msg,
-                                       stamp_seconds)
+from softgrip_ros.nodes.common import (closed_if_cut_short, listened, notify, publish, run_node,
+                                       stamp_msg, stamp_seconds)
 from softgrip_ros.nodes.estimator import ESTIMATOR_STATUS
 from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import (PRESSURE_CONFIGURE_PREFIXES, check_rest_rate,
@@ -77,14 +77,10 @@ class PressureControllerNode(LifecycleNode):
         self.ignored_said = False  # in identification mode: the ignored pressure/command, said
         self.create_timer(1.0, self._publish_diagnostics)
         if self.values["autostart"]:
-            try:
+            # rclpy's transitions pass a Ctrl-C on, with the control loop started
+            with closed_if_cut_short(self):
                 if self.trigger_configure() == TransitionCallbackReturn.SUCCESS:
                     self.trigger_activate()
-            except BaseException:
-                # a Ctrl-C in the start-up (rclpy's transitions pass it on): no node is returned
-                # to be closed, and its control loop would run into the interpreter's exit
-                self.close()
-                raise
 
     # ---- parameters ---------------------------------------------------------------------------
     def _on_set(self, parameters):

@@ -14,7 +14,7 @@ from rclpy.node import Node
 from softgrip_ros.canbus.sim_device import (DEFAULT_SENSORS, FAULT_CHOICES, FAULTS,
                                             STUCK_READINGS_PA, SimDeviceConfig, SimulatedDevice)
 from softgrip_ros.canbus import open_bus
-from softgrip_ros.nodes.common import run_node
+from softgrip_ros.nodes.common import closed_if_cut_short, run_node
 from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, check_all, declare
 from softgrip_ros.nodes.specs import load_plant
 
@@ -81,7 +81,8 @@ class SimDeviceNode(Node):
         # its frames reach the controller stamped when their readings were taken
         self.bus = bus or open_bus(values["can.interface"], values["can.channel"],
                                    values["can.bitrate"], preserve_timestamps=True)
-        try:
+        # a device thread left running into the interpreter's exit may crash it
+        with closed_if_cut_short(self):
             self.device = SimulatedDevice(self.bus, config)
             for name in FAULTS:
                 self.device.set_fault(name, values[f"fault.{name}"])
@@ -89,11 +90,6 @@ class SimDeviceNode(Node):
             self.get_logger().info(
                 f"simulated device on {values['can.interface']}:{values['can.channel']}")
             self.device.start()
-        except BaseException:
-            # a Ctrl-C in the composed controller's start-up: nobody holds this node to close
-            # it, and a device thread left running into the interpreter's exit may crash it
-            self.close()
-            raise
 
     def _on_set(self, parameters):
 
