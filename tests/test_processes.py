@@ -37,6 +37,18 @@ def alive(pid: int) -> bool:
         return False
 
 
+def opened_buses(monkeypatch, module) -> list:
+    """The buses ``module``'s open_bus opens from now on (to see that they are shut)."""
+    buses, real_open_bus = [], module.open_bus
+
+    def open_bus(*args, **kwargs):
+        buses.append(real_open_bus(*args, **kwargs))
+        return buses[-1]
+
+    monkeypatch.setattr(module, "open_bus", open_bus)
+    return buses
+
+
 @pytest.fixture
 def controller(tmp_path):
     """The installed controller (its own simulated device, a private channel) in a new process
@@ -123,17 +135,12 @@ def test_a_ctrl_c_as_the_simulated_device_starts_stops_it_and_closes_its_bus(rcl
     from rclpy.parameter import Parameter
     from softgrip_ros.nodes import sim_device as module
 
-    buses, real_open_bus, real_start = [], module.open_bus, module.SimulatedDevice.start
-
-    def open_bus(*args, **kwargs):
-        buses.append(real_open_bus(*args, **kwargs))
-        return buses[-1]
+    buses, real_start = opened_buses(monkeypatch, module), module.SimulatedDevice.start
 
     def started_then_interrupted(device):
         real_start(device)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(module, "open_bus", open_bus)
     monkeypatch.setattr(module.SimulatedDevice, "start", started_then_interrupted)
     with pytest.raises(KeyboardInterrupt):
         module.SimDeviceNode(context=rclpy_context,
@@ -149,11 +156,7 @@ def test_a_ctrl_c_as_the_pressure_controller_activates_stops_its_loop_and_closes
     from rclpy.parameter import Parameter
     from softgrip_ros.nodes import pressure_controller as module
 
-    buses, real_open_bus, real_make_loop = [], module.open_bus, module.make_control_loop
-
-    def open_bus(*args, **kwargs):
-        buses.append(real_open_bus(*args, **kwargs))
-        return buses[-1]
+    buses, real_make_loop = opened_buses(monkeypatch, module), module.make_control_loop
 
     def make_control_loop(*args, **kwargs):
         loop = real_make_loop(*args, **kwargs)
@@ -166,7 +169,6 @@ def test_a_ctrl_c_as_the_pressure_controller_activates_stops_its_loop_and_closes
         loop.start = started_then_interrupted
         return loop
 
-    monkeypatch.setattr(module, "open_bus", open_bus)
     monkeypatch.setattr(module, "make_control_loop", make_control_loop)
     with pytest.raises(KeyboardInterrupt):
         module.PressureControllerNode(in_process=True, context=rclpy_context, parameter_overrides=[
