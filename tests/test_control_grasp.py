@@ -42,7 +42,6 @@ def test_envelop_clamp_40mm_runs_its_phases_in_order_and_holds(kinematics):
     assert 2 * 0.5 * force >= 0.2 * G_M_PER_S2 * 0.9 * ClampForceLaw().safety_factor
 
 
-
 def test_a_hold_whose_pressure_is_unknown_for_a_tick_reports_an_unknown_force(kinematics):
     """A starved host can leave the grasp manager one tick with neither a fresh estimate nor a
     fresh reading (CI: one such state in a 2 s hold). Its force is then unknown (NaN), not 0 N,
@@ -60,6 +59,7 @@ def test_a_hold_whose_pressure_is_unknown_for_a_tick_reports_an_unknown_force(ki
     loop.command(GraspRequest(GraspMode.RELEASE))
     loop.run_until(lambda s: s.phase == Phase.IDLE, 5.0)
     assert loop.fsm.update(loop.now + 0.05, math.nan).clamp_force_n == 0.0
+
 
 def test_release_vents_then_opens_then_idles(kinematics):
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
