@@ -133,3 +133,19 @@ def test_the_onset_of_contact_is_continuous_and_converges():
     assert before.contact_force_n == 0.0
     assert 0.0 < after.contact_force_n < 0.05 * deeper.contact_force_n
     assert after.max_penetration_m < 1e-9
+
+
+def test_the_chamber_faces_are_rounded_so_the_closed_fingers_clear_the_centre_line():
+    """Table 1 puts the tip chambers' faces 0.5 mm from the centre line at their middles, but the
+    faces are tilted by the inclination: flat, their far edges crossed it by 1.3 mm at rest, and a
+    sheet could not be pinched from the fingers' rest. Rounded (FingerGeometry's outline), the
+    rest shape clears a 0.1 mm sheet and pinches it from 0 Pa."""
+    rod = RodFinger(KIN.geometry, KIN.calibration)
+    geometry = KIN.geometry
+    assert geometry.chamber_surface_offset_m(4, 0.0) == pytest.approx(
+        geometry.chamber_face_offset_m(4))
+    assert geometry.chamber_surface_offset_m(4, 0.5 * geometry.chamber_length_m) < \
+        geometry.chamber_face_offset_m(4) - geometry.dome_radius_m(4) + 1e-12
+    solution = rod.solve(-5e3, Sheet(1e-4), from_pressure_pa=0.0)
+    assert solution.converged, solution.message
+    assert solution.contact_force_n > 0.0

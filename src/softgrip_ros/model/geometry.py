@@ -101,6 +101,24 @@ class FingerGeometry:
         """Distance from the backbone to chamber ``index``'s face (d2 + m_i), at rest."""
         return self.chamber_bottom_to_sidewall_m + self.chamber_depths_m[index]
 
+    def dome_radius_m(self, index: int) -> float:
+        """Radius of chamber ``index``'s rounded face (m): half its length or depth, whichever is
+        smaller. The faces are tilted by the inclination, so flat ones would cross the centre
+        line at rest where Table 1 puts their middles v/2 from it; the contact models (L2, the
+        physics world) round them."""
+        return 0.5 * min(self.chamber_length_m, self.chamber_depths_m[index])
+
+    def chamber_surface_offset_m(self, index: int, along_m: float) -> float:
+        """Distance from the backbone to chamber ``index``'s outer surface at ``along_m`` from the
+        face's middle along the finger (m): a block d2 + m_i - r_i high crowned by a dome of
+        radius r_i (:meth:`dome_radius_m`) whose crest is the face, d2 + m_i from the backbone;
+        the base layer, d2, beyond the chamber's length."""
+        if abs(along_m) > 0.5 * self.chamber_length_m + 1e-12:
+            return self.chamber_bottom_to_sidewall_m
+        radius = self.dome_radius_m(index)
+        crown = self.chamber_face_offset_m(index) - radius
+        return crown + math.sqrt(max(radius * radius - along_m * along_m, 0.0))
+
     @property
     def root_x_m(self) -> float:
         """|x| of each finger's backbone root, fixed by the tip gap v between the tip-chamber

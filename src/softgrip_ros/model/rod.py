@@ -10,7 +10,8 @@ bending law. The rod's equilibrium minimises
     E(kappa) = sum_k 1/2 EI_i ds (kappa_k - kappa0_i)^2  -  sum_j m_j g . r_j
 
 subject to contact: the finger's chamber-side surface (the backbone offset inwards by the
-chamber face offset d2 + m_i) stays outside the object, a circle or a flat sheet on the centre
+chambers' rounded outline, :meth:`FingerGeometry.chamber_surface_offset_m`, whose crests are the
+faces at d2 + m_i) stays outside the object, a circle or a flat sheet on the centre
 line. Without contact and gravity the minimiser is kappa = kappa0, and the node positions are
 the PCC chain's to rounding.
 
@@ -47,6 +48,8 @@ from softgrip_ros.model.geometry import CHAMBER_COUNT, FingerGeometry
 from softgrip_ros.model.material import YeohMaterial
 
 SILICONE_DENSITY_KG_M3 = 1070.0
+# the finger's out-of-plane width: not in the paper (see the module docstring)
+DEFAULT_FINGER_WIDTH_M = 0.02
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,7 +108,7 @@ class RodFinger:
 
     def __init__(self, geometry: FingerGeometry, calibration: BendingCalibration,
                  material: YeohMaterial | None = None, bending: str = "l1",
-                 elements_per_segment: int = 8, finger_width_m: float = 0.02,
+                 elements_per_segment: int = 8, finger_width_m: float = DEFAULT_FINGER_WIDTH_M,
                  linear_density_kg_per_m: float | None = None):
         if not (isinstance(elements_per_segment, int) and 1 <= elements_per_segment <= 200):
             raise ValueError("elements_per_segment must be an integer in [1, 200], got "
@@ -133,15 +136,14 @@ class RodFinger:
         self.node_masses_kg = masses
         self.finger_width_m, self.linear_density_kg_per_m = finger_width_m, density
         self.tip_mass_kg = density * g.tip_length_m
-        offsets = [g.chamber_face_offset_m(i) for i in range(CHAMBER_COUNT)]
-        self.surface_offsets_m = np.array(
-            [offsets[min(k // elements_per_segment, CHAMBER_COUNT - 1)] for k in range(n + 1)])
-        # the chamber faces span the first L3 of each segment; the h3 gaps between them are
-        # recessed
-        local = np.array([
-            (k - min(k // elements_per_segment, CHAMBER_COUNT - 1) * elements_per_segment) *
-            self.element_length_m for k in range(n + 1)
-        ])
+        # the chamber faces span the first L3 of each segment, rounded (FingerGeometry's
+        # chamber_surface_offset_m); the h3 gaps between them are recessed
+        segment_of = [min(k // elements_per_segment, CHAMBER_COUNT - 1) for k in range(n + 1)]
+        local = np.array([(k - i * elements_per_segment) * self.element_length_m
+                          for k, i in enumerate(segment_of)])
+        self.surface_offsets_m = np.array([
+            g.chamber_surface_offset_m(i, a - 0.5 * g.chamber_length_m)
+            for i, a in zip(segment_of, local)])
         self.contact_nodes = np.flatnonzero(local <= g.chamber_length_m + 1e-12)
         phi0 = g.inclination_rad
         self._start = (-g.root_x_m + g.first_chamber_offset_m * math.sin(phi0),
