@@ -284,6 +284,16 @@ class GripperKinematics:
                             _SCALAR_OPS)[0]
         return -2.0 * faces[0][0], -2.0 * faces[1][0]
 
+    def free_shape(self, pressure_pa: float) -> tuple[tuple, float]:
+        """(the left tip (x, z, angle), D2) of fingers that do not meet: below the tips' contact
+        pressure they bend on, past each other (the ballooning held as in :meth:`pose`). The
+        reference of a finger bending on its own, e.g. the physics world's with no contact."""
+        p = _checked_scalar(pressure_pa)
+        self._check_range(p, p)
+        faces, tip, _ = self._chain(self.bending.angles(p),
+                                    self._bulges(max(p, self.contact_pressure_pa)), _SCALAR_OPS)
+        return tip, -2.0 * faces[-1][0]
+
     # ---- derivative -----------------------------------------------------------------------
     def tip_slope(self, pressures_pa):
         """d(left tip x, z, angle)/dp for an array of pressures: shape (N, 3), in m/Pa and rad/Pa.
