@@ -425,3 +425,21 @@ def test_a_disabled_regulator_cuts_both_sources():
     assert (plant.chamber_rate(P_ATM_PA, Valve.VACUUM, 0.0) < 0.0 == plant.chamber_rate(
         P_ATM_PA, Valve.VACUUM, 0.0, False))
     assert plant.step(plant.initial_state(), live, 0.01).chamber_pa[0] < P_ATM_PA - 1e3
+
+
+@pytest.mark.parametrize("gauge_pa, offset_m3", [(30e3, -1e-6), (-40e3, 2e-6), (0.0, -0.5e-6)])
+def test_a_volume_offset_keeps_the_air_and_moves_the_pressure(gauge_pa, offset_m3):
+    """Fingers held back by an object take volume from the chamber at a fixed mass of air: p V is
+    unchanged, and the pressure rises for less volume, falls for more."""
+    plant = PneumaticPlant(PneumaticParameters(vacuum_compliance_m3_per_pa=2e-10))
+    state = plant.initial_state(gauge_pa)
+    moved = plant.with_volume_offset(state, [offset_m3])
+    before = plant.air_terms(float(state.chamber_pa[0]))[0]
+    after = plant.air_terms(float(moved.chamber_pa[0]), offset_m3)[0]
+    assert after == pytest.approx(before, rel=1e-12)
+    assert np.sign(moved.chamber_pa[0] - state.chamber_pa[0]) == -np.sign(offset_m3)
+    back = plant.with_volume_offset(moved, [0.0])
+    assert back.chamber_pa[0] == pytest.approx(state.chamber_pa[0], rel=1e-12)
+    # a step with the offset conserves the air through a closed valve
+    held = plant.step(moved, PlantInputs(valves=(Valve.CLOSED,)), 1e-3)
+    assert held.chamber_pa[0] == moved.chamber_pa[0]

@@ -227,3 +227,11 @@ def test_a_scene_file_that_is_not_yaml_or_missing_says_so(tmp_path):
         load_scene(broken)
     with pytest.raises(SceneError, match="cannot read"):
         load_scene(tmp_path / "missing.yaml")
+
+
+def test_the_bending_share_of_the_chambers_volume_is_the_fes():
+    from softgrip_ros.model.fe_data import load_fe_reference
+    from softgrip_ros.model.world.fingers import FE_BENDING_VOLUME_SHARE, bending_volume_share
+    finger = PseudoRigidFinger(*gripper_models.resolve("type_II"))
+    share = bending_volume_share(finger, load_fe_reference())
+    assert share == pytest.approx(FE_BENDING_VOLUME_SHARE, abs=0.005)

@@ -32,6 +32,13 @@ CLOSED with the valve still open: the chamber rose kPa "with the valve closed".)
 :meth:`SimulatedDevice.true_extremes` gives the lowest and highest true chamber pressure since
 the last :meth:`SimulatedDevice.reset_true_extremes`, over every plant step: what a fault test
 judges, rather than what any sensor said.
+
+With a physics world (:class:`~softgrip_ros.model.world.world.GripperWorld`), the plant and the
+world step together in the plant's time: after each span of the plant the world is stepped to it
+(never more than half a world step ahead or behind) with channel 0's pressure, which drives both
+fingers, and channel 0's air volume then follows the fingers' bending in the world at a fixed mass
+of air (:meth:`~softgrip_ros.model.pneumatics.PneumaticPlant.with_volume_offset`): a finger held
+back by the object holds less air than a free one at the same pressure.
 """
 from __future__ import annotations
 
@@ -162,8 +169,10 @@ class SimulatedDevice:
     """The device on ``bus``. Call :meth:`start`, then :meth:`stop` (it does not close the bus)."""
 
     def __init__(self, bus: can.BusABC, config: SimDeviceConfig | None = None,
-                 codec: FrameCodec | None = None, clock=time.monotonic, wall_clock=time.time):
+                 codec: FrameCodec | None = None, clock=time.monotonic, wall_clock=time.time,
+                 world=None):
         self.bus = bus
+        self.world = world
         # frames carry wall-clock stamps (python-can's); the plant runs on ``clock``
         self.clock, self.wall_clock = clock, wall_clock
         self.config = config or SimDeviceConfig()
@@ -407,9 +416,47 @@ class SimulatedDevice:
             if stuck:
                 # what the valves really do
                 self._inputs = dataclasses.replace(self._inputs, valves=inputs.valves)
+            if self.world is not None:
+                self._step_world(now)
             gauge = self._state.chamber_pa - P_ATM_PA
             self._true_low, self._true_high = min(self._true_low, float(gauge.min())), max(
                 self._true_high, float(gauge.max()))
+
+    def _step_world(self, now: float) -> None:
+        """The world to the plant's time ``now`` with channel 0's pressure, then the plant's volume
+        to the world's bending (under the lock)."""
+        world = self.world
+        world.set_pressure(float(self._state.chamber_pa[0] - P_ATM_PA))
+        if world.advance_to(now - self._started_at):
+            offsets = np.zeros(self.config.plant.channels)
+            offsets[0] = world.volume_offset_m3()
+            if self._state.volume_offset_m3 is None or not np.array_equal(
+                    offsets, self._state.volume_offset_m3):
+                self._state = self.plant.with_volume_offset(self._state, offsets)
+
+    # ---- the physics world ------------------------------------------------------------------
+    def world_truth(self):
+        """The world's :class:`~softgrip_ros.model.world.world.WorldTruth` now; None without a
+        world."""
+        if self.world is None:
+            return None
+        with self._lock:
+            return self.world.truth()
+
+    def play_arm_move(self, move: str) -> None:
+        """Queue the scene's arm move ``move``; ValueError when there is no world or no such
+        move."""
+        if self.world is None:
+            raise ValueError("no physics world: the device was started without a scene")
+        with self._lock:
+            self.world.play(move)
+
+    def world_load(self) -> tuple[float, float]:
+        """(CPU seconds spent stepping the world, world seconds simulated); zeros without one."""
+        if self.world is None:
+            return 0.0, 0.0
+        with self._lock:
+            return self.world.cpu_s, self.world.time_s
 
     def _catch_up(self) -> None:
         """The plant brought to the present (frames that arrived meanwhile taken at their

@@ -48,6 +48,7 @@ class FEPoint:
     mean_curvature_per_m: float
     tip: tuple  # (x m, z m, angle rad)
     backbone_m: np.ndarray
+    cavity_areas_m2: tuple = ()  # per chamber, per unit width (plane strain)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,7 +75,8 @@ def load_fe_reference(path=None) -> FEReference:
                 d1_m=s["D1_mm"] * 1e-3, d2_m=s["D2_mm"] * 1e-3,
                 mean_curvature_per_m=float(s["mean_curvature_per_m"]),
                 tip=(s["tip_x_mm"] * 1e-3, s["tip_z_mm"] * 1e-3, math.radians(s["tip_angle_deg"])),
-                backbone_m=np.asarray(s["backbone_mm"], dtype=float) * 1e-3)
+                backbone_m=np.asarray(s["backbone_mm"], dtype=float) * 1e-3,
+                cavity_areas_m2=tuple(a * 1e-6 for a in s.get("cavity_areas_mm2", ())))
         for s in document["states"])
     return FEReference(points, dict(document["figures"]), dict(document["sweep"]),
                        dict(document["verification"]))

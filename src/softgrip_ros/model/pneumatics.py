@@ -172,13 +172,21 @@ def orifice_mass_flow(p_from_pa, p_to_pa, conductance: float, critical_ratio: fl
 
 @dataclasses.dataclass
 class PlantState:
-    """regulator_gauge_pa: the regulator output; chamber_pa: absolute pressure per channel."""
+    """regulator_gauge_pa: the regulator output; chamber_pa: absolute pressure per channel;
+    volume_offset_m3: per channel, air volume beyond V(p) (None: none), e.g. fingers held back by
+    an object hold less air than free ones at the same pressure (the physics world sets it, through
+    :meth:`PneumaticPlant.with_volume_offset`)."""
 
     regulator_gauge_pa: float
     chamber_pa: np.ndarray
+    volume_offset_m3: np.ndarray | None = None
 
     def copy(self) -> "PlantState":
-        return PlantState(self.regulator_gauge_pa, self.chamber_pa.copy())
+        return PlantState(self.regulator_gauge_pa, self.chamber_pa.copy(),
+                          None if self.volume_offset_m3 is None else self.volume_offset_m3.copy())
+
+    def offset(self, channel: int) -> float:
+        return 0.0 if self.volume_offset_m3 is None else float(self.volume_offset_m3[channel])
 
 
 @dataclasses.dataclass
@@ -295,15 +303,17 @@ class PneumaticPlant:
                                     -gain * dphi)
         return flow, flow_p, flow_s
 
-    def air_terms(self, chamber_pa: float) -> tuple[float, float, float]:
+    def air_terms(self, chamber_pa: float,
+                  volume_offset_m3: float = 0.0) -> tuple[float, float, float]:
         """(p V, R T times the air's mass; the capacitance d(pV)/dp = V + p dV/dp; dV/dp) of one
-        chamber at an absolute pressure; scalar, plain floats (the filters' and the simulated
-        device's hot path: :meth:`chamber_mass_kg` and :meth:`capacitance` are the same law on
-        arrays, several times slower per call on a scalar)."""
+        chamber at an absolute pressure, its volume ``volume_offset_m3`` beyond V(p); scalar,
+        plain floats (the filters' and the simulated device's hot path: :meth:`chamber_mass_kg`
+        and :meth:`capacitance` are the same law on arrays, several times slower per call on a
+        scalar)."""
         par = self.parameters
         compliance = (par.chamber_compliance_m3_per_pa if chamber_pa >= P_ATM_PA else
                       par.vacuum_compliance_m3_per_pa)
-        volume = par.chamber_volume_m3 + compliance * (chamber_pa - P_ATM_PA)
+        volume = par.chamber_volume_m3 + compliance * (chamber_pa - P_ATM_PA) + volume_offset_m3
         swelling = compliance if volume > par.min_chamber_volume_m3 else 0.0
         held = max(volume, par.min_chamber_volume_m3)
         return chamber_pa * held, held + chamber_pa * swelling, swelling
@@ -328,10 +338,29 @@ class PneumaticPlant:
             raise ValueError(f"dt must be positive and finite, got {dt}")
         regulator = self.regulator_step(state.regulator_gauge_pa, inputs, dt)[0]
         chambers = np.array([
-            self.chamber_step(p, valve, regulator, dt, inputs.regulator_enabled)[0]
-            for p, valve in zip(state.chamber_pa, self._valves(inputs))
+            self.chamber_step(p, valve, regulator, dt, inputs.regulator_enabled,
+                              state.offset(i))[0]
+            for i, (p, valve) in enumerate(zip(state.chamber_pa, self._valves(inputs)))
         ])
-        return PlantState(regulator, chambers)
+        return PlantState(regulator, chambers, state.volume_offset_m3)
+
+    def with_volume_offset(self, state: PlantState, volume_offset_m3) -> PlantState:
+        """``state`` with each channel's volume offset changed to ``volume_offset_m3`` (m^3) at a
+        fixed mass of air (isothermal): a chamber whose fingers were held back lost volume, and
+        its pressure rose. The volume stays at its floor or above."""
+        offsets = np.asarray(volume_offset_m3, dtype=float).reshape(self.parameters.channels)
+        chambers = state.chamber_pa.copy()
+        for i, p_n in enumerate(state.chamber_pa):
+            target = self.air_terms(float(p_n), state.offset(i))[0]
+            p = float(p_n)
+            for _ in range(50):  # Newton on p V(p) = const: pV rises strictly with p
+                pv, capacitance, _ = self.air_terms(p, float(offsets[i]))
+                step = (pv - target) / capacitance
+                p = max(p - step, 0.5 * p)
+                if abs(step) <= 1e-9 * p:
+                    break
+            chambers[i] = p
+        return PlantState(state.regulator_gauge_pa, chambers, offsets)
 
     def advance(self, state: PlantState, inputs: PlantInputs, dt: float,
                 max_step_s: float = TRUTH_STEP_S) -> PlantState:
@@ -367,10 +396,11 @@ class PneumaticPlant:
                                     inputs.regulator_enabled)[0]
             if np.sign(chambers[i] - source_pa) != np.sign(halves.chamber_pa[i] - source_pa):
                 chambers[i] = source_pa
-        return PlantState(halves.regulator_gauge_pa, chambers)
+        return PlantState(halves.regulator_gauge_pa, chambers, state.volume_offset_m3)
 
     def chamber_step(self, chamber_pa: float, valve: Valve, regulator_gauge_pa: float, dt: float,
-                     sources_live: bool = True) -> tuple[float, float, float]:
+                     sources_live: bool = True,
+                     volume_offset_m3: float = 0.0) -> tuple[float, float, float]:
         """One backward-Euler step of one chamber's air: (p_next, dp_next/dp, dp_next/d regulator).
 
         The step is taken on the air's mass (R T m = p V(p), :meth:`air_terms`), not on p: p_next
@@ -390,11 +420,11 @@ class PneumaticPlant:
         if conductance == 0.0 or source_pa == p_n:
             return p_n, 1.0, 0.0
         low, high = (p_n, source_pa) if source_pa > p_n else (source_pa, p_n)
-        pv_n, capacitance_n, _ = self.air_terms(p_n)
+        pv_n, capacitance_n, _ = self.air_terms(p_n, volume_offset_m3)
         p = self._first_guess(p_n, source_pa, conductance, dt, b)
         for _ in range(100):
             flow, flow_p, _ = self.flow_and_slopes(p, source_pa, conductance, b)
-            pv, capacitance, _ = self.air_terms(p)
+            pv, capacitance, _ = self.air_terms(p, volume_offset_m3)
             residual = pv - pv_n - dt * flow
             step = residual / (capacitance - dt * flow_p)
             if abs(step) <= 1e-9 + 4e-16 * abs(p):
@@ -408,7 +438,7 @@ class PneumaticPlant:
             if high - low <= 1e-9:
                 break
         _, flow_p, flow_s = self.flow_and_slopes(p, source_pa, conductance, b)
-        slope = self.air_terms(p)[1] - dt * flow_p
+        slope = self.air_terms(p, volume_offset_m3)[1] - dt * flow_p
         return (p, capacitance_n / slope, (dt * flow_s / slope if valve == Valve.SUPPLY else 0.0))
 
     def _first_guess(self, p_n: float, source_pa: float, conductance: float, dt: float,

@@ -48,6 +48,10 @@ from softgrip_ros.model.material import YeohMaterial
 from softgrip_ros.model.rod import DEFAULT_FINGER_WIDTH_M, RodFinger
 
 SUB_ARCS_PER_SEGMENT = 3
+# The share of the chambers' volume change that their bending explains in the FE's free sweep
+# (config/fe_reference.yaml at -5, 5 and 10 kPa, where it is valid): the rest is the walls
+# ballooning. bending_volume_share() recomputes it; tests/test_world.py checks that they agree.
+FE_BENDING_VOLUME_SHARE = 0.15
 # the tip piece's inner face at rest, this far from the centre line (each finger)
 TIP_CLEARANCE_M = 1.0e-3
 
@@ -154,6 +158,12 @@ class PseudoRigidFinger:
         top = np.array([bottom + m - wall for m in g.chamber_depths_m])
         return self.finger_width_m * share * 0.5 * (top * top - bottom * bottom)
 
+    def bending_compliance_m3_per_pa(self) -> float:
+        """d/dp of the air both fingers' free bending adds, sum a_i w dtheta_i/dp at 0 Pa
+        (m^3/Pa), from :meth:`bending_volume_per_rad_m3` and the law's slope."""
+        slopes = np.asarray(self.law.angle_slopes(0.0), dtype=float)
+        return 2.0 * float(np.dot(self.bending_volume_per_rad_m3(), slopes))
+
     def dome_radius_m(self, chamber: int) -> float:
         return self.geometry.dome_radius_m(chamber)
 
@@ -246,3 +256,32 @@ class PseudoRigidFinger:
             raise ValueError(f"geometry {g.name}: the tip piece would cross the centre line at "
                              "rest; the finger's layout leaves it no thickness")
         return thickness[0], thickness[1]
+
+
+def bending_volume_share(finger: PseudoRigidFinger, reference,
+                         pressures_pa=(-5e3, 5e3, 10e3)) -> float:
+    """The share of the FE's cavity area change that the bending explains: sum over chambers and
+    ``pressures_pa`` of a_i (theta_i(p) - theta_i(0)), a_i the cavity's first moment
+    (:meth:`PseudoRigidFinger.bending_volume_per_rad_m3` per unit width) and theta_i the FE
+    backbone's turn over segment i, over the sum of the cavity areas' changes.
+    ``reference``: a :class:`~softgrip_ros.model.fe_data.FEReference`."""
+    g = finger.geometry
+    moments = finger.bending_volume_per_rad_m3() / finger.finger_width_m
+
+    def segment_turns(point) -> np.ndarray:
+        backbone = point.backbone_m
+        pieces = np.diff(backbone, axis=0)
+        headings = np.unwrap(np.arctan2(pieces[:, 0], pieces[:, 1]))
+        arc = np.concatenate([[0.0], np.cumsum(np.hypot(pieces[:, 0], pieces[:, 1]))])
+        middles = 0.5 * (arc[1:] + arc[:-1])
+        starts = g.first_chamber_offset_m + g.segment_length_m * np.arange(CHAMBER_COUNT + 1)
+        tangents = np.interp(starts, middles, headings)
+        return -np.diff(tangents)  # opening turns the heading towards -x: positive theta
+
+    rest = reference.at(0.0)
+    bent = explained = 0.0
+    for pressure in pressures_pa:
+        point = reference.at(pressure)
+        bent += float(np.dot(moments, segment_turns(point) - segment_turns(rest)))
+        explained += float(np.sum(np.subtract(point.cavity_areas_m2, rest.cavity_areas_m2)))
+    return bent / explained

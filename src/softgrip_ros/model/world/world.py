@@ -19,10 +19,14 @@ collide with themselves (their chambers' mutual contact is not in the bending la
 each other, the object and the floor.
 
 **Volume.** :meth:`GripperWorld.volume_offset_m3` is how much more air the chambers hold than
-free fingers would at this pressure: w sum a_i (theta_i - theta_i,free(p)) over both fingers'
-segments, a_i the cavity's first moment of area about the backbone (see
-:meth:`~softgrip_ros.model.world.fingers.PseudoRigidFinger.bending_volume_per_rad_m3`). A
-finger blocked by an object under positive pressure holds less air; under vacuum, more.
+free fingers would at this pressure: lambda w sum a_i dtheta_i over both fingers' segments,
+dtheta_i the bend the contacts impose on segment i (its hinges' constraint torques over their
+stiffnesses) and a_i the cavity's first moment of area about the backbone (see
+:meth:`~softgrip_ros.model.world.fingers.PseudoRigidFinger.bending_volume_per_rad_m3`). The
+chambers' compliance dV/dp is the plant file's; the FE's free sweep says which share of it the
+bending makes (``FE_BENDING_VOLUME_SHARE``, the rest being the walls ballooning), and lambda
+scales the first moments to that share. A finger blocked by an object under positive pressure
+holds less air; under vacuum, more.
 """
 from __future__ import annotations
 
@@ -34,7 +38,8 @@ import time
 import numpy as np
 
 from softgrip_ros.model.geometry import CHAMBER_COUNT
-from softgrip_ros.model.world.fingers import PseudoRigidFinger
+from softgrip_ros.model.pneumatics import PneumaticParameters
+from softgrip_ros.model.world.fingers import FE_BENDING_VOLUME_SHARE, PseudoRigidFinger
 from softgrip_ros.model.world.scene import ObjectShape, Scene, SceneError, Shake, Wait
 
 INSTALL_HINT = "the physics world needs MuJoCo: scripts/setup.sh installs it (pip install mujoco)"
@@ -358,13 +363,15 @@ class GripperWorld:
     :meth:`set_pressure`. Not thread-safe: its owner (the simulated device) serialises the calls.
 
     ``start_pressure_pa``: the fingers start bent freely as at this pressure, and see it (a
-    device starts at 0 Pa; tests start opened around an object). Raises SceneError when the scene
+    device starts at 0 Pa; tests start opened around an object). ``plant``: the pneumatics whose
+    compliance the bending shares (default: the default plant's). Raises SceneError when the scene
     cannot start (an object inside a finger), RuntimeError when MuJoCo is missing.
     """
 
     def __init__(self, scene: Scene, finger: PseudoRigidFinger,
                  timestep_s: float = DEFAULT_TIMESTEP_S, fingers_collide: bool = True,
-                 damping_ratio: float = DEFAULT_DAMPING_RATIO, start_pressure_pa: float = 0.0):
+                 damping_ratio: float = DEFAULT_DAMPING_RATIO, start_pressure_pa: float = 0.0,
+                 plant: PneumaticParameters | None = None):
         mujoco = _require_mujoco()
         self._mujoco = mujoco
         if not (math.isfinite(timestep_s) and 1e-4 <= timestep_s <= 2e-3):
@@ -411,6 +418,11 @@ class GripperWorld:
         self._floor_geom = name(mujoco.mjtObj.mjOBJ_GEOM, "floor")
         self.first_mode_rad_s = self._damp(damping_ratio)
         self._table = self._drive_table()
+        plant = plant or PneumaticParameters()
+        geometric = finger.bending_compliance_m3_per_pa()
+        # the scale of the first moments above and below atmosphere (see the module)
+        self._volume_scale = tuple(FE_BENDING_VOLUME_SHARE * k / geometric for k in (
+            plant.chamber_compliance_m3_per_pa, plant.vacuum_compliance_m3_per_pa))
         self._volume_per_rad = finger.bending_volume_per_rad_m3()
         self._force = np.zeros(6)
         self.arm = ArmPlayer(scene)
@@ -562,9 +574,14 @@ class GripperWorld:
     def volume_offset_m3(self) -> float:
         """The air the chambers hold beyond free fingers at this pressure (m^3; see the module):
         negative for fingers held back from opening, positive for fingers held open under
-        vacuum."""
-        deficit = self.segment_angles() - self._drive[:CHAMBER_COUNT][None, :]
-        return float(np.sum(deficit * self._volume_per_rad[None, :]))
+        vacuum. It counts the bending the contacts impose, each hinge's constraint torque over
+        its stiffness, not the fingers' lag behind a changing pressure: the chambers' V(p) is
+        the quasi-static law of free fingers, and the world must not change it."""
+        finger = self.finger
+        held_back = self.data.qfrc_constraint[self._hinge_dof] / finger.hinge_stiffness_nm_per_rad
+        per_segment = np.array([finger.segment_angles_of_hinges(row) for row in held_back])
+        scale = self._volume_scale[0 if self.pressure_pa >= 0.0 else 1]
+        return scale * float(np.sum(per_segment * self._volume_per_rad[None, :]))
 
     def contact_forces(self) -> tuple[np.ndarray, bool]:
         """(normal force of the object's contacts with each finger (2,), N; whether the object
