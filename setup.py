@@ -18,7 +18,8 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE_NAME}"]),
         (f"share/{PACKAGE_NAME}", ["package.xml"]),
-        (f"share/{PACKAGE_NAME}/config", sorted(glob("config/*"))),
+        (f"share/{PACKAGE_NAME}/config", sorted(f for f in glob("config/*") if "." in f)),
+        (f"share/{PACKAGE_NAME}/config/scenes", sorted(glob("config/scenes/*.yaml"))),
         (f"share/{PACKAGE_NAME}/urdf", sorted(glob("urdf/*.xacro"))),
         (f"share/{PACKAGE_NAME}/launch", sorted(glob("launch/*.launch.py"))),
     ],

@@ -6,13 +6,13 @@ from __future__ import annotations
 import math
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import Point, PoseWithCovarianceStamped
+from geometry_msgs.msg import Point, Pose, PoseStamped, PoseWithCovarianceStamped, Quaternion
 from sensor_msgs.msg import FluidPressure, JointState
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
 
-from softgrip_interfaces.msg import (ControllerStatus, GraspCommand, GraspScene, GripperState,
-                                     PressureCommand)
+from softgrip_interfaces.msg import (ControllerStatus, GraspCommand, GraspScene, GraspTruth,
+                                     GripperState, PressureCommand, SimContacts)
 from softgrip_ros.control.grasp_fsm import GraspRequest, GraspState
 from softgrip_ros.control.pressure import Source
 from softgrip_ros.health import Health, Report
@@ -195,3 +195,27 @@ def joint_state(joints, prefix: str, header: Header) -> JointState:
     # D2 at tip contact is 0 up to rounding; the URDF's tip_spacing stops at 0
     return JointState(header=header, name=joint_names(prefix),
                       position=one_finger + one_finger + [max(0.0, float(tip_spacing_m))])
+
+
+def world_truth(truth, header: Header) -> tuple:
+    """(sim/object_pose PoseStamped, sim/contacts SimContacts, sim/grasp_truth GraspTruth) of a
+    :class:`~softgrip_ros.model.world.world.WorldTruth`."""
+    from softgrip_ros.model.world.world import GraspTruthState
+    x, y, z = truth.object_position_m
+    w, qx, qy, qz = truth.object_quaternion_wxyz
+    pose = PoseStamped(header=header, pose=Pose(position=Point(x=x, y=y, z=z),
+                                                orientation=Quaternion(w=w, x=qx, y=qy, z=qz)))
+    contacts = SimContacts(header=header, left_normal_force_n=truth.normal_force_n[0],
+                           right_normal_force_n=truth.normal_force_n[1],
+                           left_touching=truth.touching[0], right_touching=truth.touching[1],
+                           object_on_floor=truth.on_floor)
+    state = truth.state
+    held = (GraspTruthState.IN_HAND, GraspTruthState.LIFTED, GraspTruthState.SLIPPING)
+    grasp = GraspTruth(header=header, state=int(state), object_in_hand=state in held,
+                       lifted=state == GraspTruthState.LIFTED or (
+                           state == GraspTruthState.SLIPPING and not truth.on_floor),
+                       slipping=state == GraspTruthState.SLIPPING,
+                       dropped=state == GraspTruthState.DROPPED,
+                       slip_distance_m=truth.slip_distance_m, arm_move=truth.arm_move,
+                       world_time_s=truth.time_s)
+    return pose, contacts, grasp

@@ -3,6 +3,11 @@
 Faults are ROS parameters, settable at runtime, e.g.
 ``ros2 param set /sim_device fault.sensor_dropout chamber_a``. The device itself is
 softgrip_ros.canbus.sim_device.SimulatedDevice.
+
+With ``world.scene`` set, the device simulates the fingers and an object in a physics world
+(softgrip_ros.model.world) and publishes its ground truth on ``sim/object_pose``, ``sim/contacts``
+and ``sim/grasp_truth``; ``sim/play_arm_move`` plays the scene's arm moves. Only tests,
+benchmarks and the demo read these: no node of the product subscribes to a ``sim/`` topic.
 """
 from __future__ import annotations
 
@@ -14,9 +19,9 @@ from rclpy.node import Node
 from softgrip_ros.canbus.sim_device import (DEFAULT_SENSORS, FAULT_CHOICES, FAULTS,
                                             STUCK_READINGS_PA, SimDeviceConfig, SimulatedDevice)
 from softgrip_ros.canbus import open_bus
-from softgrip_ros.nodes.common import closed_if_cut_short, run_node
+from softgrip_ros.nodes.common import closed_if_cut_short, publish, run_node
 from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, check_all, declare
-from softgrip_ros.nodes.specs import load_plant
+from softgrip_ros.nodes.specs import WORLD_SPECS, gripper_model_spec, load_plant
 
 FAULT_SPECS = [
     ParamSpec("fault.sensor_dropout", "", "silence a sensor (its name, or 'all'); '' = none",
@@ -60,7 +65,8 @@ SPECS = CAN_SPECS + [
     ParamSpec("plant_file", "", "the device's truth: the pneumatics and each sensor's noise and "
               "bias (config/plant.yaml when empty; another file plays a user's hardware)",
               allow_empty=True),
-] + FAULT_SPECS
+] + FAULT_SPECS + [gripper_model_spec("the fingers of the physics world (world.scene)"),
+                   *WORLD_SPECS]
 assert {s.name[len("fault."):] for s in FAULT_SPECS} == set(FAULTS)
 
 
@@ -77,18 +83,22 @@ class SimDeviceNode(Node):
         config = SimDeviceConfig(plant=truth.parameters, sensors=sensors,
                                  plant_rate_hz=values["plant_rate_hz"],
                                  seed=None if values["seed"] < 0 else values["seed"])
+        world = make_world_from(values, truth.parameters)  # a bad scene refused before the bus
         self._own_bus, self.device = bus is None, None
         # its frames reach the controller stamped when their readings were taken
         self.bus = bus or open_bus(values["can.interface"], values["can.channel"],
                                    values["can.bitrate"], preserve_timestamps=True)
         # a device thread left running into the interpreter's exit may crash it
         with closed_if_cut_short(self):
-            self.device = SimulatedDevice(self.bus, config)
+            self.device = SimulatedDevice(self.bus, config, world=world)
             for name in FAULTS:
                 self.device.set_fault(name, values[f"fault.{name}"])
             self.add_on_set_parameters_callback(self._on_set)
+            if world is not None:
+                self.truth = WorldTruthPublisher(self, self.device, values["world.truth_rate_hz"])
             self.get_logger().info(
-                f"simulated device on {values['can.interface']}:{values['can.channel']}")
+                f"simulated device on {values['can.interface']}:{values['can.channel']}" +
+                (f", world: scene {world.scene.name!r}" if world is not None else ""))
             self.device.start()
 
     def _on_set(self, parameters):
@@ -114,6 +124,55 @@ class SimDeviceNode(Node):
             self.device.stop()
         if self._own_bus:
             self.bus.shutdown()
+
+
+def make_world_from(values: dict, plant):
+    """The physics world the parameters ask for, None when ``world.scene`` is empty; ValueError
+    (the scene's, the model's) naming what is wrong."""
+    if not values["world.scene"]:
+        return None
+    from softgrip_ros.model.world import make_world
+    try:
+        return make_world(values["world.scene"], values["gripper_model"], values["world.bending"],
+                          plant)
+    except RuntimeError as error:  # MuJoCo missing
+        raise ValueError(f"world.scene: {error}") from None
+
+
+class WorldTruthPublisher:
+    """The world's ground truth on sim/object_pose, sim/contacts and sim/grasp_truth at
+    ``rate_hz``, and the service sim/play_arm_move."""
+
+    def __init__(self, node: Node, device: SimulatedDevice, rate_hz: float):
+        from geometry_msgs.msg import PoseStamped
+
+        from softgrip_interfaces.msg import GraspTruth, SimContacts
+        from softgrip_interfaces.srv import PlayArmMove
+        self.node, self.device = node, device
+        self.publishers = (node.create_publisher(PoseStamped, "sim/object_pose", 10),
+                           node.create_publisher(SimContacts, "sim/contacts", 10),
+                           node.create_publisher(GraspTruth, "sim/grasp_truth", 10))
+        node.create_service(PlayArmMove, "sim/play_arm_move", self._play)
+        node.create_timer(1.0 / rate_hz, self._publish)
+
+    def _publish(self) -> None:
+        from std_msgs.msg import Header
+
+        from softgrip_ros.nodes.messages import world_truth
+        truth = self.device.world_truth()
+        header = Header(stamp=self.node.get_clock().now().to_msg(), frame_id="world")
+        for publisher, message in zip(self.publishers, world_truth(truth, header)):
+            publish(self.node, publisher, message)
+
+    def _play(self, request, response):
+        try:
+            self.device.play_arm_move(request.move)
+        except ValueError as error:
+            response.accepted, response.message = False, str(error)
+            return response
+        response.accepted, response.message = True, ""
+        self.node.get_logger().info(f"arm move {request.move!r}")
+        return response
 
 
 def main(args=None) -> int:

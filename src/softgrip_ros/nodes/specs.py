@@ -15,10 +15,22 @@ from softgrip_ros.runtime.rod_solver import SOLVER_PROCESS_NICE_INCREMENT
 
 
 
-def _gripper_model_spec() -> ParamSpec:
-    return ParamSpec("gripper_model", "type_II", "the fingers' model: a paper cavity type "
+def gripper_model_spec(what: str = "the fingers' model") -> ParamSpec:
+    return ParamSpec("gripper_model", "type_II", f"{what}: a paper cavity type "
                      "(type_I, type_II, type_III), a softgrip_calibrate calibration's name, or "
                      "its file")
+
+
+# the physics world of the simulated device (sim_device, and controller with a virtual bus)
+WORLD_SPECS = [
+    ParamSpec("world.scene", "", "a scene file (config/scenes/*.yaml): the simulated device "
+              "then simulates the fingers and the object in MuJoCo; empty: no world",
+              allow_empty=True),
+    ParamSpec("world.bending", "l0", "the bending law that drives the world's fingers",
+              choices=("l0", "l1")),
+    ParamSpec("world.truth_rate_hz", 50.0, "the rate of the ground truth (on sim/object_pose, "
+              "sim/contacts, sim/grasp_truth)", "Hz", 1.0, 500.0),
+]
 
 
 def plant_file_spec(uses: str) -> ParamSpec:
@@ -285,7 +297,7 @@ KINEMATICS_SPECS = [
         "l2_nice_increment", SOLVER_PROCESS_NICE_INCREMENT, "added to the nice value of "
         "the L2 solver's child process, so that its solves yield the CPU to the pressure "
         "loop, the CAN reception and the estimator", "", 0, 19),
-    _gripper_model_spec(),
+    gripper_model_spec(),
     ParamSpec("frame_id", "softgrip_base", "frame of the tip poses and markers (after prefix)"),
     ParamSpec("prefix", "", "put before every joint and frame name, as the URDF's prefix does "
               "(several grippers in one robot)", allow_empty=True),
@@ -331,7 +343,7 @@ CLAMP_FORCE_SPECS = [
               10.0, field="safety_factor"),
 ]
 GRASP_MANAGER_SPECS = [
-    _gripper_model_spec(),
+    gripper_model_spec(),
     ParamSpec("fidelity", "l0", "bending law of the grasp model (opening pressures, D2)",
               choices=("l0", "l1")),
     ParamSpec("scene_fidelity", "auto", "model reported in grasp_state for the scene: as the "
