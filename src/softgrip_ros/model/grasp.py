@@ -1,4 +1,6 @@
-"""Grasp physics: when the fingers touch an object, and how hard they then squeeze it.
+"""The paper's one-number clamp law: the grasp manager's law until the tabulated one
+(:mod:`softgrip_ros.model.force_law`) replaced it, kept as the baseline the grasp benchmark
+compares planners against (``scripts/bench_grasp.py``).
 
 **Contact.** An object of diameter d between the tips is touched when the free tip spacing
 D2(p) falls to d: the contact pressure p_c = D2^-1(d) (the kinematics' inverse). A sheet
@@ -25,7 +27,7 @@ G_M_PER_S2 = 9.80665
 
 
 @dataclasses.dataclass(frozen=True)
-class ClampForceLaw:
+class OneNumberClampLaw:
     """stiffness_n_per_pa: k; friction_coefficient: mu used when a command gives none;
     safety_factor: SF; min_squeeze_pa: the least squeeze below contact, even for a weightless
     object."""
