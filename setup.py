@@ -20,6 +20,7 @@ setup(
         (f"share/{PACKAGE_NAME}", ["package.xml"]),
         (f"share/{PACKAGE_NAME}/config", sorted(f for f in glob("config/*") if "." in f)),
         (f"share/{PACKAGE_NAME}/config/scenes", sorted(glob("config/scenes/*.yaml"))),
+        (f"share/{PACKAGE_NAME}/config/clamp_force", sorted(glob("config/clamp_force/*.yaml"))),
         (f"share/{PACKAGE_NAME}/urdf", sorted(glob("urdf/*.xacro"))),
         (f"share/{PACKAGE_NAME}/launch", sorted(glob("launch/*.launch.py"))),
     ],

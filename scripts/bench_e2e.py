@@ -309,7 +309,7 @@ def measure(idle_s: float, grasp_s: float, window_s: float,
         send(
             "ENVELOP_CLAMP",
             command(GraspCommand.ENVELOP_CLAMP, f"bench-{n}", object_diameter_m=0.04,
-                    object_mass_kg=0.2))
+                    object_mass_kg=0.02))
         ok = wait_phase(states, GripperState.ENVELOPED, 5.0) is not None
         send("CLAMP", command(GraspCommand.CLAMP, f"bench-{n}-clamp"))
         ok = ok and wait_phase(states, GripperState.HOLDING, 5.0) is not None

@@ -8,7 +8,7 @@ from softgrip_ros.control.grasp_fsm import (GraspConfig, GraspRequest, GraspStat
                                             GraspMode, Phase)
 from softgrip_ros.control.pressure import Source
 from softgrip_ros.model.calibration import build_kinematics
-from softgrip_ros.model.grasp import ClampForceLaw, G_M_PER_S2
+from softgrip_ros.model.force_law import G_M_PER_S2, ClampForceLaw, ObjectKind, load_table
 from tests.helpers.grasp_loop import GraspLoop
 
 
@@ -20,7 +20,7 @@ def kinematics():
 def test_envelop_clamp_40mm_runs_its_phases_in_order_and_holds(kinematics):
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.3))
     loop.command(
-        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2,
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02,
                      command_id="g1"))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     phases = [p for _, p in loop.phase_log]
@@ -32,14 +32,15 @@ def test_envelop_clamp_40mm_runs_its_phases_in_order_and_holds(kinematics):
     # D2 cleared the object plus margin
     assert loop.spacing_at_enveloped >= 0.04 + 0.01
     target = loop.fsm.request.target_gauge_pa
-    expected = ClampForceLaw().clamp_pressure_pa(0.2, kinematics.pressure_for_tip_spacing(0.04))
+    law = loop.fsm.force_law
+    expected = law.clamp_pressure_pa(0.02, 0.04, ObjectKind.ROUND)
     assert target == pytest.approx(expected)
     loop.run_for(2.0)  # HOLDING stays put for 2 s
     assert loop.fsm.state.phase == Phase.HOLDING
     assert max(abs(p - target) for p in loop.pressures_since(loop.now - 2.0)) < 2.5e3
     force = loop.fsm.state.clamp_force_n
     # holds with margin
-    assert 2 * 0.5 * force >= 0.2 * G_M_PER_S2 * 0.9 * ClampForceLaw().safety_factor
+    assert 2 * 0.5 * force >= 0.02 * G_M_PER_S2 * 0.9 * law.safety_factor
 
 
 def test_a_hold_whose_pressure_is_unknown_for_a_tick_reports_an_unknown_force(kinematics):
@@ -47,7 +48,8 @@ def test_a_hold_whose_pressure_is_unknown_for_a_tick_reports_an_unknown_force(ki
     fresh reading (CI: one such state in a 2 s hold). Its force is then unknown (NaN), not 0 N,
     which a caller would read as the object let go; the next known pressure gives it back."""
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
-    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.command(
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     known = loop.fsm.state.clamp_force_n
     assert known > 0.0
@@ -63,7 +65,8 @@ def test_a_hold_whose_pressure_is_unknown_for_a_tick_reports_an_unknown_force(ki
 
 def test_release_vents_then_opens_then_idles(kinematics):
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
-    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.03, object_mass_kg=0.1))
+    loop.command(
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.03, object_mass_kg=0.02))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     loop.command(GraspRequest(GraspMode.RELEASE))
     loop.run_until(lambda s: s.phase == Phase.IDLE, 5.0)
@@ -83,7 +86,8 @@ def test_pinch_holds_a_tenth_of_a_millimetre_sheet(kinematics):
 
 def test_enveloped_waits_for_the_arm_then_clamps_on_request(kinematics):
     loop = GraspLoop(kinematics)  # no automatic clamp
-    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.command(
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02))
     loop.run_until(lambda s: s.phase == Phase.ENVELOPED, 5.0)
     loop.run_for(1.0)
     assert loop.fsm.state.phase == Phase.ENVELOPED
@@ -93,7 +97,8 @@ def test_enveloped_waits_for_the_arm_then_clamps_on_request(kinematics):
 
 def test_stop_during_opening_vents_at_once(kinematics):
     loop = GraspLoop(kinematics)
-    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.command(
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02))
     loop.run_for(0.05)
     assert loop.fsm.state.phase == Phase.OPENING
     loop.command(GraspRequest(GraspMode.STOP))
@@ -122,7 +127,8 @@ def test_stop_and_release_never_report_success_while_the_pressure_stays(kinemati
 
 def test_a_controller_fault_while_holding_gives_fault_and_vents(kinematics):
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
-    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.command(
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     loop.controller_fault = "sensor disagree"
     loop.run_for(0.02)
@@ -159,7 +165,8 @@ def test_a_blind_controller_gives_fault_with_the_valves_held_and_says_so(kinemat
     controller that cannot see the chamber holds the valves closed (design.md); the grasp now asks
     for the same, and says exactly that."""
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
-    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.command(
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     loop.controller_fault, loop.controller_blind = "sensor timeout, bus silent", True
     loop.run_for(0.02)
@@ -170,7 +177,8 @@ def test_a_blind_controller_gives_fault_with_the_valves_held_and_says_so(kinemat
 
 def test_a_regulator_overshoot_while_holding_is_detected_and_gives_fault(kinematics):
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
-    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.command(
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     loop.overshoot_pa = 20e3
     loop.run_until(lambda s: s.phase == Phase.FAULT, 2.0)
@@ -179,7 +187,8 @@ def test_a_regulator_overshoot_while_holding_is_detected_and_gives_fault(kinemat
 
 def test_holding_pressure_drifting_off_target_gives_fault(kinematics):
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
-    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.command(
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     target, t = loop.fsm.request.target_gauge_pa, loop.now
     # a leak the controller cannot make up: 8 kPa off for 0.4 s
@@ -213,27 +222,27 @@ NAN = math.nan
 REJECTIONS = [
     (GraspRequest(9), "unknown mode 9"),
     (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=NAN,
-                  object_mass_kg=0.1), "object_diameter_m must be finite"),
+                  object_mass_kg=0.02), "object_diameter_m must be finite"),
     (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04,
                   object_mass_kg=NAN), "object_mass_kg must be finite"),
     (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=-0.01,
-                  object_mass_kg=0.1), "object_diameter_m must be finite and >= 0"),
+                  object_mass_kg=0.02), "object_diameter_m must be finite and >= 0"),
     (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04,
                   object_mass_kg=-1.0), "object_mass_kg must be finite and >= 0"),
     (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.15,
-                  object_mass_kg=0.1), "wider than the gripper opens"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1,
+                  object_mass_kg=0.02), "wider than the gripper opens"),
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02,
                   open_pressure_pa=80e3), "beyond the pressure limits"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1,
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02,
                   clamp_pressure_pa=-90e3), "beyond the pressure limits"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1,
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02,
                   open_pressure_pa=5e3), "short of the object plus margin"),
     (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04,
                   object_mass_kg=5.0), "too heavy"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1,
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02,
                   friction_coefficient=-0.2), "friction_coefficient"),
     (GraspRequest(GraspMode.PINCH, object_diameter_m=0.02,
-                  object_mass_kg=0.1), "PINCH takes objects up to 5.0 mm"),
+                  object_mass_kg=0.02), "PINCH takes objects up to 5.0 mm"),
     (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=-0.01), "OPEN needs a finite"),
     (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=math.inf), "OPEN needs a finite"),
     (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.3), "wider than the gripper opens"),
@@ -241,15 +250,15 @@ REJECTIONS = [
     # #20: commands that contradict their mode
     (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.1,
                   open_pressure_pa=-20e3), "open_pressure_pa must be > 0"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1,
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02,
                   open_pressure_pa=-20e3), "open_pressure_pa must be > 0"),
     (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.1,
                   open_pressure_pa=5e3), "short of target_tip_spacing_m"),
-    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.1,
+    (GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02,
                   clamp_pressure_pa=5e3), "clamp_pressure_pa must be <= 0"),
-    (GraspRequest(GraspMode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1,
+    (GraspRequest(GraspMode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.02,
                   clamp_pressure_pa=5e3), "clamp_pressure_pa must be <= 0"),
-    (GraspRequest(GraspMode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1,
+    (GraspRequest(GraspMode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.02,
                   open_pressure_pa=10e3), "PINCH does not open"),
     (GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.05,
                   clamp_pressure_pa=-10e3), "OPEN does not clamp"),
@@ -271,7 +280,7 @@ def test_bad_configuration_is_refused():
     with pytest.raises(ValueError, match="settle_s"):
         GraspConfig(settle_s=0.0)
     with pytest.raises(ValueError, match="safety_factor"):
-        ClampForceLaw(safety_factor=0.5)
+        ClampForceLaw(load_table("type_II", "l0"), safety_factor=0.5)
 
 
 def test_controller_feedback_prefers_a_fresh_estimate_and_reports_silence():
@@ -333,7 +342,8 @@ def test_controller_feedback_tells_the_safe_state_from_other_faults():
 
 def test_a_rejected_command_leaves_a_running_grasp_untouched(kinematics):
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
-    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2))
+    loop.command(
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     before = (loop.fsm.request, loop.fsm.state.phase, loop.fsm._contact_pa, loop.fsm._clamp_pa,
               loop.fsm._open_pa)
@@ -341,7 +351,7 @@ def test_a_rejected_command_leaves_a_running_grasp_untouched(kinematics):
     assert "too heavy" in loop.command(
         GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.01, object_mass_kg=5.0))
     assert "does not squeeze" in loop.command(
-        GraspRequest(GraspMode.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1,
+        GraspRequest(GraspMode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.02,
                      clamp_pressure_pa=0.0))
     assert (loop.fsm.request, loop.fsm.state.phase, loop.fsm._contact_pa, loop.fsm._clamp_pa,
             loop.fsm._open_pa) == before

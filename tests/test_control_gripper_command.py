@@ -8,11 +8,11 @@ from softgrip_ros.control.grasp_fsm import GraspConfig, GraspMode, GraspRequest,
 from softgrip_ros.control.gripper_command import gripper_progress, start_gripper_goal
 from softgrip_ros.control.pressure import Source
 from softgrip_ros.model.calibration import build_kinematics
-from softgrip_ros.model.grasp import ClampForceLaw
+from softgrip_ros.model.force_law import ObjectKind
 from tests.helpers.grasp_loop import GraspLoop
 
 TOLERANCE_M = 0.005
-DEFAULT_EFFORT_N = 2.0
+DEFAULT_EFFORT_N = 1.0
 
 
 @pytest.fixture(scope="module")
@@ -53,16 +53,17 @@ def test_a_closing_goal_squeezes_with_its_effort_and_ends_holding(kinematics):
     loop.run_for(0.05)
     opened = start(loop, 0.06)
     run_to_end(loop, opened)
-    goal = start(loop, 0.03, max_effort_n=3.0)
+    goal = start(loop, 0.03, max_effort_n=0.8)
     assert goal.closing and goal.task != opened.task
-    contact = kinematics.pressure_for_tip_spacing(0.03)
-    law = ClampForceLaw()
-    assert loop.fsm.request.target_gauge_pa == pytest.approx(
-        contact - 3.0 / law.stiffness_n_per_pa)
+    law = loop.fsm.force_law
+    target = law.pressure_for_force(0.8, 0.03, ObjectKind.ROUND)
+    assert loop.fsm.request.target_gauge_pa == pytest.approx(target)
     progress = run_to_end(loop, goal)
     assert progress.outcome == "succeeded" and loop.fsm.state.phase == Phase.HOLDING
     # the modelled force: the clamp force law at the estimate, within the pressure tolerance
-    assert progress.effort_n == pytest.approx(3.0, abs=1.5e3 * law.stiffness_n_per_pa)
+    slope = (law.normal_force_n(target - 1.5e3, 0.03, ObjectKind.ROUND) -
+             law.normal_force_n(target + 1.5e3, 0.03, ObjectKind.ROUND)) / 3e3
+    assert progress.effort_n == pytest.approx(0.8, abs=1.5e3 * slope)
     assert progress.reached_goal and not progress.stalled
     assert progress.position_m == pytest.approx(0.03, abs=TOLERANCE_M)
 

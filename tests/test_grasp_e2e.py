@@ -55,7 +55,7 @@ def test_envelop_clamp_40mm_then_release_over_topics(suite):
     nodes, user, publisher, states = suite
     start = len(states)
     publisher.publish(
-        grasp(GraspCommand.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2,
+        grasp(GraspCommand.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02,
               command_id="g40"))
     enveloped = wait_for(lambda: next((s for s in states[start:] if s.phase == S.ENVELOPED), None),
                          timeout=3.0, message="ENVELOPED")
@@ -194,7 +194,7 @@ def test_faults_during_holding_give_fault_and_a_safe_state(suite):
     nodes, user, publisher, states = suite
     device = nodes["sim_device"].device
     for fault, value in (("sensor_dropout", "all"), ("regulator_overshoot_pa", 30e3)):
-        publisher.publish(grasp(GraspCommand.PINCH, object_diameter_m=1e-3, object_mass_kg=0.1))
+        publisher.publish(grasp(GraspCommand.PINCH, object_diameter_m=1e-3, object_mass_kg=0.02))
         wait_for(lambda: states[-1].phase == S.HOLDING, timeout=5.0, message="HOLDING")
         peak = []
         device.set_fault(fault, value)
@@ -309,12 +309,12 @@ def _goal(client, command, feedback=None):
 
 
 def _envelop_goal(client, command_id):
-    """An ENVELOP_CLAMP goal for a 40 mm, 0.2 kg object; its handle once the feedback says
+    """An ENVELOP_CLAMP goal for a 40 mm, 0.02 kg object; its handle once the feedback says
     ENVELOPED (the fingers open around the object, waiting for CLAMP)."""
     from softgrip_interfaces.msg import GraspCommand, GripperState
     feedback = []
     handle = _goal(client, grasp(GraspCommand.ENVELOP_CLAMP, object_diameter_m=0.04,
-                                 object_mass_kg=0.2, command_id=command_id), feedback.append)
+                                 object_mass_kg=0.02, command_id=command_id), feedback.append)
     wait_for(lambda: feedback and feedback[-1].feedback.state.phase == GripperState.ENVELOPED,
              message="ENVELOPED feedback")
     return handle
@@ -373,12 +373,12 @@ def test_a_different_command_supersedes_a_goal_and_a_cancel_vents(suite):
     assert client.wait_for_server(timeout_sec=5.0)
     first = _goal(
         client,
-        grasp(GraspCommand.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2,
+        grasp(GraspCommand.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02,
               command_id="first"))
     wait_for(lambda: states[-1].phase == S.ENVELOPED, message="ENVELOPED")
     # rejected
     publisher.publish(
-        grasp(GraspCommand.PINCH, object_diameter_m=0.04, object_mass_kg=0.2, command_id="bad"))
+        grasp(GraspCommand.PINCH, object_diameter_m=0.04, object_mass_kg=0.02, command_id="bad"))
     wait_for(lambda: states[-1].command_rejected and states[-1].command_id == "bad",
              message="the rejection")
     publisher.publish(grasp(GraspCommand.STOP, command_id="stop"))
@@ -388,7 +388,7 @@ def test_a_different_command_supersedes_a_goal_and_a_cancel_vents(suite):
     wait_for(lambda: states[-1].phase == S.IDLE, message="IDLE after the STOP")
     second = _goal(
         client,
-        grasp(GraspCommand.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2,
+        grasp(GraspCommand.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02,
               command_id="second"))
     wait_for(lambda: device.chamber_gauge_pa() > 5e3, message="opening")
     cancel = second.cancel_goal_async()

@@ -245,7 +245,7 @@ def test_the_grasp_reports_the_model_of_its_scene():
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.2),
                      scene_model=SceneModel("auto", 1e-3))
     loop.command(
-        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.2,
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02,
                      command_id="g"))
     loop.run_until(lambda s: s.phase == Phase.ENVELOPED, 5.0)
     assert loop.fsm.scene() == FREE and loop.fsm.state.model_fidelity in ("l0", "l1")
@@ -269,7 +269,7 @@ def test_a_held_cylinder_keeps_the_reported_tip_spacing_where_the_rod_puts_the_t
     kinematics = build_kinematics("l1")
     loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.1), scene_model=MODEL)
     loop.command(
-        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=diameter_m, object_mass_kg=0.2,
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=diameter_m, object_mass_kg=0.02,
                      command_id="g"))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     state, scene = loop.fsm.state, loop.fsm.scene()

@@ -54,7 +54,7 @@ def test_a_grasp_on_one_gripper_leaves_the_other_idle_and_each_names_its_own_fra
     from softgrip_interfaces.msg import GripperState as S
     clients, received = two_grippers
     g1, g2 = clients["g1"], clients["g2"]
-    assert g1.envelop_clamp(0.04, 0.2)
+    assert g1.envelop_clamp(0.04, 0.02)
     wait_for(lambda: g1.state().phase == S.ENVELOPED, timeout=10.0, message="g1 ENVELOPED")
     assert g1.clamp()
     wait_for(g1.is_task_complete, timeout=10.0, message="g1 HOLDING")

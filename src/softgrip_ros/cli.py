@@ -1,6 +1,6 @@
 """softgrip: drive a running gripper from the command line (no ros2 CLI needed).
 
-    softgrip grasp --diameter 0.04 --mass 0.2        # open around it; ENVELOPED, then:
+    softgrip grasp --diameter 0.04 --mass 0.02       # open around it; ENVELOPED, then:
     softgrip clamp                                    # ... clamp it: HOLDING
     softgrip release
     softgrip state --watch

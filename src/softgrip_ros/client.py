@@ -8,7 +8,7 @@ and ``result()``, ``cancel()`` it.
     rclpy.init()
     gripper = GripperClient(namespace="/g1")
     gripper.wait_until_ready(timeout_s=10.0)
-    gripper.envelop_clamp(diameter_m=0.04, mass_kg=0.2)
+    gripper.envelop_clamp(diameter_m=0.04, mass_kg=0.02)
     while gripper.state() is None or gripper.state().phase != gripper.state().ENVELOPED:
         time.sleep(0.05)          # open around the object: the arm places it now
     gripper.clamp()               # goes on with the envelop_clamp task, which ends HOLDING

@@ -9,7 +9,7 @@ Phases: IDLE -> OPENING -> ENVELOPED -> CLAMPING -> HOLDING -> RELEASING -> IDLE
   the object at the low edge of it), or the ``open_pressure_pa`` override. ENVELOPED once the
   estimate has settled there and the modelled D2 clears the object; it waits for the arm: a
   CLAMP command, or the automatic clamp after ``auto_clamp_delay_s`` (negative: never). Then
-  CLAMPING at the pressure of :class:`~softgrip_ros.model.grasp.ClampForceLaw` (or the
+  CLAMPING at the pressure of :class:`~softgrip_ros.model.force_law.ClampForceLaw` (or the
   ``clamp_pressure_pa`` override) and HOLDING once settled.
 - OPEN: OPENING to ``target_tip_spacing_m``, then ENVELOPED (held open; CLAMP may follow).
 - RELEASE: RELEASING vents until the chamber is near 0, then opens to the object plus margin
@@ -36,7 +36,7 @@ from softgrip_ros.checks import require_positive
 from softgrip_ros.control.pressure import ERROR_FAULTS, Fault, Source
 from softgrip_ros.control.safety import SAFETY_FAULTS
 from softgrip_ros.model.fidelity import FREE, Scene, cylinder_scene
-from softgrip_ros.model.grasp import ClampForceLaw
+from softgrip_ros.model.force_law import G_M_PER_S2, ClampForceLaw, ObjectKind, load_table
 from softgrip_ros.model.rod import Sheet
 
 HALTING_FAULTS = ERROR_FAULTS | Fault.REGULATOR | Fault.BUS_ERROR
@@ -110,6 +110,8 @@ class Plan:
     clamp_pa: float | None = None
     contact_pa: float | None = None
     release_step: str = ""
+    # the object the clamp force law reports the force on: (size m, ObjectKind)
+    held: tuple | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -269,7 +271,8 @@ class GraspStateMachine:
         self.scene_model = scene_model
         self._scenes = {}
         self.config = config or GraspConfig()
-        self.force_law = force_law or ClampForceLaw()
+        self.force_law = force_law or ClampForceLaw(load_table(kinematics.geometry.name,
+                                                               kinematics.model))
         self.state = GraspState(model_fidelity=kinematics.model)
         self.request = PressureRequest(0.0, Source.VENT)
         self.changes = 0  # counts every phase or request change
@@ -281,6 +284,7 @@ class GraspStateMachine:
         self._settled_since = None
         self._off_target_since = None
         self._contact_pa = 0.0
+        self._held = (0.0, ObjectKind.FLAT)
         self._open_pa = 0.0
         self._clamp_pa = 0.0
         self._release_step = ""
@@ -320,19 +324,21 @@ class GraspStateMachine:
                     f"{diameter_m * 1e3:.1f} mm")
         if not (math.isfinite(force_n) and force_n >= 0.0):
             return f"the force must be finite and >= 0 N, got {force_n}"
-        contact = self._contact_pressure(diameter_m)
-        most_n = self.force_law.normal_force_n(c.min_gauge_pa, contact)
+        kind = ObjectKind.FLAT if diameter_m <= c.pinch_max_diameter_m else ObjectKind.ROUND
+        law = self.force_law
+        contact = law.contact_pressure_pa(diameter_m, kind)
+        if math.isnan(contact):
+            return self._out_of_reach(diameter_m)
+        most_n = law.normal_force_n(c.min_gauge_pa, diameter_m, kind)
         if force_n > most_n:
             return (f"an effort of {force_n:.2f} N needs more vacuum than the limit "
                     f"{c.min_gauge_pa / 1e3:.0f} kPa allows at {diameter_m * 1e3:.1f} mm "
                     f"(at most {most_n:.2f} N)")
-        law = self.force_law
-        squeeze_pa = max(force_n / law.stiffness_n_per_pa, law.min_squeeze_pa)
-        clamp = max(contact - squeeze_pa, c.min_gauge_pa)
+        clamp = max(law.pressure_for_force(force_n, diameter_m, kind), c.min_gauge_pa)
         grasp = GraspRequest(GraspMode.PINCH if diameter_m <= c.pinch_max_diameter_m
                              else GraspMode.CLAMP, object_diameter_m=diameter_m)
         return Plan(Phase.CLAMPING, self._pressure(clamp), f"closing to {diameter_m * 1e3:.1f} mm",
-                    grasp=grasp, clamp_pa=clamp, contact_pa=contact)
+                    grasp=grasp, clamp_pa=clamp, contact_pa=contact, held=(diameter_m, kind))
 
     def hold_here(self, now: float, message: str) -> None:
         """Keep the present pressure, valves closed (a canceled gripper goal, as the
@@ -360,6 +366,7 @@ class GraspStateMachine:
         self._open_pa = plan.open_pa if plan.open_pa is not None else self._open_pa
         self._clamp_pa = plan.clamp_pa if plan.clamp_pa is not None else self._clamp_pa
         self._contact_pa = plan.contact_pa if plan.contact_pa is not None else self._contact_pa
+        self._held = plan.held if plan.held is not None else self._held
         self._release_step = plan.release_step
         self._enter(plan.phase, plan.pressure, now, plan.message)
         return ""
@@ -418,10 +425,9 @@ class GraspStateMachine:
             r, margin_m=0.0, check_size=False))
         if isinstance(held, str):
             return held
+        spacing = max(self.state.tip_spacing_m, self.kinematics.tip_spacing_range_m()[0])
         contact = (held.contact_pa
-                   if held is not None else self.kinematics.pressure_for_tip_spacing(
-                       max(self.state.tip_spacing_m,
-                           self.kinematics.tip_spacing_range_m()[0])))
+                   if held is not None else self.kinematics.pressure_for_tip_spacing(spacing))
         clamp = held.clamp_pa if held is not None else r.clamp_pressure_pa
         if clamp >= contact:
             return (f"clamp_pressure_pa {clamp:.0f} Pa does not squeeze: contact is at "
@@ -429,7 +435,8 @@ class GraspStateMachine:
         grasp = dataclasses.replace(running, object_diameter_m=r.object_diameter_m,
                                     object_mass_kg=r.object_mass_kg)
         return Plan(Phase.CLAMPING, self._pressure(clamp), "clamping", new_task=False, grasp=grasp,
-                    clamp_pa=clamp, contact_pa=contact)
+                    clamp_pa=clamp, contact_pa=contact,
+                    held=held.held if held is not None else (spacing, ObjectKind.ROUND))
 
     def _plan_open(self, r: GraspRequest) -> "Plan | str":
         problem = self._overrides(GraspMode.OPEN, r)
@@ -499,19 +506,33 @@ class GraspStateMachine:
             return (f"the object ({r.object_diameter_m * 1e3:.1f} mm plus {margin_m * 1e3:.0f} mm "
                     "margin) is wider "
                     f"than the gripper opens ({high * 1e3:.1f} mm)")
-        contact = self._contact_pressure(r.object_diameter_m)
-        clamp = (r.clamp_pressure_pa
-                 if not math.isnan(r.clamp_pressure_pa) else self.force_law.clamp_pressure_pa(
-                     r.object_mass_kg, contact, None if math.isnan(mu) else mu))
+        kind = ObjectKind.FLAT if GraspMode(r.mode) == GraspMode.PINCH else ObjectKind.ROUND
+        law = self.force_law
+        contact = law.contact_pressure_pa(r.object_diameter_m, kind)
+        if math.isnan(contact):
+            return self._out_of_reach(r.object_diameter_m)
+        mu = None if math.isnan(mu) else mu
+        clamp = (r.clamp_pressure_pa if not math.isnan(r.clamp_pressure_pa) else
+                 law.clamp_pressure_pa(r.object_mass_kg, r.object_diameter_m, kind, mu))
         if clamp < c.min_gauge_pa:
+            most_kg = (2.0 * (law.friction_coefficient if mu is None else mu) *
+                       law.normal_force_n(c.min_gauge_pa, r.object_diameter_m, kind) /
+                       (law.safety_factor * G_M_PER_S2))
             return (
-                f"holding {r.object_mass_kg:.3g} kg needs {clamp / 1e3:.1f} kPa, below the limit "
-                f"{c.min_gauge_pa / 1e3:.0f} kPa: too heavy for this gripper")
+                f"holding {r.object_mass_kg:.3g} kg needs {max(clamp, -1e9) / 1e3:.1f} kPa, "
+                f"below the limit {c.min_gauge_pa / 1e3:.0f} kPa: too heavy for this gripper (at "
+                f"most {most_kg:.3g} kg at {r.object_diameter_m * 1e3:.1f} mm with friction "
+                f"{law.friction_coefficient if mu is None else mu:g} and safety factor "
+                f"{law.safety_factor:g})")
         if clamp >= contact:
             return (f"clamp_pressure_pa {clamp:.0f} Pa does not squeeze: contact is at "
                     f"{contact:.0f} Pa")
         return Plan(Phase.CLAMPING, self._pressure(clamp), "pinching", grasp=r, clamp_pa=clamp,
-                    contact_pa=contact)
+                    contact_pa=contact, held=(r.object_diameter_m, kind))
+
+    def _out_of_reach(self, diameter_m: float) -> str:
+        return (f"the clamp force law has no force for a {diameter_m * 1e3:.1f} mm object: the "
+                "opened fingers cannot take it level with their tip chambers")
 
     def _overrides(self, mode: GraspMode, r: GraspRequest) -> str:
         """The pressure overrides within the limits, and none that contradicts the mode."""
@@ -557,11 +578,6 @@ class GraspStateMachine:
         return min(
             self.kinematics.pressure_for_tip_spacing(tip_spacing_m) +
             self.config.pressure_tolerance_pa, self.config.max_gauge_pa)
-
-    def _contact_pressure(self, diameter_m: float) -> float:
-        low, _ = self.kinematics.tip_spacing_range_m()
-        return (self.kinematics.contact_pressure_pa
-                if diameter_m <= low else self.kinematics.pressure_for_tip_spacing(diameter_m))
 
     # ---- time ---------------------------------------------------------------------------------
     def update(self, now: float, estimate_gauge_pa: float, estimate_std_pa: float = math.nan,
@@ -636,7 +652,7 @@ class GraspStateMachine:
         # sensors both stale) has a force nobody knows, not none
         holding = s.phase in (Phase.CLAMPING, Phase.HOLDING)
         s.clamp_force_n = (0.0 if not holding else math.nan if not math.isfinite(estimate_gauge_pa)
-                           else self.force_law.normal_force_n(estimate_gauge_pa, self._contact_pa))
+                           else self.force_law.normal_force_n(estimate_gauge_pa, *self._held))
         return s
 
     def _check_hold(self, now: float, estimate: float) -> None:

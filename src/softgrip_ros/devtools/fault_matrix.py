@@ -4,7 +4,7 @@ chamber pressure.
 
 For each (fault, phase) :func:`run_case`:
 
-1. drives an ENVELOP_CLAMP 40 mm, 0.2 kg grasp to the phase and injects the fault there (IDLE:
+1. drives an ENVELOP_CLAMP 40 mm, 0.02 kg grasp to the phase and injects the fault there (IDLE:
    before the grasp starts; OPENING, CLAMPING and RELEASING: as the phase begins);
 2. goes on with the grasp as an arm would (CLAMP once ENVELOPED, RELEASE after 0.5 s of
    HOLDING), so that a fault that only shows once the pressure moves is exercised, and watches
@@ -281,7 +281,7 @@ class Rig:
 
     def grasp_cycle(self, timeout_s: float = PHASE_TIMEOUT_S) -> str:
         """A full grasp, ENVELOP_CLAMP 40 mm to HOLDING to IDLE; '' or where it failed."""
-        self.send("ENVELOP_CLAMP", object_diameter_m=0.04, object_mass_kg=0.2)
+        self.send("ENVELOP_CLAMP", object_diameter_m=0.04, object_mass_kg=0.02)
         if not self.wait_phase("ENVELOPED", timeout_s):
             return f"ENVELOPED not reached ({self.last_message()})"
         time.sleep(0.2)
@@ -321,7 +321,7 @@ def _script_until(rig: Rig, phase: str) -> bool:
     """Drive the grasp to ``phase`` (as it begins); False when it could not get there."""
     if phase == "IDLE":
         return rig.phase() == "IDLE"
-    rig.send("ENVELOP_CLAMP", object_diameter_m=0.04, object_mass_kg=0.2)
+    rig.send("ENVELOP_CLAMP", object_diameter_m=0.04, object_mass_kg=0.02)
     if phase == "OPENING":
         return rig.wait_phase("OPENING")
     if not rig.wait_phase("ENVELOPED"):
@@ -350,7 +350,7 @@ def _script_on(rig: Rig, phase: str, deadline: float) -> None:
         if time.monotonic() >= deadline or rig.phase() == "FAULT":
             return
         if step == "start":
-            rig.send("ENVELOP_CLAMP", object_diameter_m=0.04, object_mass_kg=0.2)
+            rig.send("ENVELOP_CLAMP", object_diameter_m=0.04, object_mass_kg=0.02)
         elif step == "clamp":
             if not rig.wait_phase("ENVELOPED", deadline - time.monotonic()):
                 return

@@ -6,7 +6,7 @@ see nodes.grasp_actions), pressure/estimate, controller/status.
 Out: pressure/command (on every change, and refreshed every ``command_refresh_s`` so that the
 controller's command timeout never trips during a long hold), grasp_state (GripperState) on
 every change and at ``state_rate_hz``, /diagnostics. The state machine is
-softgrip_ros.control.grasp_fsm; the clamp force law is softgrip_ros.model.grasp.
+softgrip_ros.control.grasp_fsm; the clamp force law is softgrip_ros.model.force_law.
 """
 from __future__ import annotations
 

@@ -3,13 +3,15 @@ the same, and tests/test_parameters_file.py checks that they agree), and how the
 each core's configuration: a spec with a ``field`` sets that field of the core's dataclass."""
 from __future__ import annotations
 
+import dataclasses
+
 from softgrip_ros.control.grasp_fsm import GraspConfig
 from softgrip_ros.config_paths import config_file
 from softgrip_ros.control.pressure import PressureControlConfig
 from softgrip_ros.estimation.estimator import EstimatorConfig, SensorConfig
 from softgrip_ros.model.fidelity import CHOICES as FIDELITY_CHOICES
 from softgrip_ros.model import plant_file
-from softgrip_ros.model.grasp import ClampForceLaw
+from softgrip_ros.model.force_law import ClampForceLaw, load_table
 from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, replace_fields
 from softgrip_ros.runtime.rod_solver import SOLVER_PROCESS_NICE_INCREMENT
 
@@ -305,7 +307,8 @@ KINEMATICS_SPECS = [
 ]
 
 # ---- grasp_manager ------------------------------------------------------------------------------
-_G, _F = GraspConfig(), ClampForceLaw()
+_G = GraspConfig()
+_F = {f.name: f.default for f in dataclasses.fields(ClampForceLaw) if f.name != "table"}
 GRASP_FSM_SPECS = [
     ParamSpec("max_gauge_pressure_pa", _G.max_gauge_pa, "highest pressure a command may ask "
               "for", "Pa", 1e3, 100e3, field="max_gauge_pa"),
@@ -334,13 +337,14 @@ GRASP_FSM_SPECS = [
     ParamSpec("hold_error_time", _G.hold_error_time_s, "... for this long: FAULT", "s", 0.01, 10.0,
               field="hold_error_time_s"),
 ]
-CLAMP_FORCE_SPECS = [
-    ParamSpec("clamp_stiffness_n_per_pa", _F.stiffness_n_per_pa, "clamp force law: normal force "
-              "per Pa below contact", "N/Pa", 1e-6, 1e-2, field="stiffness_n_per_pa"),
-    ParamSpec("friction_coefficient", _F.friction_coefficient, "friction when a command gives "
+CLAMP_FORCE_SPECS = [  # the clamp force law itself is the gripper model's table
+    ParamSpec("friction_coefficient", _F["friction_coefficient"], "friction when a command gives "
               "none", "", 0.05, 2.0, field="friction_coefficient"),
-    ParamSpec("safety_factor", _F.safety_factor, "clamp force over what the weight needs", "", 1.0,
-              10.0, field="safety_factor"),
+    ParamSpec("safety_factor", _F["safety_factor"], "clamp force over what the weight needs", "",
+              1.0, 10.0, field="safety_factor"),
+    ParamSpec("min_squeeze_pa", _F["min_squeeze_pa"], "a clamp presses at least this far below "
+              "the contact pressure, even for a weightless object", "Pa", 0.0, 50e3,
+              field="min_squeeze_pa"),
 ]
 GRASP_MANAGER_SPECS = [
     gripper_model_spec(),
@@ -366,7 +370,7 @@ GRASP_MANAGER_SPECS = [
     ParamSpec("goal_tolerance_m", 0.005, "a gripper goal's position counts as reached within "
               "this of the modelled D2 (an opening aims pressure_tolerance_pa above the goal's "
               "pressure: some mm)", "m", 1e-4, 0.05),
-    ParamSpec("default_effort_n", 2.0, "the closing force per finger of a gripper goal whose "
+    ParamSpec("default_effort_n", 1.0, "the closing force per finger of a gripper goal whose "
               "max_effort is 0", "N", 0.01, 20.0),
     ParamSpec("prefix", "", "put before the tip_spacing joint name of ParallelGripperCommand, "
               "as the URDF's prefix", allow_empty=True),
@@ -380,4 +384,7 @@ def grasp_config(values: dict) -> GraspConfig:
 
 
 def clamp_force_law(values: dict) -> ClampForceLaw:
-    return replace_fields(_F, CLAMP_FORCE_SPECS, values)
+    """The gripper model's tabulated law (``gripper_model``, ``fidelity``) with these parameters'
+    friction and safety; ValueError when the model has no table and none can be made."""
+    return ClampForceLaw(load_table(values["gripper_model"], values["fidelity"]),
+                         **{s.field: values[s.name] for s in CLAMP_FORCE_SPECS})
