@@ -27,7 +27,9 @@ STANDARD_SUFFIXES = ("/describe_parameters", "/get_parameter_types", "/get_param
 
 
 def table() -> dict:
-    """{node: {kind: {name: type}}, ...} and the rows marked 'alone', from the README."""
+    """{node: {"always" | "alone" | "world": {(kind, name): type}}} from the README: the rows
+    marked 'alone' exist when the node runs alone, those marked 'with world.scene' when the
+    simulated device has a physics world."""
     lines = README.split("| node (executable) | kind | name | type |",
                          1)[1].split("\n\n", 1)[0].splitlines()[2:]
     rows, node = {}, None
@@ -35,14 +37,15 @@ def table() -> dict:
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         if cells[0]:
             node = cells[0].strip("`")
-            rows.setdefault(node, {"always": {}, "alone": {}})
+            rows.setdefault(node, {"always": {}, "alone": {}, "world": {}})
         if not cells[2]:
             continue
-        kind, _, alone = cells[1].partition(", ")
+        kind, _, qualifier = cells[1].partition(", ")
+        bucket = {"": "always", "alone": "alone", "with world.scene": "world"}[qualifier]
         for name in re.findall(r"`([^`]+)`", cells[2]):
             full = f"/{node}/{name[2:]}" if name.startswith("~/") else (
                 name if name.startswith("/") else f"/{name}")
-            rows[node]["alone" if alone else "always"][(KINDS[kind], full)] = cells[3].strip("`")
+            rows[node][bucket][(KINDS[kind], full)] = cells[3].strip("`")
     return rows
 
 
@@ -145,6 +148,29 @@ def test_each_node_alone_has_the_rows_of_the_table(namespaced_context, node_name
     finally:
         if hasattr(node, "close"):
             node.close()
+        node.destroy_node()
+        probe.destroy_node()
+
+
+@pytest.mark.ros
+def test_the_simulated_device_with_a_world_has_the_world_rows_too(namespaced_context):
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from softgrip_ros.nodes.sim_device import SimDeviceNode
+
+    rclpy_context, namespace = namespaced_context
+    node = SimDeviceNode(context=rclpy_context, parameter_overrides=[
+        Parameter("can.channel", value=unique("readme")),
+        Parameter("world.scene", value=str(REPO_ROOT / "config" / "scenes" / "empty.yaml"))])
+    probe = Node("readme_probe", context=rclpy_context)
+    try:
+        with spinning(rclpy_context, node, probe, threads=2):
+            rows = table()["sim_device"]
+            expected = {**rows["always"], **rows["alone"], **rows["world"]}
+            assert rows["world"] and wait_for_graph(probe, "sim_device", namespace,
+                                                    expected) == expected
+    finally:
+        node.close()
         node.destroy_node()
         probe.destroy_node()
 

@@ -161,7 +161,7 @@ def test_the_arm_lifts_at_the_acceleration_asked_and_stops_on_target():
 
 
 def test_a_held_cylinder_is_lifted_and_a_heavy_one_is_dropped():
-    """A 40 mm cylinder presented level with the tip chambers (a fixture holds it until the
+    """A 40 mm cylinder presented level with the tip chambers (its weight borne until the
     fingers have clamped at -60 kPa): 10 g rides a 1 g lift; 400 g, many times what the fingers
     hold, falls out, and the truth says so."""
     geometry, calibration = gripper_models.resolve("type_II")

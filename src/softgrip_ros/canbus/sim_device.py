@@ -427,7 +427,7 @@ class SimulatedDevice:
         to the world's bending (under the lock)."""
         world = self.world
         world.set_pressure(float(self._state.chamber_pa[0] - P_ATM_PA))
-        if world.advance_to(now - self._started_at):
+        if world.advance_to(now - self._started_at - world.time_offset_s):
             offsets = np.zeros(self.config.plant.channels)
             offsets[0] = world.volume_offset_m3()
             if self._state.volume_offset_m3 is None or not np.array_equal(
@@ -450,6 +450,17 @@ class SimulatedDevice:
             raise ValueError("no physics world: the device was started without a scene")
         with self._lock:
             self.world.play(move)
+
+    def replace_world(self, world) -> None:
+        """Simulate ``world`` from now on (its clock starts at the device's present time); the
+        chamber's air keeps its mass, its volume offset back to the new world's."""
+        with self._lock:
+            now = self._last_tick - self._started_at
+            world.time_s = world.steps = 0
+            world.time_offset_s = now
+            self.world = world
+            offsets = np.zeros(self.config.plant.channels)
+            self._state = self.plant.with_volume_offset(self._state, offsets)
 
     def world_load(self) -> tuple[float, float]:
         """(CPU seconds spent stepping the world, world seconds simulated); zeros without one."""

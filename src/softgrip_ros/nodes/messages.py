@@ -205,10 +205,11 @@ def world_truth(truth, header: Header) -> tuple:
     w, qx, qy, qz = truth.object_quaternion_wxyz
     pose = PoseStamped(header=header, pose=Pose(position=Point(x=x, y=y, z=z),
                                                 orientation=Quaternion(w=w, x=qx, y=qy, z=qz)))
-    contacts = SimContacts(header=header, left_normal_force_n=truth.normal_force_n[0],
-                           right_normal_force_n=truth.normal_force_n[1],
-                           left_touching=truth.touching[0], right_touching=truth.touching[1],
-                           object_on_floor=truth.on_floor)
+    contacts = SimContacts(header=header, left_normal_force_n=float(truth.normal_force_n[0]),
+                           right_normal_force_n=float(truth.normal_force_n[1]),
+                           left_touching=bool(truth.touching[0]),
+                           right_touching=bool(truth.touching[1]),
+                           object_on_floor=bool(truth.on_floor))
     state = truth.state
     held = (GraspTruthState.IN_HAND, GraspTruthState.LIFTED, GraspTruthState.SLIPPING)
     grasp = GraspTruth(header=header, state=int(state), object_in_hand=state in held,
@@ -216,6 +217,11 @@ def world_truth(truth, header: Header) -> tuple:
                            state == GraspTruthState.SLIPPING and not truth.on_floor),
                        slipping=state == GraspTruthState.SLIPPING,
                        dropped=state == GraspTruthState.DROPPED,
-                       slip_distance_m=truth.slip_distance_m, arm_move=truth.arm_move,
-                       world_time_s=truth.time_s)
+                       slip_distance_m=float(truth.slip_distance_m), arm_move=truth.arm_move,
+                       world_time_s=float(truth.time_s), world_cpu_s=float(truth.cpu_s),
+                       scene=truth.scene,
+                       base_position_m=[float(v) for v in truth.base_position_m],
+                       left_hinge_angles_rad=list(truth.hinge_angles_rad[0]),
+                       right_hinge_angles_rad=list(truth.hinge_angles_rad[1]),
+                       gauge_pressure_pa=float(truth.gauge_pressure_pa))
     return pose, contacts, grasp

@@ -95,7 +95,10 @@ class SimDeviceNode(Node):
                 self.device.set_fault(name, values[f"fault.{name}"])
             self.add_on_set_parameters_callback(self._on_set)
             if world is not None:
-                self.truth = WorldTruthPublisher(self, self.device, values["world.truth_rate_hz"])
+                self.truth = WorldTruthPublisher(self, self.device, values["world.truth_rate_hz"],
+                                                 lambda path: make_world_from(
+                                                     dict(values, **{"world.scene": path}),
+                                                     truth.parameters))
             self.get_logger().info(
                 f"simulated device on {values['can.interface']}:{values['can.channel']}" +
                 (f", world: scene {world.scene.name!r}" if world is not None else ""))
@@ -141,14 +144,16 @@ def make_world_from(values: dict, plant):
 
 class WorldTruthPublisher:
     """The world's ground truth on sim/object_pose, sim/contacts and sim/grasp_truth at
-    ``rate_hz``, and the service sim/play_arm_move."""
+    ``rate_hz``, and the services sim/play_arm_move and sim/load_scene (``make_world(path)``
+    builds a scene's world)."""
 
-    def __init__(self, node: Node, device: SimulatedDevice, rate_hz: float):
+    def __init__(self, node: Node, device: SimulatedDevice, rate_hz: float, make_world):
         from geometry_msgs.msg import PoseStamped
 
         from softgrip_interfaces.msg import GraspTruth, SimContacts
-        from softgrip_interfaces.srv import PlayArmMove
-        self.node, self.device = node, device
+        from softgrip_interfaces.srv import LoadScene, PlayArmMove
+        self.node, self.device, self.make_world = node, device, make_world
+        node.create_service(LoadScene, "sim/load_scene", self._load)
         self.publishers = (node.create_publisher(PoseStamped, "sim/object_pose", 10),
                            node.create_publisher(SimContacts, "sim/contacts", 10),
                            node.create_publisher(GraspTruth, "sim/grasp_truth", 10))
@@ -163,6 +168,20 @@ class WorldTruthPublisher:
         header = Header(stamp=self.node.get_clock().now().to_msg(), frame_id="world")
         for publisher, message in zip(self.publishers, world_truth(truth, header)):
             publish(self.node, publisher, message)
+
+    def _load(self, request, response):
+        if not request.scene_file:
+            response.accepted, response.message = False, "scene_file is empty"
+            return response
+        try:
+            world = self.make_world(request.scene_file)
+        except ValueError as error:
+            response.accepted, response.message = False, str(error)
+            return response
+        self.device.replace_world(world)
+        response.accepted, response.message = True, ""
+        self.node.get_logger().info(f"world: scene {world.scene.name!r}")
+        return response
 
     def _play(self, request, response):
         try:

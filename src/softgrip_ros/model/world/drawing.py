@@ -25,6 +25,18 @@ class Snapshot:
     caption: str
 
 
+def snapshot_of_truth(finger, scene, truth, object_position_m, object_quaternion_wxyz,
+                      caption: str) -> Snapshot:
+    """A :class:`Snapshot` from the ground-truth messages' fields (sim/grasp_truth: the base, the
+    hinge angles, the pressure; sim/object_pose: the object)."""
+    w, _, y, _ = object_quaternion_wxyz
+    pitch = 2.0 * math.atan2(y, w) if all(math.isfinite(q) for q in (w, y)) else 0.0
+    return Snapshot(tuple(truth.base_position_m),
+                    np.array([truth.left_hinge_angles_rad, truth.right_hinge_angles_rad]),
+                    finger.bulges_m(truth.gauge_pressure_pa),
+                    tuple(object_position_m) if scene.object else None, pitch, caption)
+
+
 def snapshot(world, caption: str) -> Snapshot:
     """The world's present state as a :class:`Snapshot`."""
     truth = world.truth()
@@ -67,20 +79,27 @@ def draw(ax, finger, scene, shot: Snapshot) -> None:
     ax.set_xlabel("x (mm)")
 
 
-def draw_sequence(path, finger, scene, shots, title: str = "") -> None:
-    """Side views of ``shots`` in a row, saved to ``path`` (PNG)."""
+def draw_sequence(path, finger, scene, shots, title: str = "", follow: bool = False) -> None:
+    """Side views of ``shots`` in a row, saved to ``path`` (PNG); ``follow``: each view centred on
+    the gripper where it is (the arm may have moved it), else one frame for all."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    figure, axes = plt.subplots(1, len(shots), figsize=(3.2 * len(shots), 3.8), sharey=True)
+    figure, axes = plt.subplots(1, len(shots), figsize=(3.2 * len(shots), 3.8),
+                                sharey=not follow)
     axes = np.atleast_1d(axes)
     xs = [1e3 * s.base_m[0] for s in shots]
     zs = [1e3 * s.base_m[2] for s in shots]
     for ax, shot in zip(axes, shots):
         draw(ax, finger, scene, shot)
-        ax.set_xlim(min(xs) - 110, max(xs) + 110)
-        ax.set_ylim(-5, max(zs) + 25)
+        if follow:
+            x, _, z = (1e3 * v for v in shot.base_m)
+            ax.set_xlim(x - 90, x + 90)
+            ax.set_ylim(z - 190, z + 15)
+        else:
+            ax.set_xlim(min(xs) - 110, max(xs) + 110)
+            ax.set_ylim(-5, max(zs) + 25)
     axes[0].set_ylabel("z (mm)")
     if title:
         figure.suptitle(title, fontsize=10)

@@ -15,7 +15,7 @@ the fingers' width. Lengths in m, masses in kg, times in s::
       friction: 0.5            # Coulomb, object against the fingers and the floor
       position_m: [0, 0, 0.02] # its centre at the start (default: on the floor at x = y = 0)
       fixed: false             # true: held in place (a post; the force-law checks use it)
-      held_until: lift         # a fixture holds it where it starts until this move begins
+      held_until: lift         # its weight borne (it floats where it is) until this move begins
     arm:
       start_m: [0, 0, 0.25]    # the gripper base (the frame of tip_pose) at the start
       moves:                   # named; each plays when asked (sim/arm_move), one after another

@@ -85,9 +85,13 @@ class WorldTruth:
     normal_force_n: tuple  # (left, right): the object's contacts with each finger
     touching: tuple  # (left, right)
     on_floor: bool
-    slip_distance_m: float  # the object's largest drift relative to the base since the move began
+    slip_distance_m: float  # its largest drift from the tip chambers since the arm moved it
     base_position_m: tuple
     arm_move: str  # the move being played, '' when the arm rests
+    cpu_s: float = 0.0  # CPU time spent stepping this world
+    scene: str = ""
+    hinge_angles_rad: tuple = ((), ())  # (left, right), each finger's hinges (for drawings)
+    gauge_pressure_pa: float = 0.0
 
 
 def _require_mujoco():
@@ -196,6 +200,11 @@ class ArmPlayer:
     def moving(self) -> bool:
         return bool(self._queue)
 
+    @property
+    def carrying(self) -> bool:
+        """Whether the step playing moves the base (a wait does not)."""
+        return bool(self._queue) and not isinstance(self._queue[0][1].step, Wait)
+
 
 # ---- the model ----------------------------------------------------------------------------------
 def _fmt(values) -> str:
@@ -301,14 +310,20 @@ def build_mjcf(scene: Scene, finger: PseudoRigidFinger, timestep_s: float = DEFA
     return _document(scene, bodies, assets, timestep_s)
 
 
+# the object's contacts: as stiff as a 1 ms step allows (time constant 2 steps): MuJoCo's
+# default (20 ms) let a held object creep down its fingers under a steady load, and squeezed a
+# 0.1 mm sheet through them
+_OBJECT_SOLREF = "0.002 1"
+_OBJECT_SOLIMP = "0.95 0.99 0.0005"
+_OPTION = 'cone="elliptic" impratio="10"'
 _ARMATURE = 2e-6  # kg m^2 on each hinge: bounds the stiffest mode for the time step
 
 
 def _document(scene: Scene, fingers, assets, timestep_s: float) -> str:
     lines = ['<mujoco model="softgrip_world">',
              '<compiler angle="radian" inertiafromgeom="auto"/>',
-             f'<option timestep="{timestep_s:.9g}" integrator="implicitfast" cone="elliptic" '
-             'impratio="10" gravity="0 0 -9.80665"/>',
+             f'<option timestep="{timestep_s:.9g}" integrator="implicitfast" {_OPTION} '
+             'gravity="0 0 -9.80665"/>',
              '<size memory="4M"/>']
     if assets:
         lines += ['<asset>', *assets, '</asset>']
@@ -336,8 +351,6 @@ def _document(scene: Scene, fingers, assets, timestep_s: float) -> str:
         lines.append(_object_geom(obj))
         lines.append('</body>')
     lines.append('</worldbody>')
-    if obj is not None and obj.held_until:
-        lines += ['<equality>', '<weld name="fixture" body1="object"/>', '</equality>']
     lines.append('</mujoco>')
     return "\n".join(lines)
 
@@ -348,13 +361,14 @@ def _object_geom(obj) -> str:
         shape = f'type="box" size="{0.5 * sx:.9g} {0.5 * sy:.9g} {0.5 * sz:.9g}"'
     elif obj.shape == ObjectShape.SPHERE:
         shape = f'type="sphere" size="{0.5 * sx:.9g}"'
-    else:
-        shape = (f'type="cylinder" size="{0.5 * sx:.9g} {0.5 * sy:.9g}" '
+    else:  # a capsule: its ends lie beyond the fingers, and its contacts are MuJoCo's analytic
+        # ones, where a cylinder's (general convex) gave one point that hopped, and chattered
+        shape = (f'type="capsule" size="{0.5 * sx:.9g} {max(0.5 * (sy - sx), 1e-4):.9g}" '
                  'quat="0.7071068 0.7071068 0 0"')
     return (f'<geom name="object" {shape} mass="{obj.mass_kg:.9g}" '
             f'friction="{obj.friction:.9g} 0.005 0.0001" priority="1" condim="4" '
             f'contype="{_OBJECT_BITS[0]}" conaffinity="{_OBJECT_BITS[1]}" '
-            'solref="0.004 1" solimp="0.95 0.99 0.0005" rgba="0.2 0.45 0.8 1"/>')
+            f'solref="{_OBJECT_SOLREF}" solimp="{_OBJECT_SOLIMP}" rgba="0.2 0.45 0.8 1"/>')
 
 
 # ---- the world ----------------------------------------------------------------------------------
@@ -415,6 +429,10 @@ class GripperWorld:
             self._finger_of_geom[geom] = LEFT if geom_name.startswith("left_") else RIGHT
         self._object_geom = name(mujoco.mjtObj.mjOBJ_GEOM, "object")
         self._object_body = name(mujoco.mjtObj.mjOBJ_BODY, "object")
+        if scene.object is not None and scene.object.held_until:
+            # its weight borne until the move: it floats where it is, free to be centred by the
+            # closing fingers (a weld stored the closing's friction and let it go at once)
+            model.body_gravcomp[self._object_body] = 1.0
         self._floor_geom = name(mujoco.mjtObj.mjOBJ_GEOM, "floor")
         self.first_mode_rad_s = self._damp(damping_ratio)
         self._table = self._drive_table()
@@ -438,6 +456,8 @@ class GripperWorld:
         mujoco.mj_forward(model, self.data)
         self._check_start()
         self.time_s = 0.0
+        # the owner's clock when this world's began (a simulated device replacing its world)
+        self.time_offset_s = 0.0
         self.cpu_s = 0.0
         self.steps = 0
         self._rest_z = (float(self.data.xpos[self._object_body][2]) if self._object_body >= 0
@@ -446,6 +466,7 @@ class GripperWorld:
         self._slip_distance = 0.0
         self._was_held = False
         self._dropped = False
+        self._volume_offset = 0.0
 
     def _damp(self, damping_ratio: float) -> float:
         """Damp every hinge by its stiffness times 2 zeta / omega_1, omega_1 the first mode of a
@@ -513,14 +534,12 @@ class GripperWorld:
     # ---- arm -----------------------------------------------------------------------------------
     def play(self, move: str) -> None:
         """Queue the scene's arm move ``move``; ValueError when the scene has none so named. The
-        move the object is ``held_until`` lets it go (the fixture opens)."""
+        move the object is ``held_until`` lets it go (its weight is no longer borne)."""
         self.arm.play(move, self.time_s)
         obj = self.scene.object
-        if obj is not None and obj.held_until == move and self.model.neq:
-            self.data.eq_active[0] = 0
-        if self._slip_reference is None and self.in_hand():
-            self._slip_reference = self._object_in_base()
-            self._slip_distance = 0.0
+        if obj is not None and obj.held_until == move:
+            self.model.body_gravcomp[self._object_body] = 0.0
+
 
     def _set_arm(self, now_s: float) -> str:
         position, velocity, move = self.arm.at(now_s)
@@ -544,6 +563,8 @@ class GripperWorld:
         if taken:
             self._set_arm(self.time_s)
             self.steps += taken
+            follow = 1.0 - math.exp(-taken * self.timestep_s * 0.5 * self.first_mode_rad_s)
+            self._volume_offset += follow * (self._contact_volume_m3() - self._volume_offset)
             self._track()
         self.cpu_s += time.thread_time() - started
         return taken
@@ -576,7 +597,12 @@ class GripperWorld:
         negative for fingers held back from opening, positive for fingers held open under
         vacuum. It counts the bending the contacts impose, each hinge's constraint torque over
         its stiffness, not the fingers' lag behind a changing pressure: the chambers' V(p) is
-        the quasi-static law of free fingers, and the world must not change it."""
+        the quasi-static law of free fingers, and the world must not change it. The torques
+        are followed with the fingers' own response time (2 / omega_1): a contact's impulse
+        does not move the fingers' walls, and so the air, within one step."""
+        return self._volume_offset
+
+    def _contact_volume_m3(self) -> float:
         finger = self.finger
         held_back = self.data.qfrc_constraint[self._hinge_dof] / finger.hinge_stiffness_nm_per_rad
         per_segment = np.array([finger.segment_angles_of_hinges(row) for row in held_back])
@@ -597,7 +623,7 @@ class GripperWorld:
             other = contact.geom2 if contact.geom1 == obj else contact.geom1
             self._mujoco.mj_contactForce(self.model, data, index, self._force)
             if other == self._floor_geom:
-                on_floor = on_floor or self._force[0] > TOUCH_FORCE_N
+                on_floor = on_floor or bool(self._force[0] > TOUCH_FORCE_N)
             elif self._finger_of_geom[other] >= 0:
                 forces[self._finger_of_geom[other]] += self._force[0]
         return forces, on_floor
@@ -607,7 +633,11 @@ class GripperWorld:
         return bool(np.all(forces > TOUCH_FORCE_N))
 
     def _object_in_base(self) -> np.ndarray:
-        return (self.data.xpos[self._object_body] - self.data.xpos[self._base_body]).copy()
+        """The object's position relative to the hand: the middle between the two tip chambers'
+        faces, which carry it (a drift of the object from there is slip; the fingers flexing
+        under its weight is not)."""
+        faces = self.data.site_xpos[self._faces[:, CHAMBER_COUNT - 1]]
+        return (self.data.xpos[self._object_body] - faces.mean(axis=0)).copy()
 
     def _track(self) -> None:
         """Slip and drop bookkeeping after a batch of steps."""
@@ -619,6 +649,10 @@ class GripperWorld:
             self._was_held, self._dropped = True, False
         elif self._was_held and not any(forces > TOUCH_FORCE_N):
             self._dropped, self._was_held = True, False
+        if held and self._slip_reference is None and self.arm.carrying:
+            # slip counts from the first move that carries the object
+            self._slip_reference = self._object_in_base()
+            self._slip_distance = 0.0
         if held and self._slip_reference is not None:
             drift = float(np.linalg.norm(self._object_in_base() - self._slip_reference))
             self._slip_distance = max(self._slip_distance, drift)
@@ -632,7 +666,8 @@ class GripperWorld:
         move = self.arm.at(self.time_s)[2]
         if self._object_body < 0:
             return WorldTruth(self.time_s, GraspTruthState.FREE, (math.nan,) * 3,
-                              (math.nan,) * 4, (0.0, 0.0), (False, False), False, 0.0, base, move)
+                              (math.nan,) * 4, (0.0, 0.0), (False, False), False, 0.0, base, move,
+                              self.cpu_s, self.scene.name, self._hinges(), self.pressure_pa)
         forces, on_floor = self.contact_forces()
         touching = tuple(bool(f > TOUCH_FORCE_N) for f in forces)
         held = all(touching)
@@ -658,7 +693,11 @@ class GripperWorld:
             object_quaternion_wxyz=tuple(float(v) for v in data.xquat[self._object_body]),
             normal_force_n=(float(forces[0]), float(forces[1])), touching=touching,
             on_floor=on_floor, slip_distance_m=self._slip_distance, base_position_m=base,
-            arm_move=move)
+            arm_move=move, cpu_s=self.cpu_s, scene=self.scene.name,
+            hinge_angles_rad=self._hinges(), gauge_pressure_pa=self.pressure_pa)
+
+    def _hinges(self) -> tuple:
+        return tuple(tuple(float(v) for v in row) for row in self.hinge_angles())
 
     # ---- shapes, for the tests and drawings -----------------------------------------------------
     def hinge_angles(self) -> np.ndarray:
