@@ -273,13 +273,39 @@ def test_bench_speed_accuracy_quick_json_runs_through_and_reports_every_key():
 @pytest.mark.ros
 @pytest.mark.slow
 def test_demo_grasps_with_the_controller_executable_and_exits_cleanly(tmp_path):
-    plot = tmp_path / "demo.png"
-    result = run("scripts/demo_grasp.py", "--plot", str(plot), timeout=300)
+    plot, side_view = tmp_path / "demo.png", tmp_path / "world.png"
+    result = run("scripts/demo_grasp.py", "--plot", str(plot), "--world-plot", str(side_view),
+                 timeout=300)
     assert result.returncode == 0, result.stdout + result.stderr
     for phase in ("reached ENVELOPED", "reached HOLDING", "reached IDLE"):
         assert phase in result.stdout, result.stdout
-    assert plot.stat().st_size > 10_000
+    assert "the world after a 0.2 m lift at 1 g: object" in result.stdout
+    assert plot.stat().st_size > 10_000 and side_view.stat().st_size > 10_000
     assert "Traceback" not in result.stderr
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_bench_grasp_quick_json_judges_each_grasp_by_the_world():
+    """Three grasps through the installed controller with the world: every key, a grasp past the
+    rated mass refused at the command, the world's figures measured, and no node of the suite
+    reading the ground truth (the running graph)."""
+    result = run("scripts/bench_grasp.py", "--quick", "--json", timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    figures = strict_loads(result.stdout)
+    for key in ("grasps", "success_rate", "success_rate_by_class", "false_holding_reports",
+                "world_cpu_pct", "free_bending_max_err_mm"):
+        assert key in figures, key
+    grasps = figures["grasps"]
+    assert len(grasps) == 3 and {g["outcome"] for g in grasps} <= {
+        "held", "slipped", "dropped", "refused", "failed"}
+    overweight = [g for g in grasps if g["mass_kg"] > g["rated_mass_kg"]]
+    assert overweight and all(g["outcome"] == "refused" and "too heavy" in g["message"]
+                              for g in overweight)
+    assert all(g["outcome"] != "failed" for g in grasps), grasps
+    assert 0.0 < figures["world_cpu_pct"] < 100.0
+    assert figures["free_bending_max_err_mm"] < 1.0
+    assert figures["product_sim_subscribers"] == []
 
 
 def _bench_identify_module():
