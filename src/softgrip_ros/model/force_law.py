@@ -23,7 +23,8 @@ says so; the grasp manager refuses pressures below its limit.
 
 The tables of the built-in gripper models are in ``config/clamp_force/`` (written by
 ``scripts/build_force_tables.py``; tests check their inputs hash against the code and the
-models); a user's calibration gets its table computed on first use and cached beside it.
+models); a user's calibration gets its table computed on first use, coarser (``USER_*``), and
+cached beside it.
 """
 from __future__ import annotations
 
@@ -49,6 +50,10 @@ PRESSURES_PA = tuple(np.arange(-100e3, 50e3 + 1.0, 2.5e3))
 ROUND_SIZES_M = (0.002, 0.005, 0.01, 0.015, 0.02, 0.03, 0.04, 0.05, 0.06, 0.07, 0.08, 0.1, 0.12)
 FLAT_SIZES_M = (1e-4, 5e-4, 0.001, 0.002, 0.003, 0.005, 0.01, 0.02)
 ROD_ELEMENTS = 32
+# a user's calibration gets its table at first use, coarser, so that a node starts in seconds:
+# 8 elements per segment (L2's default) and 5 kPa steps (about 7 s here)
+USER_ROD_ELEMENTS = 8
+USER_PRESSURES_PA = tuple(np.arange(-100e3, 50e3 + 1.0, 5e3))
 # the grasp manager's defaults, which place a round object (see the module docstring)
 ENVELOP_MARGIN_M = 0.01
 PRESSURE_TOLERANCE_PA = 1.5e3
@@ -135,13 +140,15 @@ class ForceTable:
 
 
 # ---- the computation ---------------------------------------------------------------------------
-def inputs_hash(geometry, calibration, bending: str, finger_width_m: float) -> str:
-    """What a table depends on: the model, the law, the width, the grid and this code's version."""
+def inputs_hash(geometry, calibration, bending: str, finger_width_m: float,
+                elements: int = ROD_ELEMENTS, pressures_pa=PRESSURES_PA) -> str:
+    """What a table depends on: the model, the law, the width, the grid, the rod's resolution and
+    this code's version."""
     document = {"geometry": dataclasses.asdict(geometry),
                 "calibration": {k: repr(v) for k, v in dataclasses.asdict(calibration).items()},
                 "bending": bending, "width": finger_width_m, "version": FORCE_TABLE_VERSION,
-                "pressures": list(PRESSURES_PA), "round": ROUND_SIZES_M, "flat": FLAT_SIZES_M,
-                "elements": ROD_ELEMENTS}
+                "pressures": [float(p) for p in pressures_pa], "round": ROUND_SIZES_M,
+                "flat": FLAT_SIZES_M, "elements": elements}
     text = json.dumps(document, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
@@ -183,7 +190,8 @@ def compute_table(gripper_model: str, bending: str, elements: int = ROD_ELEMENTS
                       {ObjectKind.ROUND: np.array(ROUND_SIZES_M),
                        ObjectKind.FLAT: np.array(FLAT_SIZES_M)},
                       {kind: np.array(rows) for kind, rows in forces.items()},
-                      inputs_hash(geometry, calibration, bending, rod.finger_width_m))
+                      inputs_hash(geometry, calibration, bending, rod.finger_width_m, elements,
+                                  pressures))
 
 
 def _solve_row(rod, obstacle, pressures: np.ndarray, opening_pa: float) -> np.ndarray:
@@ -259,9 +267,11 @@ def load_table(gripper_model: str, bending: str, compute_if_missing: bool = True
     from softgrip_ros.model import gripper_models
 
     geometry, calibration = gripper_models.resolve(gripper_model)
-    expected = inputs_hash(geometry, calibration, bending, _default_width())
-    name = table_file_name(pathlib.Path(gripper_model).stem, bending)
     model_path = gripper_models.model_path(gripper_model)
+    resolution = ((ROD_ELEMENTS, PRESSURES_PA) if model_path is None else
+                  (USER_ROD_ELEMENTS, USER_PRESSURES_PA))
+    expected = inputs_hash(geometry, calibration, bending, _default_width(), *resolution)
+    name = table_file_name(pathlib.Path(gripper_model).stem, bending)
     path = (config_dir() / TABLE_DIR / name if model_path is None else
             model_path.with_name(model_path.stem + f".{bending}.clamp_force.yaml"))
     if path.is_file():
@@ -274,9 +284,9 @@ def load_table(gripper_model: str, bending: str, compute_if_missing: bool = True
     if not compute_if_missing or model_path is None:
         raise ValueError(f"clamp force law of {gripper_model} ({bending}): {stale}; run "
                          "scripts/build_force_tables.py")
-    LOG.warning("clamp force law of %s (%s): %s; computing it with the L2 rod (about a minute, "
-                "once)", gripper_model, bending, stale)
-    table = compute_table(gripper_model, bending)
+    LOG.warning("clamp force law of %s (%s): %s; computing it with the L2 rod (seconds, once)",
+                gripper_model, bending, stale)
+    table = compute_table(gripper_model, bending, *resolution)
     try:
         write_table(table, path, {"written_by": "softgrip_ros.model.force_law.load_table"})
     except OSError as error:
