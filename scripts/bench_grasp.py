@@ -16,7 +16,7 @@ Keys of --json: ``grasps`` (one record each), ``success_rate`` and ``success_rat
 HOLDING while the world said dropped), ``world_cpu_pct`` (the device's CPU in the world per
 simulated time, in the suite), ``free_bending_max_err_mm``, ``planners``,
 ``product_sim_subscribers`` (the suite's subscriptions to the ground truth: none).
---quick: three grasps (a 40 mm cylinder, the sheet, an overweight cylinder), no margins, no
+--quick: two grasps (the demo's 20 mm rubber cylinder, an overweight cylinder), no margins, no
 planners. Writes its section of docs/benchmarks.md and its charts unless --json or --quick.
 Reproduce: source scripts/env.sh; python scripts/bench_grasp.py
 """
@@ -235,7 +235,7 @@ def write_docs(figures, seconds) -> None:
 
 
 def main() -> int:
-    parser = benchmark_parser(__doc__, "three grasps, no margins, no planner comparison")
+    parser = benchmark_parser(__doc__, "two grasps, no margins, no planner comparison")
     parser.add_argument("--gripper-model", default="type_II")
     parser.add_argument("--no-margins", action="store_true", help="skip the hold margins")
     parser.add_argument("--from-json", metavar="FILE",

@@ -106,11 +106,10 @@ FULL_FRICTIONS = (0.3, 0.5, 0.8)
 
 def grasp_grid(quick: bool = False) -> list:
     """The cases: cylinders and spheres of FULL_SIZES_M, a 30 mm cube and the 0.1 mm sheet, each at
-    every mass and friction (quick: a 40 mm cylinder held, the sheet, and an overweight cylinder
+    every mass and friction (quick: the demo's 20 mm rubber cylinder, and an overweight cylinder
     that must be refused)."""
     if quick:
-        return [GraspCase("cylinder", 0.04, 0.02, 0.5), GraspCase("sheet", 1e-4, 0.005, 0.5),
-                GraspCase("cylinder", 0.04, 0.5, 0.5)]
+        return [GraspCase("cylinder", 0.02, 0.02, 0.8), GraspCase("cylinder", 0.04, 0.5, 0.5)]
     objects = [(shape, size) for shape in ("cylinder", "sphere") for size in FULL_SIZES_M]
     objects += [("box", 0.03), ("sheet", 1e-4)]
     masses = {shape: ((0.005,) + FULL_MASSES_KG[:2] if shape == "sheet" else FULL_MASSES_KG)
