@@ -31,7 +31,8 @@ setup(
     description="ROS 2 driver suite for a two-finger pneumatic soft gripper.",
     license="Apache-2.0",
     extras_require={"test": ["pytest", "hypothesis"], "reference": ["pyelastica==1.0.0"],
-                    "fe": ["scikit-fem==12.0.2", "gmsh==4.15.2"]},
+                    "fe": ["scikit-fem==12.0.2", "gmsh==4.15.2", "ngsolve==6.2.2608",
+                           "netgen-mesher==6.2.2608"]},
     entry_points={
         "console_scripts": [
             "pressure_controller = softgrip_ros.nodes.pressure_controller:main",

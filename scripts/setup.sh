@@ -85,14 +85,14 @@ else
   echo "$requirements_hash" > "$stamp"
 fi
 
-# ---- 1b. the optional reference models' dependencies (pyelastica and numba; scikit-fem, gmsh)
+# ---- 1b. the optional reference models' dependencies (pyelastica and numba; scikit-fem, gmsh, NGSolve)
 if [ "$with_reference" = 1 ]; then
   reference_hash="$py_version-$(hash_of requirements/reference.txt requirements/fe.txt requirements/constraints.txt)"
   reference_stamp="$venv/.softgrip-reference"
   if stamp_matches "$reference_stamp" "$reference_hash"; then
     say "reference extra up to date"
   else
-    say "installing the reference extras (PyElastica; scikit-fem and gmsh)"
+    say "installing the reference extras (PyElastica; scikit-fem, gmsh and NGSolve)"
     install_pinned requirements/reference.txt
     install_pinned requirements/fe.txt
     echo "$reference_hash" > "$reference_stamp"

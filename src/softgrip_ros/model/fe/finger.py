@@ -164,13 +164,7 @@ class FingerFE:
                 np.vstack([np.full(k, cavity.s0 - eps), n[::-1]]))
 
     def _to_global(self, local):
-        """(2, K) points of the finger's (s, n) frame to the left finger's (x, z)."""
-        g = self.geometry
-        th = g.inclination_rad
-        x0, z0 = -g.root_x_m, g.vertical_height_m
-        s, n = local
-        return np.vstack([x0 + s * math.sin(th) + n * math.cos(th),
-                          z0 + s * math.cos(th) - n * math.sin(th)])
+        return finger_frame_to_global(self.geometry, local)
 
     # ---- solving and measuring ---------------------------------------------------------------
     def solve(self, pressure_pa: float, **kwargs):
@@ -203,11 +197,11 @@ class FingerFE:
         centres, angles = [], []
         for face in faces:
             centres.append(face[:, FACE_SAMPLES // 2])
-            angles.append(_heading(_line_direction(face)))
-        root_heading = _heading(curvature_points[:, 1] - curvature_points[:, 0])
-        end_heading = _heading(curvature_points[:, 3] - curvature_points[:, 2])
+            angles.append(heading(line_direction(face)))
+        root_heading = heading(curvature_points[:, 1] - curvature_points[:, 0])
+        end_heading = heading(curvature_points[:, 3] - curvature_points[:, 2])
         bend_length = CHAMBER_COUNT * g.segment_length_m
-        tip_heading = _heading(tip_points[:, 1] - tip_points[:, 0])
+        tip_heading = heading(tip_points[:, 1] - tip_points[:, 0])
         areas, gaps = [], []
         for floor, far, top, near in walls:
             areas.append(abs(_polygon_area(np.hstack([floor, far, top, near]))))
@@ -242,12 +236,21 @@ class FingerFE:
         return (self._probe @ self.solid.u).reshape(2, -1)
 
 
-def _heading(direction) -> float:
+def finger_frame_to_global(geometry: FingerGeometry, local) -> np.ndarray:
+    """(2, K) points of a finger's own (s, n) frame to the left finger's (x, z), m."""
+    th = geometry.inclination_rad
+    x0, z0 = -geometry.root_x_m, geometry.vertical_height_m
+    s, n = local
+    return np.vstack([x0 + s * math.sin(th) + n * math.cos(th),
+                      z0 + s * math.cos(th) - n * math.sin(th)])
+
+
+def heading(direction) -> float:
     """The angle of a direction from +z, positive towards +x (the kinematic models' phi)."""
     return math.atan2(float(direction[0]), float(direction[1]))
 
 
-def _line_direction(points) -> np.ndarray:
+def line_direction(points) -> np.ndarray:
     """The least-squares direction of (2, K) points, oriented from the first to the last."""
     centred = points - points.mean(axis=1, keepdims=True)
     direction = np.linalg.svd(centred, full_matrices=False)[0][:, 0]

@@ -1,0 +1,240 @@
+"""A large-deformation, nearly incompressible Yeoh solid in 3-D with follower gas pressure, on
+NGSolve.
+
+What NGSolve provides and this module uses: the tetrahedral meshes (netgen), the Taylor-Hood
+spaces (P2 displacement, continuous P1 pressure), the automatic first and second variations of
+the energy below, assembly, and the sparse LDL^T factorisation. What is written here: the energy,
+the Newton loop with a line search, and the load stepping.
+
+Formulation (total Lagrangian, mixed u-p; Holzapfel, *Nonlinear Solid Mechanics*, sec. 8.4):
+F = I + grad u, J = det F, Ibar1 = J^(-2/3) tr(F^T F), and the stationary point of
+
+    Pi = int_body [C10 (Ibar1 - 3) + C20 (Ibar1 - 3)^2 + p (J - 1) - p^2 / (2 kappa)] dV
+         - sum_cavities q_c V_c(u).
+
+**Bulk treatment.** kappa = ``BULK_TO_SHEAR`` times the shear modulus (10^6: Poisson's ratio
+0.4999995, incompressible to the solver's precision, as the paper's Assumption 1). The finite
+kappa is there for the linear algebra: it makes the saddle-point tangent quasi-definite, so that
+NGSolve's sparse LDL^T factorises it without pivoting (in a plane-strain run it gives the tip of
+the exactly incompressible UMFPACK solve to 1e-6).
+
+**Follower pressure as an energy.** The gas in cavity c does the work q_c V_c, with the cavity's
+current volume from the divergence theorem on the in-plane part of the position,
+
+    V_c = -1/2 int_walls (x_1 n_1 + x_2 n_2) da,   n da = cof(F) N dA  (Nanson),
+
+N the solid's outward normal (into the cavity). cof(F) N needs only the surface gradient, which
+is what NGSolve's trace gives on a boundary. Using x_1 and x_2 only, faces whose current normal
+stays along x_3 (a symmetry plane, the faces of a plane-strain slab) add nothing, so the same
+formula holds for a half model cut through its cavities. As an energy the load's tangent is
+symmetric.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from softgrip_ros.model.fe.solver import NotConverged, YeohMaterial
+
+INSTALL_HINT = ("the 3-D FE needs NGSolve: bash scripts/setup.sh --with-reference "
+                "(or pip install 'softgrip_ros[fe]')")
+BULK_TO_SHEAR = 1e6
+LINE_SEARCH_LENGTHS = (1.0, 0.5, 0.25, 0.125)
+
+
+def fe3d_available() -> bool:
+    try:
+        import ngsolve  # noqa: F401
+        from netgen import occ  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+@dataclasses.dataclass
+class SolverStats:
+    newton_iterations: int = 0
+    load_steps: int = 0
+    step_cuts: int = 0
+    seconds_assembling: float = 0.0
+    seconds_factorising: float = 0.0
+
+
+class Solid3D:
+    """A Yeoh solid on an NGSolve mesh, loaded by gas pressure in named cavities.
+
+    ``cavities`` maps a cavity's name to the regular expression of its wall boundaries;
+    ``fixed`` maps a component ("x", "y" or "z") to the expression of the boundaries where that
+    component of the displacement is held at zero (a clamp, a symmetry plane). Metres, Pa.
+    """
+
+    def __init__(self, mesh, material: YeohMaterial, cavities: dict, fixed: dict,
+                 order: int = 2):
+        import ngsolve as ng
+
+        if order < 2:
+            raise ValueError(f"the displacement order must be >= 2 (Taylor-Hood), got {order}")
+        for name, pattern in cavities.items():
+            if not any(mesh.Boundaries(pattern).Mask()):
+                raise ValueError(f"cavity {name!r}: no boundary of the mesh matches {pattern!r}")
+        self.mesh = mesh
+        self.material = material
+        self.stats = SolverStats()
+        displacement = ng.VectorH1(mesh, order=order, **{
+            f"dirichlet{axis}": fixed[axis] for axis in ("x", "y", "z") if axis in fixed})
+        self.space = ng.FESpace([displacement, ng.H1(mesh, order=order - 1)])
+        (u, p), _ = self.space.TnT()
+        F = ng.Id(3) + ng.Grad(u)
+        J = ng.Det(F)
+        ibar = J ** (-2.0 / 3.0) * ng.Trace(F.trans * F) - 3.0
+        kappa = BULK_TO_SHEAR * material.shear_modulus_pa
+        energy = (material.c10_pa * ibar + material.c20_pa * ibar * ibar + p * (J - 1.0)
+                  - p * p / (2.0 * kappa))
+        self.form = ng.BilinearForm(self.space, symmetric=True)
+        self.form += ng.Variation(energy.Compile() * ng.dx)
+        self._gas = {}
+        normal = ng.specialcf.normal(3)
+        current = ng.Cof(ng.Id(3) + ng.Grad(u.Trace())) * normal
+        position = ng.CoefficientFunction((ng.x, ng.y, ng.z)) + u
+        in_plane = position[0] * current[0] + position[1] * current[1]
+        self._volume_forms = {}
+        for name, pattern in cavities.items():
+            gas = ng.Parameter(0.0)
+            self._gas[name] = gas
+            self.form += ng.Variation((0.5 * gas * in_plane).Compile() * ng.ds(pattern))
+            # the same expression, alone: its "energy" is the cavity's volume
+            volume = ng.BilinearForm(self.space, symmetric=True)
+            volume += ng.Variation((-0.5 * in_plane).Compile() * ng.ds(pattern))
+            self._volume_forms[name] = volume
+        self.state = ng.GridFunction(self.space)
+        self.gas_pressures = {name: 0.0 for name in cavities}
+
+    # ---- solving -----------------------------------------------------------------------------
+    def _set_gas(self, gas: dict):
+        for name, value in gas.items():
+            self._gas[name].Set(value)
+
+    def _energy_norm(self, residual, step) -> float:
+        return math.sqrt(abs(step.InnerProduct(residual)))
+
+    def _newton(self, tolerance: float, max_iterations: int):
+        import time
+
+        import ngsolve as ng
+
+        x = self.state.vec
+        residual = x.CreateVector()
+        step = x.CreateVector()
+        trial = x.CreateVector()
+        first = None
+        for iteration in range(1, max_iterations + 1):
+            started = time.perf_counter()
+            self.form.AssembleLinearization(x)
+            self.form.Apply(x, residual)
+            assembled = time.perf_counter()
+            try:
+                inverse = self.form.mat.Inverse(self.space.FreeDofs(), inverse="sparsecholesky")
+            except Exception as error:  # NGSolve raises its own type for a singular matrix
+                raise NotConverged(f"the linear solve failed ({error})") from None
+            step.data = inverse * residual
+            self.stats.seconds_assembling += assembled - started
+            self.stats.seconds_factorising += time.perf_counter() - assembled
+            self.stats.newton_iterations += 1
+            norm = self._energy_norm(residual, step)
+            if not math.isfinite(norm):
+                raise NotConverged("the residual is not finite (an element turned inside out)")
+            if first is None:
+                first = max(norm, 1e-30)
+            if norm <= tolerance * first or norm < 1e-14:
+                x.data -= step
+                return iteration
+            # the full step, shortened only where it turns an element inside out: the residual's
+            # norm mixes forces and the constraint, so it is no merit function for a search
+            for length in LINE_SEARCH_LENGTHS:
+                trial.data = x - length * step
+                self.form.Apply(trial, residual)
+                value = ng.Norm(residual)
+                if math.isfinite(value):
+                    break
+            if not math.isfinite(value):
+                raise NotConverged("every step of the line search turned an element inside out")
+            x.data = trial
+        raise NotConverged(f"no convergence in {max_iterations} Newton iterations")
+
+    def solve(self, gas_pressures: dict, first_step_pa: float = 10e3, min_step_pa: float = 100.0,
+              tolerance: float = 1e-8, max_iterations: int = 25, progress=None):
+        """Move from the present gas pressures to ``gas_pressures`` ({name: Pa}) in load steps,
+        halving a step where Newton fails. NotConverged when a step below ``min_step_pa`` still
+        fails; the state then stays at the last converged load. ``progress(gas)`` hears of each
+        converged step."""
+        unknown = set(gas_pressures) - set(self.gas_pressures)
+        if unknown:
+            raise ValueError(f"no such cavity: {sorted(unknown)}")
+        start = dict(self.gas_pressures)
+        target = {name: float(gas_pressures.get(name, start[name])) for name in start}
+        span = max([abs(target[n] - start[n]) for n in start] + [0.0])
+        if span == 0.0:
+            return
+        done, step = 0.0, min(1.0, first_step_pa / span)
+        saved = self.state.vec.CreateVector()
+        while done < 1.0:
+            fraction = min(1.0, done + step)
+            gas = {n: start[n] + fraction * (target[n] - start[n]) for n in start}
+            saved.data = self.state.vec
+            self._set_gas(gas)
+            try:
+                self._newton(tolerance, max_iterations)
+            except NotConverged as error:
+                self.state.vec.data = saved
+                self._set_gas(self.gas_pressures)
+                step *= 0.5
+                self.stats.step_cuts += 1
+                if step * span < min_step_pa:
+                    raise NotConverged(f"stopped at {self._describe(self.gas_pressures)}: "
+                                       f"{error}") from None
+                continue
+            self.gas_pressures = gas
+            self.stats.load_steps += 1
+            done = fraction
+            step = min(2.0 * step, first_step_pa / span)
+            if progress is not None:
+                progress(gas)
+
+    @staticmethod
+    def _describe(gas):
+        return ", ".join(f"{name} {q / 1e3:+.2f} kPa" for name, q in sorted(gas.items()))
+
+    # ---- results -----------------------------------------------------------------------------
+    @property
+    def displacement(self):
+        """The displacement field (an NGSolve GridFunction, m)."""
+        return self.state.components[0]
+
+    def displacement_at(self, points):
+        """(K, 3) displacements at (K, 3) reference points inside or on the solid. ValueError
+        if a point lies outside the mesh."""
+        import numpy as np
+
+        points = np.asarray(points, dtype=float)
+        mapped = self.mesh(points[:, 0], points[:, 1], points[:, 2])
+        if np.any(mapped["nr"] < 0):
+            raise ValueError("a probe point lies outside the mesh")
+        return np.asarray(self.displacement(mapped), dtype=float).reshape(-1, 3)
+
+    def cavity_volume_m3(self, name: str, deformed: bool = True) -> float:
+        """The volume the walls of cavity ``name`` enclose (with the symmetry planes that cut it),
+        deformed or in the reference state."""
+        if deformed:
+            return float(self._volume_forms[name].Energy(self.state.vec))
+        rest = self.state.vec.CreateVector()
+        rest[:] = 0.0
+        return float(self._volume_forms[name].Energy(rest))
+
+    def volume_m3(self, deformed: bool = True, where=None) -> float:
+        """The solid's volume (int J dV), or that of the part where the coefficient ``where``
+        is 1."""
+        import ngsolve as ng
+
+        J = ng.Det(ng.Id(3) + ng.Grad(self.displacement)) if deformed else 1.0
+        weight = 1.0 if where is None else where
+        return float(ng.Integrate(J * weight, self.mesh, order=4))
