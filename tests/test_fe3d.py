@@ -7,7 +7,7 @@ import math
 import pytest
 
 from softgrip_ros.model.fe.solver import NotConverged
-from softgrip_ros.model.fe3d.finger import Finger3D
+from softgrip_ros.model.fe3d.finger import MAX_INTERPENETRATION_M, Finger3D
 from softgrip_ros.model.fe3d.verification import lame_cylinder, plane_strain_limit
 from softgrip_ros.model.geometry import CHAMBER_COUNT, load_geometry
 
@@ -73,6 +73,18 @@ def test_side_walls_stiffen_the_finger_and_it_stays_incompressible():
     gaps = loaded.block_gaps_m
     assert len(gaps) == CHAMBER_COUNT - 1 and gaps[0] == min(gaps) < GEOMETRY.chamber_spacing_m
     assert loaded.volume_change < 0.005
+
+
+def test_neighbouring_blocks_touch_and_do_not_pass_through_each_other():
+    """At 32 kPa a 20 mm finger's blocks 1 and 2 are pressed together (without contact they would
+    overlap by about 0.5 mm there); no surface lies inside another by more than 0.05 mm."""
+    finger = Finger3D(GEOMETRY, element_size_m=COARSE_M)
+    finger.solve(32e3, first_step_pa=16e3)
+    state = finger.measure()
+    assert -MAX_INTERPENETRATION_M < state.block_gaps_m[0] < 0.02e-3, state.block_gaps_m
+    assert state.block_gaps_m[1] > state.block_gaps_m[0]
+    assert finger.interpenetration_m() < MAX_INTERPENETRATION_M
+    assert state.volume_change < 0.005
 
 
 def test_a_load_that_fails_leaves_the_finger_at_its_last_converged_pressure():

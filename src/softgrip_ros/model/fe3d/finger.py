@@ -13,6 +13,11 @@ A **plane-strain run** of the same code meshes a slab of the profile with the ca
 both faces and holds the out-of-plane displacement there: the limit of a very wide finger without
 side walls, which the 2-D FE computes.
 
+**Contact** (``contact=True``, the default): each block's far end wall with the next block's
+near end wall, which meet under pressure; each cavity's ceiling with its floor and its far end
+wall with its near one, and its side wall with the mid-plane (its mirror image), which meet under
+vacuum. :meth:`Finger3D.interpenetration_m` says how deep any of them went.
+
 Frame: s along the backbone (NGSolve's x), n from the backbone towards the chambers (y), and the
 width (z), with the clamp at s = 0. Metres, Pa.
 """
@@ -26,7 +31,7 @@ import numpy as np
 from softgrip_ros.model.fe.finger import finger_frame_to_global, heading, line_direction
 from softgrip_ros.model.fe.mesh import FingerLayout
 from softgrip_ros.model.fe.solver import YeohMaterial
-from softgrip_ros.model.fe3d.solid import Solid3D
+from softgrip_ros.model.fe3d.solid import Obstacle, Solid3D
 from softgrip_ros.model.geometry import CHAMBER_COUNT, FingerGeometry
 
 # L2's width, which the project reads as the finger's until the band (fe3d_band) says otherwise
@@ -39,6 +44,8 @@ INSET_M = 1e-7  # probe points sit this far inside the solid, so that each finds
 FACE_SAMPLES = 21
 BACKBONE_POINTS = 47
 GAP_SAMPLES = (7, 5)  # over an end wall: along n, across the half width
+# the issue's bound on how far any surface may lie inside another
+MAX_INTERPENETRATION_M = 0.05e-3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,22 +74,32 @@ class Finger3DLayout:
         return PLANE_STRAIN_SLAB_M if self.plane_strain else 0.5 * self.width_m
 
     def mesh(self, element_size_m: float):
-        """A tetrahedral NGSolve mesh with boundaries ``clamp``, ``symmetry`` and ``cavity1`` to
-        ``cavity5``."""
+        """A tetrahedral NGSolve mesh. Its boundaries: ``clamp``, ``symmetry``; per chamber block i
+        ``near<i>``, ``far<i>`` (its end walls) and ``top<i>``; ``tip_top``, ``tip_end``; per
+        cavity ``cavity<i>_`` + ``near``, ``far``, ``floor``, ``ceiling`` and ``side``."""
         import ngsolve as ng
-        from netgen.occ import X, Z, Box, OCCGeometry, Pnt
+        from netgen.occ import X, Y, Z, Box, OCCGeometry, Pnt
 
         lay, top = self.profile, self.half_width_m
         body = Box(Pnt(0.0, 0.0, 0.0), Pnt(lay.length_m, lay.base_m, top))
-        body = body + Box(Pnt(lay.tip_start_m, 0.0, 0.0),
-                          Pnt(lay.length_m, lay.tip_thickness_m, top))
-        for block in lay.blocks:
+        tip = Box(Pnt(lay.tip_start_m, 0.0, 0.0), Pnt(lay.length_m, lay.tip_thickness_m, top))
+        tip.faces.Max(Y).name = "tip_top"
+        tip.faces.Max(X).name = "tip_end"
+        body = body + tip
+        for index, block in enumerate(lay.blocks):
             # reaching into the base, so that the union has no coincident faces to resolve
-            body = body + Box(Pnt(block.s0, 0.5 * lay.base_m, 0.0), Pnt(block.s1, block.n1, top))
+            piece = Box(Pnt(block.s0, 0.5 * lay.base_m, 0.0), Pnt(block.s1, block.n1, top))
+            piece.faces.Min(X).name = f"near{index + 1}"
+            piece.faces.Max(X).name = f"far{index + 1}"
+            piece.faces.Max(Y).name = f"top{index + 1}"
+            body = body + piece
         inner = 2.0 * top if self.plane_strain else top - self.side_wall_m
         for index, cavity in enumerate(lay.cavities):
             hole = Box(Pnt(cavity.s0, cavity.n0, -top), Pnt(cavity.s1, cavity.n1, inner))
-            hole.faces.name = f"cavity{index + 1}"
+            for pick, wall in ((hole.faces.Min(X), "near"), (hole.faces.Max(X), "far"),
+                               (hole.faces.Min(Y), "floor"), (hole.faces.Max(Y), "ceiling"),
+                               (hole.faces.Max(Z), "side")):
+                pick.name = f"cavity{index + 1}_{wall}"
             body = body - hole
         body.faces.Min(X).name = "clamp"
         body.faces.Min(Z).name = "symmetry"
@@ -118,7 +135,7 @@ class Finger3D:
     def __init__(self, geometry: FingerGeometry, width_m: float = DEFAULT_WIDTH_M,
                  material: YeohMaterial | None = None,
                  element_size_m: float = DEFAULT_ELEMENT_SIZE_M, plane_strain: bool = False,
-                 side_wall_m: float | None = None):
+                 side_wall_m: float | None = None, contact: bool = True):
         lo, hi = ELEMENT_SIZE_RANGE_M
         if not (math.isfinite(element_size_m) and lo <= element_size_m <= hi):
             raise ValueError(f"element size must lie in [{lo * 1e3:g}, {hi * 1e3:g}] mm, got "
@@ -131,14 +148,55 @@ class Finger3D:
             geometry.wall_thickness_m if side_wall_m is None else float(side_wall_m),
             plane_strain)
         self.mesh = self.layout.mesh(element_size_m)
-        fixed_z = "clamp|symmetry"
-        self.chambers = {f"chamber_{i + 1}": f"cavity{i + 1}" for i in range(CHAMBER_COUNT)}
+        self.chambers = {f"chamber_{i + 1}": f"cavity{i + 1}_.*" for i in range(CHAMBER_COUNT)}
+        self.contact = bool(contact)
         self.solid = Solid3D(self.mesh, self.material, self.chambers,
-                             {"x": "clamp", "y": "clamp", "z": fixed_z})
+                             {"x": "clamp", "y": "clamp", "z": "clamp|symmetry"},
+                             contacts=[(p.primary, p.secondary) for p in self._pairs()],
+                             obstacles=self._obstacles())
         self._build_probes()
         self._reference_parts = [self.solid.volume_m3(False, part) for part in self._parts()]
         self._reference_chambers = [self.solid.cavity_volume_m3(name, deformed=False)
                                     for name in self.chambers]
+
+    # ---- contact ------------------------------------------------------------------------------
+    def _pairs(self):
+        """The surfaces that may meet: neighbouring blocks' end walls (under pressure), and each
+        cavity's ceiling with its floor and its two end walls (under vacuum)."""
+        if not self.contact:
+            return []
+        lay, top = self.layout.profile, self.layout.half_width_m
+        inner = top if self.layout.plane_strain else top - self.layout.side_wall_m
+        pairs = []
+        for i, (left, right) in enumerate(zip(lay.blocks, lay.blocks[1:]), start=1):
+            pairs.append(_Pair(f"far{i}", f"near{i + 1}",
+                               _face(0, left.s1, (lay.base_m, min(left.n1, right.n1)), (0, top))))
+        for i, cavity in enumerate(lay.cavities, start=1):
+            pairs.append(_Pair(f"cavity{i}_ceiling", f"cavity{i}_floor",
+                               _face(1, cavity.n1, (cavity.s0, cavity.s1), (0, inner))))
+            pairs.append(_Pair(f"cavity{i}_far", f"cavity{i}_near",
+                               _face(0, cavity.s1, (cavity.n0, cavity.n1), (0, inner))))
+        return pairs
+
+    def _obstacles(self):
+        out = []
+        if self.contact and not self.layout.plane_strain:
+            # a side wall pressed in by the vacuum meets its mirror image on the mid-plane
+            out.append(Obstacle("mid_plane", "cavity[0-9]_side", lambda x: -x[2]))
+        return out
+
+    def interpenetration_m(self) -> float:
+        """The deepest that any surface lies inside another, or inside the rigid bodies (m; 0 if
+        none does): every pair of :meth:`_pairs` sampled on a grid of its primary surface, and
+        the side walls' depth past the mid-plane."""
+        deepest = 0.0
+        for index, pair in enumerate(self._pairs()):
+            gaps = self.solid.contact_pair_gaps_m(index, pair.samples)
+            if np.any(np.isfinite(gaps)):
+                deepest = max(deepest, -float(np.nanmin(gaps)))
+        for obstacle in self.solid._obstacles:
+            deepest = max(deepest, self.solid.obstacle_contact(obstacle.name)[1])
+        return deepest
 
     @property
     def tetrahedra(self) -> int:
@@ -245,6 +303,23 @@ class Finger3D:
     def reference_chamber_volumes_m3(self) -> tuple:
         scale = (1.0 / PLANE_STRAIN_SLAB_M) if self.layout.plane_strain else 2.0
         return tuple(scale * v for v in self._reference_chambers)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Pair:
+    primary: str
+    secondary: str
+    samples: np.ndarray  # (K, 3) reference points on the primary surface
+
+
+def _face(axis: int, value: float, first: tuple, second: tuple, count: int = 9) -> np.ndarray:
+    """(K, 3) points on the axis-aligned rectangle where coordinate ``axis`` (0: s, 1: n) is
+    ``value`` and the other in-profile coordinate spans ``first``, the width ``second``."""
+    a = np.linspace(first[0] + INSET_M, first[1] - INSET_M, count)
+    b = np.linspace(second[0] + INSET_M, second[1] - INSET_M, count)
+    aa, bb = (g.ravel() for g in np.meshgrid(a, b, indexing="ij"))
+    columns = [aa, np.full_like(aa, value)] if axis == 1 else [np.full_like(aa, value), aa]
+    return np.column_stack(columns + [bb])
 
 
 def _signed_gap(far_wall, near_wall) -> float:
