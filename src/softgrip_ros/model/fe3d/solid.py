@@ -56,7 +56,10 @@ LINE_SEARCH_LENGTHS = (1.0, 0.5, 0.25, 0.125)
 CONTACT_STIFFNESS_PER_SHEAR = 100.0
 CONTACT_LENGTH_M = 1e-3
 CONTACT_ORDER = 4
-PAIR_SEARCHES = 3
+PAIR_SEARCHES = 2
+# a state converged for its pairs is accepted when the pairs found again leave a residual this
+# small against the step's first (their closest points slide a little with every search)
+PAIRING_TOLERANCE = 1e-3
 
 
 def fe3d_available() -> bool:
@@ -179,7 +182,7 @@ class Solid3D:
         surface with its closest point on the secondary) are searched again in the first
         PAIR_SEARCHES iterations only, then held, so that the pairing does not make the iteration
         cycle; once converged they are searched once more, and the iteration goes on (searching
-        again) unless the state is converged for the new pairs too."""
+        again) unless the new pairs leave the state within PAIRING_TOLERANCE."""
         import time
 
         import ngsolve as ng
@@ -189,6 +192,7 @@ class Solid3D:
         step = x.CreateVector()
         trial = x.CreateVector()
         first = None
+        checking = False
         searched_until = PAIR_SEARCHES
         for iteration in range(1, max_iterations + 1):
             started = time.perf_counter()
@@ -210,11 +214,16 @@ class Solid3D:
                 raise NotConverged("the residual is not finite (an element turned inside out)")
             if first is None:
                 first = max(norm, 1e-30)
+            if checking and norm <= PAIRING_TOLERANCE * first:
+                x.data -= step  # the pairs found again change next to nothing
+                return iteration
+            checking = False
             if norm <= tolerance * first or norm < 1e-14:
                 x.data -= step
                 if not self._contacts or iteration <= searched_until:
                     return iteration
                 searched_until = iteration + 1 + PAIR_SEARCHES  # search again, and check
+                checking = True
                 continue
             # the full step, shortened only where it turns an element inside out: the residual's
             # norm mixes forces and the constraint, so it is no merit function for a search
@@ -330,7 +339,8 @@ class Solid3D:
         gap = np.asarray(pair.gap(mapped), dtype=float).reshape(-1, 3)
         normal = np.asarray(pair.normal(mapped), dtype=float).reshape(-1, 3)
         out = np.einsum("ij,ij->i", gap, normal)
-        out[np.any(np.abs(gap) > 1.0, axis=1)] = math.nan
+        # no partner in reach; or a point that fell on a neighbouring face, where the gap is 0
+        out[np.any(np.abs(gap) > 1.0, axis=1) | np.all(gap == 0.0, axis=1)] = math.nan
         return out
 
     def volume_m3(self, deformed: bool = True, where=None) -> float:
