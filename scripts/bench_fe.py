@@ -135,7 +135,7 @@ def reference_document(result, verification, convergence, figures_, compliance_)
             "mesh_convergence": {
                 "pressure_pa": convergence.pressure_pa,
                 "element_sizes_m": convergence.element_sizes_m,
-                "triangles": convergence.triangles,
+                "triangles": convergence.elements,
                 "tips_mm": [[round(v * 1e3, 4) for v in t] for t in convergence.tips_m],
                 "change_pct": round(convergence.change_pct, 4)},
         },
@@ -199,7 +199,7 @@ def markdown(figures_, compliance_, result, verification, convergence, command) 
         for c in verification)
     sizes = ", ".join(f"{s * 1e3:.2f} mm ({n} triangles, tip ({t[0] * 1e3:.2f}, "
                       f"{t[1] * 1e3:.2f}) mm)" for s, n, t in
-                      zip(convergence.element_sizes_m, convergence.triangles, convergence.tips_m))
+                      zip(convergence.element_sizes_m, convergence.elements, convergence.tips_m))
     return f"""## Finite-element reference (`scripts/bench_fe.py`)
 
 Command: `{command}` ({machine_line()}). The plane-strain Yeoh finger of

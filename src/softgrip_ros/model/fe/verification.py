@@ -92,33 +92,43 @@ def _worst(fe, exact) -> float:
 class MeshConvergence:
     pressure_pa: float
     element_sizes_m: list
-    triangles: list
+    elements: list  # triangles (2-D) or tetrahedra (3-D) at each size
     tips_m: list  # (x, z) of the left tip at each size
     tip_displacement_m: float  # on the finest mesh, from the rest pose
     change_pct: float  # tip movement between the two finest, per tip displacement
     seconds: list
 
 
-def mesh_convergence(geometry: FingerGeometry, sizes_m, pressure_pa: float,
-                     progress=None) -> MeshConvergence:
-    """The finger at one pressure on meshes of each size (coarse to fine)."""
+def tip_convergence(build, count, sizes_m, pressure_pa: float, progress=None,
+                    element_word: str = "elements") -> MeshConvergence:
+    """A finger model at one pressure on meshes of each size (coarse to fine): ``build(size_m)``
+    makes the model (with ``measure()`` and ``solve(pressure_pa)``), ``count(model)`` says how
+    many elements its mesh has."""
     import time
-    tips, triangles, seconds = [], [], []
+    tips, elements, seconds = [], [], []
     rest = None
     for size in sizes_m:
         started = time.perf_counter()
-        finger = FingerFE(geometry, element_size_m=size)
+        finger = build(size)
         rest = finger.measure().tip
         finger.solve(pressure_pa)
         tips.append(finger.measure().tip[:2])
-        triangles.append(int(finger.mesh.t.shape[1]))
+        elements.append(int(count(finger)))
         seconds.append(time.perf_counter() - started)
         if progress is not None:
-            progress(f"mesh {size * 1e3:.2f} mm: {triangles[-1]} triangles, tip "
-                     f"({tips[-1][0] * 1e3:.2f}, {tips[-1][1] * 1e3:.2f}) mm, "
+            progress(f"mesh {size * 1e3:.2f} mm: {elements[-1]} {element_word}, tip "
+                     f"({tips[-1][0] * 1e3:.3f}, {tips[-1][1] * 1e3:.3f}) mm, "
                      f"{seconds[-1]:.1f} s")
     displacement = math.hypot(tips[-1][0] - rest[0], tips[-1][1] - rest[1])
     change = math.hypot(tips[-1][0] - tips[-2][0], tips[-1][1] - tips[-2][1])
-    return MeshConvergence(pressure_pa, [float(s) for s in sizes_m], triangles,
+    return MeshConvergence(pressure_pa, [float(s) for s in sizes_m], elements,
                            [list(t) for t in tips], displacement,
                            100.0 * change / displacement, seconds)
+
+
+def mesh_convergence(geometry: FingerGeometry, sizes_m, pressure_pa: float,
+                     progress=None) -> MeshConvergence:
+    """The plane-strain finger at one pressure on meshes of each size (coarse to fine)."""
+    return tip_convergence(lambda size: FingerFE(geometry, element_size_m=size),
+                           lambda finger: finger.mesh.t.shape[1], sizes_m, pressure_pa,
+                           progress, "triangles")

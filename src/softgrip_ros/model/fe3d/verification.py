@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 
 import numpy as np
 
 from softgrip_ros.model.fe.solver import YeohMaterial
+from softgrip_ros.model.fe.verification import MeshConvergence, tip_convergence
 from softgrip_ros.model.fe3d.finger import Finger3D
 from softgrip_ros.model.fe3d.solid import Solid3D
 from softgrip_ros.model.geometry import FingerGeometry
@@ -96,38 +96,11 @@ def lame_cylinder(material: YeohMaterial | None = None,
                       _worst(fe, exact))
 
 
-@dataclasses.dataclass
-class MeshConvergence:
-    pressure_pa: float
-    element_sizes_m: list
-    tetrahedra: list
-    tips_m: list  # (x, z) of the left tip at each size
-    tip_displacement_m: float  # on the finest mesh, from the rest pose
-    change_pct: float  # tip movement between the two finest, per tip displacement
-    seconds: list
-
-
 def mesh_convergence(geometry: FingerGeometry, sizes_m, pressure_pa: float,
                      width_m: float | None = None, progress=None) -> MeshConvergence:
     """The finger of ``width_m`` (the default width if None) at one pressure on meshes of each
     size (coarse to fine)."""
-    tips, tetrahedra, seconds = [], [], []
-    rest = None
-    for size in sizes_m:
-        started = time.perf_counter()
-        kwargs = {} if width_m is None else {"width_m": width_m}
-        finger = Finger3D(geometry, element_size_m=size, **kwargs)
-        rest = finger.measure().tip
-        finger.solve(pressure_pa)
-        tips.append(finger.measure().tip[:2])
-        tetrahedra.append(finger.tetrahedra)
-        seconds.append(time.perf_counter() - started)
-        if progress is not None:
-            progress(f"mesh {size * 1e3:.2f} mm: {tetrahedra[-1]} tetrahedra, tip "
-                     f"({tips[-1][0] * 1e3:.3f}, {tips[-1][1] * 1e3:.3f}) mm, "
-                     f"{seconds[-1]:.1f} s")
-    displacement = math.hypot(tips[-1][0] - rest[0], tips[-1][1] - rest[1])
-    change = math.hypot(tips[-1][0] - tips[-2][0], tips[-1][1] - tips[-2][1])
-    return MeshConvergence(pressure_pa, [float(s) for s in sizes_m], tetrahedra,
-                           [list(t) for t in tips], displacement,
-                           100.0 * change / displacement, seconds)
+    kwargs = {} if width_m is None else {"width_m": width_m}
+    return tip_convergence(lambda size: Finger3D(geometry, element_size_m=size, **kwargs),
+                           lambda finger: finger.tetrahedra, sizes_m, pressure_pa, progress,
+                           "tetrahedra")
