@@ -123,7 +123,7 @@ class FE3DState:
     # per chamber: the whole finger's cavity (per metre of width in a plane-strain run)
     chamber_volumes_m3: tuple
     # between blocks i and i + 1: the least signed distance of one end wall from the other
-    # (negative: they overlap, which this model does not prevent)
+    # (negative: they overlap; by the penalty's depth with contact, freely without)
     block_gaps_m: tuple
     volume_change: float  # the largest |deformed / reference volume - 1| of the solid's parts
     newton_iterations: int
@@ -186,16 +186,16 @@ class Finger3D:
         return out
 
     def interpenetration_m(self) -> float:
-        """The deepest that any surface lies inside another, or inside the rigid bodies (m; 0 if
-        none does): every pair of :meth:`_pairs` sampled on a grid of its primary surface, and
-        the side walls' depth past the mid-plane."""
+        """The deepest that any surface lies inside another (m; 0 if none does): every pair of
+        :meth:`_pairs` sampled on a grid of its primary surface, and the side walls' depth past
+        the mid-plane."""
         deepest = 0.0
         for index, pair in enumerate(self._pairs()):
             gaps = self.solid.contact_pair_gaps_m(index, pair.samples)
             if np.any(np.isfinite(gaps)):
                 deepest = max(deepest, -float(np.nanmin(gaps)))
-        for obstacle in self.solid._obstacles:
-            deepest = max(deepest, self.solid.obstacle_contact(obstacle.name)[1])
+        for name in self.solid.obstacle_names:
+            deepest = max(deepest, self.solid.obstacle_contact(name)[1])
         return deepest
 
     @property

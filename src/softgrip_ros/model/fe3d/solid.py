@@ -304,6 +304,10 @@ class Solid3D:
         rest[:] = 0.0
         return float(self._volume_forms[name].Energy(rest))
 
+    @property
+    def obstacle_names(self) -> list:
+        return [obstacle.name for obstacle in self._obstacles]
+
     def obstacle_contact(self, name: str) -> tuple:
         """(force N, largest penetration m, force-weighted mean reference point (3,)) of the
         obstacle ``name``: the penalty's pressure summed over the boundary's reference area. On
