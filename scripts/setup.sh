@@ -85,7 +85,7 @@ else
   echo "$requirements_hash" > "$stamp"
 fi
 
-# ---- 1b. the optional reference models' dependencies (pyelastica and numba; scikit-fem, gmsh, NGSolve)
+# ---- 1b. the optional reference models' dependencies (PyElastica; scikit-fem, gmsh, NGSolve)
 if [ "$with_reference" = 1 ]; then
   reference_hash="$py_version-$(hash_of requirements/reference.txt requirements/fe.txt requirements/constraints.txt)"
   reference_stamp="$venv/.softgrip-reference"

@@ -150,9 +150,10 @@ class Finger3D:
         self.mesh = self.layout.mesh(element_size_m)
         self.chambers = {f"chamber_{i + 1}": f"cavity{i + 1}_.*" for i in range(CHAMBER_COUNT)}
         self.contact = bool(contact)
+        self._contact_pairs = self._pairs()
         self.solid = Solid3D(self.mesh, self.material, self.chambers,
                              {"x": "clamp", "y": "clamp", "z": "clamp|symmetry"},
-                             contacts=[(p.primary, p.secondary) for p in self._pairs()],
+                             contacts=[(p.primary, p.secondary) for p in self._contact_pairs],
                              obstacles=self._obstacles())
         self._build_probes()
         self._reference_parts = [self.solid.volume_m3(False, part) for part in self._parts()]
@@ -190,7 +191,7 @@ class Finger3D:
         :meth:`_pairs` sampled on a grid of its primary surface, and the side walls' depth past
         the mid-plane."""
         deepest = 0.0
-        for index, pair in enumerate(self._pairs()):
+        for index, pair in enumerate(self._contact_pairs):
             gaps = self.solid.contact_pair_gaps_m(index, pair.samples)
             if np.any(np.isfinite(gaps)):
                 deepest = max(deepest, -float(np.nanmin(gaps)))
@@ -221,7 +222,6 @@ class Finger3D:
         groups.append(np.array([[lay.length_m - 2e-3, eps, eps], [lay.length_m - eps, eps, eps]]))
         n_samples, z_samples = GAP_SAMPLES
         z = np.linspace(eps, self.layout.half_width_m - eps, z_samples)
-        self._gap_faces = []
         for left, right in zip(lay.blocks, lay.blocks[1:]):
             n = np.linspace(lay.base_m + eps, min(left.n1, right.n1) - eps, n_samples)
             nn, zz = np.meshgrid(n, z, indexing="ij")
@@ -260,28 +260,17 @@ class Finger3D:
 
         g = self.geometry
         deformed = self._probe_points + self.solid.displacement_at(self._probe_points)
-        cursor = 0
-
-        def take():
-            nonlocal cursor
-            count = self._groups[len(taken)]
-            out = deformed[cursor:cursor + count]
-            cursor += count
-            taken.append(out)
-            return out
-
-        taken = []
-        faces = [finger_frame_to_global(g, take()[:, :2].T) for _ in range(2)]
-        curvature_points = finger_frame_to_global(g, take()[:, :2].T)
-        backbone = finger_frame_to_global(g, take()[:, :2].T)
-        tip_points = finger_frame_to_global(g, take()[:, :2].T)
-        gaps = [_signed_gap(take(), take()) for _ in range(CHAMBER_COUNT - 1)]
+        groups = np.split(deformed, np.cumsum(self._groups)[:-1])
+        faces = [finger_frame_to_global(g, group[:, :2].T) for group in groups[:2]]
+        curvature_points, backbone, tip_points = (finger_frame_to_global(g, group[:, :2].T)
+                                                  for group in groups[2:5])
+        gaps = [_signed_gap(far, near) for far, near in zip(groups[5::2], groups[6::2])]
         angles = [heading(line_direction(face)) for face in faces]
         centres = [face[:, FACE_SAMPLES // 2] for face in faces]
         root_heading = heading(curvature_points[:, 1] - curvature_points[:, 0])
         end_heading = heading(curvature_points[:, 3] - curvature_points[:, 2])
-        scale = (1.0 / PLANE_STRAIN_SLAB_M) if self.layout.plane_strain else 2.0
-        volumes = tuple(scale * self.solid.cavity_volume_m3(name) for name in self.chambers)
+        volumes = tuple(self._volume_scale * self.solid.cavity_volume_m3(name)
+                        for name in self.chambers)
         with ng.TaskManager():
             parts = [self.solid.volume_m3(True, part) for part in self._parts()]
         change = max(abs(d / r - 1.0) for d, r in zip(parts, self._reference_parts))
@@ -300,9 +289,14 @@ class Finger3D:
             volume_change=float(change),
             newton_iterations=self.solid.stats.newton_iterations)
 
+    @property
+    def _volume_scale(self) -> float:
+        """From the meshed part's volumes to the whole finger's (per metre of width for a
+        plane-strain slab)."""
+        return (1.0 / PLANE_STRAIN_SLAB_M) if self.layout.plane_strain else 2.0
+
     def reference_chamber_volumes_m3(self) -> tuple:
-        scale = (1.0 / PLANE_STRAIN_SLAB_M) if self.layout.plane_strain else 2.0
-        return tuple(scale * v for v in self._reference_chambers)
+        return tuple(self._volume_scale * v for v in self._reference_chambers)
 
 
 @dataclasses.dataclass(frozen=True)

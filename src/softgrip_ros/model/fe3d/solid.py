@@ -45,10 +45,9 @@ import math
 
 import numpy as np
 
+from softgrip_ros.model.fe import solver as fe_solver
 from softgrip_ros.model.fe.solver import NotConverged, YeohMaterial
 
-INSTALL_HINT = ("the 3-D FE needs NGSolve: bash scripts/setup.sh --with-reference "
-                "(or pip install 'softgrip_ros[fe]')")
 BULK_TO_SHEAR = 1e6
 LINE_SEARCH_LENGTHS = (1.0, 0.5, 0.25, 0.125)
 # the penalty of contact: a penetration of CONTACT_LENGTH_M would cost this many shear moduli of
@@ -60,15 +59,6 @@ PAIR_SEARCHES = 2
 # a state converged for its pairs is accepted when the pairs found again leave a residual this
 # small against the step's first (their closest points slide a little with every search)
 PAIRING_TOLERANCE = 1e-3
-
-
-def fe3d_available() -> bool:
-    try:
-        import ngsolve  # noqa: F401
-        from netgen import occ  # noqa: F401
-    except ImportError:
-        return False
-    return True
 
 
 @dataclasses.dataclass(frozen=True)
@@ -83,10 +73,9 @@ class Obstacle:
 
 
 @dataclasses.dataclass
-class SolverStats:
-    newton_iterations: int = 0
-    load_steps: int = 0
-    step_cuts: int = 0
+class SolverStats(fe_solver.SolverStats):
+    """The 2-D solver's counts, and where the time went."""
+
     seconds_assembling: float = 0.0
     seconds_factorising: float = 0.0
 
