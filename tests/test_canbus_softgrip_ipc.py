@@ -58,6 +58,25 @@ def test_every_other_bus_gets_each_frame_and_a_closed_one_is_forgotten(channel):
             bus.shutdown()
 
 
+def test_the_channel_s_last_bus_leaves_no_directory_behind(channel):
+    """Each test and benchmark run opens channels of its own; their empty directories piled up
+    under $TMPDIR (180 after a day of runs)."""
+    directory = softgrip_ipc.channel_directory(channel)
+    a = can.Bus(interface="softgrip_ipc", channel=channel)
+    b = can.Bus(interface="softgrip_ipc", channel=channel)
+    a.shutdown()
+    assert directory.is_dir()  # b is still on it
+    b.send(can.Message(arbitration_id=0x12, data=b"", is_extended_id=False))
+    b.shutdown()
+    assert not directory.exists()
+    c = can.Bus(interface="softgrip_ipc", channel=channel)  # and the channel opens again
+    try:
+        assert len(list(directory.glob("*.port"))) == 1
+    finally:
+        c.shutdown()
+    assert not directory.exists()
+
+
 def test_the_announcement_of_a_process_that_died_is_removed(channel):
     finished = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
                               capture_output=True, text=True)

@@ -93,7 +93,14 @@ class SoftgripIpcBus(can.BusABC):
             self._sender, SO_TIMESTAMPING, SOF_TIMESTAMPING_TX_SOFTWARE |
             SOF_TIMESTAMPING_SOFTWARE | SOF_TIMESTAMPING_OPT_TSONLY)
         self._path = self._directory / f"{os.getpid()}-{self._socket.getsockname()[1]}.port"
-        self._path.touch()
+        for attempt in range(3):
+            try:
+                self._path.touch()
+                break
+            except FileNotFoundError:  # the last bus before this one removed the directory
+                if attempt == 2:
+                    raise
+                self._directory.mkdir(parents=True, exist_ok=True)
         self._receive_own = receive_own_messages
         self._own: list = []
         self._peers: list = []
@@ -221,6 +228,10 @@ class SoftgripIpcBus(can.BusABC):
     def shutdown(self) -> None:
         super().shutdown()
         self._unlink(self._path)
+        try:
+            self._directory.rmdir()  # the channel's last bus leaves nothing behind
+        except OSError:
+            pass  # another bus is still on the channel
         self._socket.close()
         self._sender.close()
 
