@@ -52,7 +52,8 @@ def run_suite(cases, placement, law, args, product_readers: list) -> tuple[list,
     records = []
     with tempfile.TemporaryDirectory() as directory:
         scenes = [gb.write_scene(placement.scene(case), directory) for case in cases]
-        rig = gb.SuiteRig(scenes[0], f"bench_grasp-{uuid.uuid4().hex[:6]}", args.gripper_model)
+        rig = gb.SuiteRig(scenes[0], f"bench_grasp-{uuid.uuid4().hex[:6]}",
+                          pathlib.Path(directory) / "controller.log", args.gripper_model)
         try:
             rig.wait_ready()
             time.sleep(1.0)  # the graph of every node known
@@ -70,6 +71,10 @@ def run_suite(cases, placement, law, args, product_readers: list) -> tuple[list,
                 progress(index, len(cases), f"{case.object_class}, {case.mass_kg * 1e3:g} g, "
                          f"mu {case.friction:g}: {record.outcome.value} "
                          f"(slip {record.slip_distance_m * 1e3:.1f} mm) {record.message[:60]}")
+        except BaseException:
+            print(f"[bench_grasp] the end of the controller's log:\n{rig.log_tail()}",
+                  file=sys.stderr)
+            raise
         finally:
             rig.close()
     return records, 100.0 * cpu_total / sim_total if sim_total else math.nan

@@ -2,6 +2,7 @@
 demo."""
 import json
 import math
+import os
 import pathlib
 import subprocess
 import sys
@@ -19,9 +20,9 @@ def strict_loads(text: str):
         f"{name} is not JSON: strict readers (jq) refuse the document"))
 
 
-def run(*args, timeout=300):
+def run(*args, timeout=300, env=None):
     return subprocess.run([sys.executable, *args], cwd=REPO_ROOT, capture_output=True, text=True,
-                          timeout=timeout)
+                          timeout=timeout, env=env)
 
 
 def test_fit_yeoh_prints_constants_and_draws_the_plot(tmp_path):
@@ -286,12 +287,15 @@ def test_demo_grasps_with_the_controller_executable_and_exits_cleanly(tmp_path):
 
 @pytest.mark.ros
 @pytest.mark.slow
-def test_bench_grasp_quick_json_judges_each_grasp_by_the_world():
+def test_bench_grasp_quick_json_judges_each_grasp_by_the_world(tmp_path):
     """Two grasps through the installed controller with the world: every key, a grasp past the
     rated mass refused at the command, the world's figures measured, and no node of the suite
-    reading the ground truth (the running graph)."""
-    result = run("scripts/bench_grasp.py", "--quick", "--json", timeout=600)
+    reading the ground truth (the running graph). Nothing is left in the temporary directory
+    (the controller's log was, once per run)."""
+    result = run("scripts/bench_grasp.py", "--quick", "--json", timeout=600,
+                 env={**os.environ, "TMPDIR": str(tmp_path)})
     assert result.returncode == 0, result.stderr[-3000:]
+    assert list(tmp_path.iterdir()) == []
     figures = strict_loads(result.stdout)
     for key in ("grasps", "success_rate", "success_rate_by_class", "false_holding_reports",
                 "world_cpu_pct", "free_bending_max_err_mm"):

@@ -24,7 +24,6 @@ import enum
 import math
 import pathlib
 import subprocess
-import tempfile
 import threading
 import time
 import uuid
@@ -179,7 +178,8 @@ class SuiteRig:
     """The composed controller with the physics world in its own process, and this process's
     client: the product's GripperClient, and the ground truth's subscriptions and services."""
 
-    def __init__(self, first_scene: pathlib.Path, channel: str, gripper_model: str = "type_II"):
+    def __init__(self, first_scene: pathlib.Path, channel: str, log_path: pathlib.Path,
+                 gripper_model: str = "type_II"):
         import rclpy
         from rclpy.node import Node
 
@@ -188,7 +188,7 @@ class SuiteRig:
         from softgrip_ros.client import GripperClient
         from softgrip_ros.devtools.processes import installed_executable
 
-        self.log = tempfile.NamedTemporaryFile("w+", suffix=".log", delete=False)
+        self.log = open(log_path, "w+")  # the caller's directory: it goes when that does
         self.process = subprocess.Popen(
             [installed_executable("controller"), "--ros-args", "-p", f"can.channel:={channel}",
              "-p", f"world.scene:={first_scene}", "-p", f"gripper_model:={gripper_model}"],
@@ -222,12 +222,17 @@ class SuiteRig:
 
     def wait_ready(self, timeout_s: float = 30.0) -> None:
         if not self.client.wait_until_ready(timeout_s=timeout_s):
-            raise RuntimeError(f"the controller did not come up in {timeout_s:.0f} s "
-                               f"(its log: {self.log.name})")
+            raise RuntimeError(f"the controller did not come up in {timeout_s:.0f} s; the "
+                               f"end of its log:\n{self.log_tail()}")
         for service in (self.play_client, self.load_client):
             if not service.wait_for_service(timeout_sec=timeout_s):
                 raise RuntimeError("the simulated device serves no world (sim/ services)")
         self._wait(lambda: self.truth is not None, 5.0)
+
+    def log_tail(self, lines: int = 30) -> str:
+        """The last ``lines`` lines the controller wrote."""
+        self.log.flush()
+        return "\n".join(pathlib.Path(self.log.name).read_text().splitlines()[-lines:])
 
     def close(self) -> None:
         from softgrip_ros.devtools.processes import stop_process
