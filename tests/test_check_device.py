@@ -107,6 +107,20 @@ def test_a_value_beyond_the_limit_vents_at_once_and_ends_the_check(device_and_bu
     assert_vented_within_limits(device)
 
 
+def test_with_no_device_on_the_bus_every_row_fails():
+    """With nobody answering, the OpenLifetime row passed on "+nan kPa": a row with nothing to
+    judge by must fail."""
+    channel = f"check-{uuid.uuid4().hex[:8]}"
+    bus = can.Bus(interface="virtual", channel=channel)
+    try:
+        rows = check(bus, listen_s=0.5, response_timeout_s=0.2)
+    finally:
+        bus.shutdown()
+    assert [row.check for row in rows.values() if row.passed] == []
+    lifetime = rows["OpenLifetime closes an open channel"]
+    assert lifetime.reason and "nan" not in lifetime.measured
+
+
 def test_short_and_out_of_range_frames_fail_their_rows(device_and_bus):
     """Frames no healthy device sends, judged as received: a 6-byte sensor frame and a
     RegulatorStatus whose pressure lies outside its DBC range (with a right CRC)."""

@@ -97,6 +97,10 @@ class CheckConfig:
                              f"{self.channels!r}")
 
 
+# a row without the readings it is judged on fails: a check that saw nothing passes nothing
+NO_READING = "no chamber pressure reading arrived to judge it by"
+
+
 def _only(channel: int, state: int) -> tuple:
     """Every valve channel's state: ``state`` on ``channel``, the others CLOSED."""
     return tuple(state if i == channel else CLOSED for i in range(VALVE_CHANNELS))
@@ -289,8 +293,13 @@ class DeviceChecker:
                    "" if judged else "no frame with a right CRC")
 
     def _fault_bits_row(self, frames: list) -> Row:
+        judged = [f for f in frames if f.crc_ok and f.signals is not None and (
+            f.name == "RegulatorStatus" or f.name.startswith(SENSOR_PREFIX))]
+        if not judged:
+            return Row("no fault bits set", False, "no status frame",
+                       "no valid RegulatorStatus or sensor frame arrived to judge it by")
         seen = set()
-        for f in frames:
+        for f in judged:
             if not f.crc_ok or f.signals is None:
                 continue
             if f.name == "RegulatorStatus":
@@ -345,7 +354,9 @@ class DeviceChecker:
         held = self._chamber_mean(0.2)
         drift = abs(self._chamber_mean(0.2) - held)
         measured.append(f"CLOSED {drift / 1e3:.2f} kPa drift")
-        if drift > max(500.0, 0.1 * abs(held)):
+        if not math.isfinite(drift):
+            problems.append(f"CLOSED: {NO_READING}")
+        elif drift > max(500.0, 0.1 * abs(held)):
             problems.append(f"CLOSED: the chamber moved {drift / 1e3:.1f} kPa in 0.2 s")
         self._set_command(0.0, True, _only(channel, VENT))
         vented = self._wait_for(lambda: abs(self._chamber()) <= 1000.0, c.response_timeout_s)
@@ -417,6 +428,9 @@ class DeviceChecker:
         late = self._chamber_mean(0.05)
         self._set_command(0.0, True, (VENT,) * VALVE_CHANNELS)
         self._wait_for(lambda: abs(self._chamber()) <= 1000.0, c.response_timeout_s)
+        if not all(math.isfinite(v) for v in (start, early, late)):
+            return Row("OpenLifetime closes an open channel", False, "no chamber reading",
+                       NO_READING)
         gap = target - start
         still_rising = late - early > max(500.0, 0.1 * gap)
         at_regulator = late - start >= 0.8 * gap
