@@ -17,6 +17,8 @@ import argparse
 import sys
 import time
 
+from softgrip_ros.client import add_namespace_argument
+
 PHASES = ("IDLE", "OPENING", "ENVELOPED", "CLAMPING", "HOLDING", "RELEASING", "FAULT")
 
 
@@ -36,7 +38,7 @@ def _non_negative(text: str) -> float:
 
 def parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--namespace", default="", help="the gripper's namespace (e.g. /g1)")
+    add_namespace_argument(common)
     common.add_argument("--timeout", type=_positive, default=15.0,
                         help="seconds to wait for the gripper and for the task (default 15)")
     top = argparse.ArgumentParser(prog="softgrip", description=__doc__,

@@ -79,8 +79,45 @@ def _cancel_if_accepted(future) -> None:
         handle.cancel_goal_async()
 
 
+def check_namespace(namespace: str) -> str:
+    """``namespace`` ('' or e.g. "/g1") if the gripper's topics can live under it; ValueError
+    with the reason in one line if not (a space, a '-', an empty level...)."""
+    from rclpy.expand_topic_name import expand_topic_name
+    from rclpy.validate_full_topic_name import validate_full_topic_name
+    from rclpy.validate_topic_name import validate_topic_name
+
+    if not isinstance(namespace, str):
+        raise ValueError(f"a namespace is a string, got {namespace!r}")
+    topic = f"{namespace.rstrip('/')}/grasp_state"
+    try:
+        validate_topic_name(topic)
+        validate_full_topic_name(expand_topic_name(topic, "softgrip", "/"))
+    except Exception as error:  # rclpy raises its own types, and rcl's errors as RuntimeError
+        # its messages: "Invalid topic name: <why>:", then the name with a caret below it; or
+        # "topic name '...' is invalid: <why>, at <C source file>"
+        first = str(error).splitlines()[0].rstrip(":").split(", at /")[0]
+        reason = first.split(": ", 1)[1] if ": " in first else first
+        raise ValueError(f"invalid namespace {namespace!r}: {reason}") from None
+    return namespace
+
+
+def add_namespace_argument(parser) -> None:
+    """The tools' --namespace option, checked as it is parsed (a one-line usage error)."""
+    import argparse
+
+    def checked(text: str) -> str:
+        try:
+            return check_namespace(text)
+        except ValueError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+
+    parser.add_argument("--namespace", default="", type=checked,
+                        help="the gripper's namespace (e.g. /g1)")
+
+
 class GripperClient:
-    """One gripper's grasp manager, reached in ``namespace`` ('' or e.g. "/g1")."""
+    """One gripper's grasp manager, reached in ``namespace`` ('' or e.g. "/g1"); ValueError for
+    a namespace no topic can live under."""
 
     def __init__(self, node=None, namespace: str = "", context=None,
                  node_name: str = "softgrip_client"):
@@ -88,6 +125,7 @@ class GripperClient:
         from softgrip_interfaces.action import Grasp
         from softgrip_interfaces.msg import GripperState
 
+        check_namespace(namespace)
         self._own = node is None
         self.node = node if node is not None else rclpy.create_node(
             f"{node_name}_{uuid.uuid4().hex[:6]}", context=context)

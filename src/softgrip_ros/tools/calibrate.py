@@ -39,6 +39,7 @@ import sys
 
 import numpy as np
 
+from softgrip_ros.client import add_namespace_argument
 from softgrip_ros.model import bending_fit, gripper_models
 from softgrip_ros.model.geometry import load_geometry
 from softgrip_ros.tools import calibrate_live
@@ -75,7 +76,7 @@ def parser() -> argparse.ArgumentParser:
                       help="the pressures to hold, Pa, comma-separated (default: 5 to 40 kPa)")
     live.add_argument("--columns", default="alpha_deg,tip_spacing_m", help="what you measure at "
                       "each (default: alpha_deg,tip_spacing_m)")
-    live.add_argument("--namespace", default="", help="the gripper's namespace (e.g. /g1)")
+    add_namespace_argument(live)
     return top
 
 

@@ -35,6 +35,7 @@ import time
 
 import yaml
 
+from softgrip_ros.client import add_namespace_argument
 from softgrip_ros.control.reports import outputs_changed_at
 from softgrip_ros.estimation import identification
 from softgrip_ros.model import plant_file
@@ -60,7 +61,7 @@ class Stopped(Exception):
 def parser() -> argparse.ArgumentParser:
     top = argparse.ArgumentParser(prog="softgrip_identify", description=__doc__,
                                   formatter_class=argparse.RawDescriptionHelpFormatter)
-    top.add_argument("--namespace", default="", help="the gripper's namespace (e.g. /g1)")
+    add_namespace_argument(top)
     top.add_argument("--output", type=pathlib.Path, help="where to write (default: "
                      "identification-<date>-<time> here); must not hold a plant.yaml yet")
     top.add_argument("--from-log", type=pathlib.Path, metavar="DIR",

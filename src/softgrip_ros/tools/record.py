@@ -35,6 +35,8 @@ import sys
 import threading
 import time
 
+from softgrip_ros.client import add_namespace_argument
+
 DEFAULT_TOPICS = ("grasp_command", "grasp_state", "controller/status", "pressure/*", "tip_pose/*",
                   "joint_states", "/diagnostics")
 DISCOVERY_PERIOD_S = 0.5
@@ -86,7 +88,7 @@ def parser() -> argparse.ArgumentParser:
                      "unless they start with / (default: " + " ".join(DEFAULT_TOPICS) + ")")
     top.add_argument("--duration", type=float, help="stop after this many seconds (default: "
                      "until Ctrl-C)")
-    top.add_argument("--namespace", default="", help="the gripper's namespace (e.g. /g1)")
+    add_namespace_argument(top)
     top.add_argument("--can", type=pathlib.Path, metavar="FILE", help="also log the raw CAN "
                      "traffic to FILE (.blf, .asc or .log)")
     top.add_argument("--can-interface", default="socketcan", help="python-can interface for "
