@@ -209,7 +209,7 @@ def test_a_user_geometry_file_is_checked_with_clear_errors(tmp_path):
     from softgrip_ros.model.geometry import load_geometry
     fields = gripper_models.geometry_fields(GEOMETRY)
     path = tmp_path / "g.yaml"
-    for change, reason in [({"root_width_m": -1.0}, "root_width_m must be a positive"),
+    for change, reason in [({"root_width_m": -1.0}, "root_width_m must lie in"),
                            ({"wall_thickness_m": "thin"}, "wall_thickness_m must be a number"),
                            ({"tip_gap": 0.001}, "unknown field 'tip_gap'"),
                            ({"total_length_m": 0.2}, "disagrees with total_length_m")]:

@@ -296,8 +296,11 @@ def _geometry(**changes):
 
 @pytest.mark.parametrize("changes, message", [
     ({"chamber_depths_m": (0.019, 0.016, 0.013, 0.010)}, "needs 5 depths"),
-    ({"chamber_length_m": -0.014}, "chamber_length_m must be a positive"),
-    ({"wall_thickness_m": float("nan")}, "wall_thickness_m must be a positive"),
+    ({"chamber_length_m": -0.014}, r"chamber_length_m must lie in \(0, 1\] m"),
+    ({"wall_thickness_m": float("nan")}, "wall_thickness_m must lie in"),
+    ({"root_width_m": 1e300}, "root_width_m must lie in"),  # was accepted (#52, class 6)
+    ({"tip_gap_m": 1e300}, "tip_gap_m must lie in"),
+    ({"chamber_depths_m": (1e300,) * 5}, "chamber 1 depth"),
     ({"chamber_depths_m": (0.019, 0.016, 0.013, 0.010, 0.005)}, "chamber 5 depth"),
     ({"inclined_length_m": 0.080}, "do not fit"),
     ({"total_length_m": 0.2}, "disagrees with total_length_m"),
@@ -317,6 +320,9 @@ def test_geometry_file_errors_name_the_problem(tmp_path):
         load_geometry("zz", path)
     path.write_text("types:\n  a: {vertical_height_m: 0.015, colour: red}\n")
     with pytest.raises(ValueError, match="unknown field 'colour'"):
+        load_geometry("a", path)
+    path.write_text("types:\n  a: [1, 2]\n")  # a list where a mapping belongs: a TypeError
+    with pytest.raises(ValueError, match="a must map field names to values"):
         load_geometry("a", path)
 
 

@@ -19,6 +19,8 @@ import yaml
 CHAMBER_COUNT = 5
 # h1 + L2 cos(theta0) and Table 1's L1 agree to 0.1 mm; allow for rounding in the table.
 TOTAL_LENGTH_TOLERANCE_M = 0.002
+# no length of a hand-sized soft finger comes near this: a larger one is a typo or a unit slip
+MAX_LENGTH_M = 1.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,14 +49,15 @@ class FingerGeometry:
                     "root_width_m", "terminal_width_m")
         for field in positive:
             value = getattr(self, field)
-            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0.0:
+            if not isinstance(value, (int, float)) or not (0.0 < value <= MAX_LENGTH_M):
                 raise ValueError(
-                    f"geometry {self.name}: {field} must be a positive finite number, got "
+                    f"geometry {self.name}: {field} must lie in (0, {MAX_LENGTH_M:g}] m, got "
                     f"{value!r}")
         for field in ("first_chamber_offset_m", "tip_gap_m"):
             value = getattr(self, field)
-            if not math.isfinite(value) or value < 0.0:
-                raise ValueError(f"geometry {self.name}: {field} must be >= 0, got {value!r}")
+            if not 0.0 <= value <= MAX_LENGTH_M:
+                raise ValueError(f"geometry {self.name}: {field} must lie in [0, "
+                                 f"{MAX_LENGTH_M:g}] m, got {value!r}")
         if not 0.0 <= self.inclination_rad < math.pi / 2:
             raise ValueError(f"geometry {self.name}: inclination must lie in [0, 90) deg, "
                              f"got {math.degrees(self.inclination_rad)}")
@@ -66,10 +69,11 @@ class FingerGeometry:
                 f"geometry {self.name}: chamber_depths_m needs {CHAMBER_COUNT} depths "
                 f"(root to tip), got {len(depths)}")
         for index, depth in enumerate(depths, start=1):
-            if not math.isfinite(depth) or depth <= 2.0 * self.wall_thickness_m:
+            if not 2.0 * self.wall_thickness_m < depth <= MAX_LENGTH_M:
                 raise ValueError(
                     f"geometry {self.name}: chamber {index} depth {depth} m must exceed "
-                    f"two wall thicknesses ({2 * self.wall_thickness_m} m)")
+                    f"two wall thicknesses ({2 * self.wall_thickness_m} m) and stay within "
+                    f"{MAX_LENGTH_M:g} m")
         object.__setattr__(self, "chamber_depths_m", depths)
         if self.tip_length_m < 0.0:
             raise ValueError(
@@ -193,6 +197,8 @@ def geometry_from_fields(fields: dict, name: str, path) -> FingerGeometry:
 def _resolve(types: dict, name: str, path, seen: tuple) -> dict:
     if name in seen:
         raise ValueError(f"{path}: 'based_on' loop through {' -> '.join(seen + (name,))}")
+    if not isinstance(types[name] or {}, dict):
+        raise ValueError(f"{path}: {name} must map field names to values, got {types[name]!r}")
     entry = dict(types[name] or {})
     base = entry.pop("based_on", None)
     if base is None:
