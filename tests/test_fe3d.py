@@ -4,11 +4,12 @@ its behaviour against the plane-strain FE.
 Needs the FE extra (NGSolve), which scripts/test.sh installs. About a minute in all."""
 import math
 
+import numpy as np
 import pytest
 
-from softgrip_ros.model.fe.solver import NotConverged
+from softgrip_ros.model.fe.solver import NotConverged, YeohMaterial
 from softgrip_ros.model.fe3d.finger import MAX_INTERPENETRATION_M, Finger3D
-from softgrip_ros.model.fe3d.verification import (lame_cylinder, mesh_convergence,
+from softgrip_ros.model.fe3d.verification import (contact_balance, lame_cylinder,
                                                   plane_strain_limit)
 from softgrip_ros.model.geometry import CHAMBER_COUNT, load_geometry
 
@@ -38,15 +39,6 @@ def test_lame_thick_cylinder_matches_within_one_percent():
     (measured: 0.07 % on a 2 mm mesh)."""
     case = lame_cylinder(element_size_m=2.5e-3)
     assert case.worst_error_pct < 1.0, case
-
-
-def test_a_mesh_study_refines_and_reports_how_far_the_tip_moved():
-    """Two very coarse meshes at 2 kPa, so that it stays cheap (the 2 and 1.4 mm meshes agree
-    within 0.14 % at 10 kPa; docs/model_validation.md)."""
-    study = mesh_convergence(GEOMETRY, (6e-3, 4.5e-3), 2e3)
-    assert study.elements[0] < study.elements[1]
-    assert study.tip_displacement_m > 0.3e-3  # about 0.8 mm at 2 kPa
-    assert 0.0 <= study.change_pct < 10.0
 
 
 def test_the_rest_state_measures_the_layout():
@@ -97,6 +89,15 @@ def test_neighbouring_blocks_touch_and_do_not_pass_through_each_other():
     assert state.volume_change < 0.005
 
 
+def test_a_rigid_obstacle_s_force_balances_the_reaction_at_the_clamp():
+    """A plane 1 mm below the backbone, which the opening finger's tip presses: the obstacle's
+    force on the finger and the clamp's reaction cancel along its normal within 1 % (the gas
+    loads a closed cavity with no net force). Measured: to 1e-9."""
+    case = contact_balance(GEOMETRY, element_size_m=6e-3)
+    assert case.reference[0] > 1e-3  # it presses (about 14 mN on this half model)
+    assert case.worst_error_pct < 1.0, case
+
+
 def test_a_load_that_fails_leaves_the_finger_at_its_last_converged_pressure():
     finger = Finger3D(GEOMETRY, element_size_m=COARSE_M)
     finger.solve(5e3)
@@ -122,3 +123,66 @@ def test_an_unknown_cavity_is_refused():
     finger = Finger3D(GEOMETRY, element_size_m=COARSE_M)
     with pytest.raises(ValueError, match="no such cavity"):
         finger.solid.solve({"chamber_9": 1e3})
+
+
+# ---- the sweep (softgrip_ros.model.fe3d.sweep) ----------------------------------------------
+def _state(pressure_pa, gaps):
+    from softgrip_ros.model.fe3d.finger import FE3DState
+
+    return FE3DState(pressure_pa, 0.26, 0.014, 0.001, 0.0, (0.0, 0.1, 0.0),
+                     np.zeros((2, 2)), (1e-6,) * 5, tuple(gaps), 0.0, 0)
+
+
+def test_blocks_first_touch_where_their_gap_crosses_the_touch_gap():
+    from softgrip_ros.model.fe3d.sweep import TOUCH_GAP_M, FE3DSweep
+
+    states = [_state(-5e3, (3e-3,) * 4), _state(0.0, (3e-3,) * 4),
+              _state(10e3, (1.02e-3, 2e-3, 3e-3, 3e-3)),
+              _state(20e3, (TOUCH_GAP_M - 1e-3, 1e-3, 3e-3, 3e-3)),
+              _state(30e3, (-1e-6, TOUCH_GAP_M, 3e-3, 3e-3))]
+    result = FE3DSweep("x", 0.02, False, 3e-3, 1, states, "", "", 1.0)
+    first = result.block_contact_first_pa()
+    assert first[0] == pytest.approx(15e3)  # halfway from 1.02 mm to 1.02 mm below the gap
+    assert first[1] == pytest.approx(30e3)
+    assert math.isnan(first[2]) and math.isnan(first[3])
+    assert result.vacuum_limit_pa == -5e3
+
+
+@pytest.mark.parametrize("side, words", [
+    ({"positive_pa": (10e3, 5e3)}, "positive pressures must"),
+    ({"positive_pa": (-5e3,)}, "positive pressures must"),
+    ({"negative_pa": (-10e3, -5e3)}, "negative pressures must"),
+    ({"negative_pa": (float("nan"),)}, "negative pressures must"),
+])
+def test_a_sweep_refuses_pressures_out_of_order(side, words, tmp_path, monkeypatch):
+    from softgrip_ros.model.fe3d.sweep import sweep3d
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    with pytest.raises(ValueError, match=words):
+        sweep3d(GEOMETRY, **side)
+    assert not any(tmp_path.iterdir())
+
+
+def test_a_sweep_is_cached_by_its_inputs_and_read_back_whole(tmp_path, monkeypatch):
+    from softgrip_ros.model.fe3d import sweep as sweep_module
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    kwargs = {"element_size_m": 6e-3, "positive_pa": (2e3,), "negative_pa": (-2e3,)}
+    lines = []
+    first = sweep_module.sweep3d(GEOMETRY, progress=lines.append, **kwargs)
+    assert [s.pressure_pa for s in first.states] == [-2e3, 0.0, 2e3]
+    assert len(lines) == 3 and "3/3" in lines[-1]
+    assert first.at(2e3).tip_spacing_m > first.at(0.0).tip_spacing_m
+    (stored,) = (tmp_path / "softgrip_ros" / "fe").glob("fe3d-*.json")
+    assert stored.stem == first.inputs_hash
+
+    def no_model(*args, **kwargs):
+        raise AssertionError("a cached sweep was computed again")
+
+    monkeypatch.setattr(sweep_module, "Finger3D", no_model)
+    again = sweep_module.sweep3d(GEOMETRY, progress=lines.append, **kwargs)
+    assert again.to_dict() == first.to_dict()
+    assert len(lines) == 3  # read, not computed
+    wider = sweep_module.inputs_hash(GEOMETRY, YeohMaterial(), 0.03, 6e-3, False, (2e3,),
+                                     (-2e3,))
+    assert wider != first.inputs_hash

@@ -319,8 +319,47 @@ def cache_dir() -> pathlib.Path:
     return pathlib.Path(root) / "softgrip_ros" / "fe"
 
 
+def read_cache(key: str, parse):
+    """``parse(document)`` of the cached sweep ``key``, or None if there is none or it does not
+    parse (it is then recomputed and overwritten)."""
+    cached = cache_dir() / f"{key}.json"
+    if not cached.exists():
+        return None
+    try:
+        return parse(json.loads(cached.read_text()))
+    except (ValueError, KeyError, TypeError):
+        return None
+
+
+def write_cache(key: str, document: dict) -> None:
+    """Store ``document`` as sweep ``key``, whole or not at all."""
+    cached = cache_dir() / f"{key}.json"
+    cached.parent.mkdir(parents=True, exist_ok=True)
+    tmp = cached.with_suffix(f".{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(document))
+    tmp.replace(cached)
+
+
 def _stderr_progress(message: str) -> None:
     print(f"[fe] {message}", file=sys.stderr, flush=True)
+
+
+class SweepProgress:
+    """A sweep's progress bar: ``report(pressure_pa, state_or_reason)`` after each of ``total``
+    pressures sends one line to ``progress(message)``: the bar, the count, the pressure, the tip
+    spacing D2 of a state (or the reason a side ended), and the time so far."""
+
+    def __init__(self, total: int, progress):
+        self.total, self.done, self.progress = int(total), 0, progress
+        self.started = time.perf_counter()
+
+    def __call__(self, pressure_pa: float, state_or_reason) -> None:
+        self.done += 1
+        what = (state_or_reason if isinstance(state_or_reason, str) else
+                f"D2 {state_or_reason.tip_spacing_m * 1e3:7.2f} mm")
+        bar = "#" * int(20 * min(self.done, self.total) / self.total)
+        self.progress(f"[{bar:<20}] {self.done:2d}/{self.total} {pressure_pa / 1e3:+6.1f} kPa  "
+                      f"{what}  {time.perf_counter() - self.started:5.1f} s")
 
 
 def sweep(geometry: FingerGeometry, material: YeohMaterial | None = None,
@@ -334,24 +373,12 @@ def sweep(geometry: FingerGeometry, material: YeohMaterial | None = None,
             b <= a for a, b in zip(pressures, pressures[1:])):
         raise ValueError(f"pressures must start at 0 and ascend, got {pressures_pa!r}")
     key = inputs_hash(geometry, material, element_size_m, pressures)
-    cached = cache_dir() / f"{key}.json"
-    if use_cache and cached.exists():
-        try:
-            return FESweep.from_dict(json.loads(cached.read_text()))
-        except (ValueError, KeyError, TypeError):
-            pass  # an unreadable cache entry is recomputed and overwritten
+    if use_cache:
+        found = read_cache(key, FESweep.from_dict)
+        if found is not None:
+            return found
     started = time.perf_counter()
-    total = 2 * len(pressures) - 1
-    done = 0
-
-    def report(pressure_pa, state_or_reason):
-        nonlocal done
-        done += 1
-        what = (state_or_reason if isinstance(state_or_reason, str) else
-                f"D2 {state_or_reason.tip_spacing_m * 1e3:7.2f} mm")
-        bar = "#" * int(20 * done / total)
-        progress(f"[{bar:<20}] {done:2d}/{total} {pressure_pa / 1e3:+6.1f} kPa  {what}  "
-                 f"{time.perf_counter() - started:5.1f} s")
+    report = SweepProgress(2 * len(pressures) - 1, progress)
 
     finger = FingerFE(geometry, material, element_size_m)
     positive = []
@@ -396,10 +423,7 @@ def sweep(geometry: FingerGeometry, material: YeohMaterial | None = None,
         vacuum_limit_pa=min([s.pressure_pa for s in negative] + [0.0]),
         seconds=time.perf_counter() - started, triangles=int(finger.mesh.t.shape[1]))
     if use_cache:
-        cached.parent.mkdir(parents=True, exist_ok=True)
-        tmp = cached.with_suffix(".tmp")
-        tmp.write_text(json.dumps(result.to_dict()))
-        tmp.replace(cached)
+        write_cache(key, result.to_dict())
     return result
 
 

@@ -74,7 +74,8 @@ class Finger3DLayout:
         return PLANE_STRAIN_SLAB_M if self.plane_strain else 0.5 * self.width_m
 
     def mesh(self, element_size_m: float):
-        """A tetrahedral NGSolve mesh. Its boundaries: ``clamp``, ``symmetry``; per chamber block i
+        """A tetrahedral NGSolve mesh. Its boundaries: ``clamp``, ``symmetry``, ``backbone`` (the
+        outer side, n = 0); per chamber block i
         ``near<i>``, ``far<i>`` (its end walls) and ``top<i>``; ``tip_top``, ``tip_end``; per
         cavity ``cavity<i>_`` + ``near``, ``far``, ``floor``, ``ceiling`` and ``side``."""
         import ngsolve as ng
@@ -82,7 +83,9 @@ class Finger3DLayout:
 
         lay, top = self.profile, self.half_width_m
         body = Box(Pnt(0.0, 0.0, 0.0), Pnt(lay.length_m, lay.base_m, top))
+        body.faces.Min(Y).name = "backbone"
         tip = Box(Pnt(lay.tip_start_m, 0.0, 0.0), Pnt(lay.length_m, lay.tip_thickness_m, top))
+        tip.faces.Min(Y).name = "backbone"
         tip.faces.Max(Y).name = "tip_top"
         tip.faces.Max(X).name = "tip_end"
         body = body + tip
@@ -127,15 +130,33 @@ class FE3DState:
     block_gaps_m: tuple
     volume_change: float  # the largest |deformed / reference volume - 1| of the solid's parts
     newton_iterations: int
+    interpenetration_m: float = 0.0  # Finger3D.interpenetration_m (0 without contact)
+
+    def to_dict(self) -> dict:
+        """Plain floats and lists (JSON, YAML)."""
+        out = dataclasses.asdict(self)
+        out["backbone_m"] = [[round(float(x), 7), round(float(z), 7)] for x, z in self.backbone_m]
+        for key in ("tip", "chamber_volumes_m3", "block_gaps_m"):
+            out[key] = [float(v) for v in getattr(self, key)]
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "FE3DState":
+        data = dict(data)
+        data["backbone_m"] = np.asarray(data["backbone_m"], dtype=float)
+        for key in ("tip", "chamber_volumes_m3", "block_gaps_m"):
+            data[key] = tuple(data[key])
+        return cls(**data)
 
 
 class Finger3D:
-    """The 3-D FE model of one finger of ``width_m`` on a mesh of ``element_size_m``."""
+    """The 3-D FE model of one finger of ``width_m`` on a mesh of ``element_size_m``;
+    ``obstacles`` (solid.Obstacle) are rigid bodies it may press, besides its own contacts."""
 
     def __init__(self, geometry: FingerGeometry, width_m: float = DEFAULT_WIDTH_M,
                  material: YeohMaterial | None = None,
                  element_size_m: float = DEFAULT_ELEMENT_SIZE_M, plane_strain: bool = False,
-                 side_wall_m: float | None = None, contact: bool = True):
+                 side_wall_m: float | None = None, contact: bool = True, obstacles=()):
         lo, hi = ELEMENT_SIZE_RANGE_M
         if not (math.isfinite(element_size_m) and lo <= element_size_m <= hi):
             raise ValueError(f"element size must lie in [{lo * 1e3:g}, {hi * 1e3:g}] mm, got "
@@ -154,7 +175,7 @@ class Finger3D:
         self.solid = Solid3D(self.mesh, self.material, self.chambers,
                              {"x": "clamp", "y": "clamp", "z": "clamp|symmetry"},
                              contacts=[(p.primary, p.secondary) for p in self._contact_pairs],
-                             obstacles=self._obstacles())
+                             obstacles=self._obstacles() + list(obstacles))
         self._build_probes()
         self._reference_parts = [self.solid.volume_m3(False, part) for part in self._parts()]
         self._reference_chambers = [self.solid.cavity_volume_m3(name, deformed=False)
@@ -287,7 +308,8 @@ class Finger3D:
             chamber_volumes_m3=volumes,
             block_gaps_m=tuple(gaps),
             volume_change=float(change),
-            newton_iterations=self.solid.stats.newton_iterations)
+            newton_iterations=self.solid.stats.newton_iterations,
+            interpenetration_m=self.interpenetration_m() if self.contact else 0.0)
 
     @property
     def _volume_scale(self) -> float:

@@ -148,10 +148,14 @@ class Solid3D:
                 raise ValueError(f"obstacle: no boundary of the mesh matches "
                                  f"{obstacle.pattern!r}")
             depth = obstacle.depth(position)
-            self.form += ng.Variation(ng.IfPos(
+            energy = ng.Variation(ng.IfPos(
                 depth, 0.5 * self.contact_stiffness_pa_per_m * depth * depth, 0.0).Compile()
                 * ng.ds(obstacle.pattern))
-            self._obstacles.append(obstacle)
+            self.form += energy
+            # the same term alone: its residual is the force the obstacle exerts
+            alone = ng.BilinearForm(self.space, symmetric=True)
+            alone += energy
+            self._obstacles.append((obstacle, alone))
         self.gas_pressures = {name: 0.0 for name in cavities}
 
     # ---- solving -----------------------------------------------------------------------------
@@ -295,22 +299,44 @@ class Solid3D:
 
     @property
     def obstacle_names(self) -> list:
-        return [obstacle.name for obstacle in self._obstacles]
+        return [obstacle.name for obstacle, _ in self._obstacles]
 
-    def obstacle_contact(self, name: str) -> tuple:
-        """(force N, largest penetration m, force-weighted mean reference point (3,)) of the
-        obstacle ``name``: the penalty's pressure summed over the boundary's reference area. On
-        a half model the caller doubles the force."""
+    def _translation_work(self, residual, pattern=None) -> np.ndarray:
+        """(3,) the work of ``residual`` under unit translations in x, y and z: of the whole
+        solid, or (``pattern``) of those boundaries alone."""
         import ngsolve as ng
 
-        obstacle = next(o for o in self._obstacles if o.name == name)
+        translation = ng.GridFunction(self.space)
+        out = np.zeros(3)
+        for axis in range(3):
+            translation.vec[:] = 0.0
+            direction = tuple(1.0 if k == axis else 0.0 for k in range(3))
+            if pattern is None:
+                translation.components[0].Set(ng.CoefficientFunction(direction))
+            else:
+                translation.components[0].Set(ng.CoefficientFunction(direction),
+                                              definedon=self.mesh.Boundaries(pattern))
+            out[axis] = translation.vec.InnerProduct(residual)
+        return out
+
+    def obstacle_contact(self, name: str) -> tuple:
+        """(force (3,) N, largest penetration m, force-weighted mean reference point (3,)) of
+        the obstacle ``name``. The force is what the obstacle exerts on the solid, from the
+        penalty's own term of the residual, so it is the force the equilibrium balances. On a
+        half model the caller doubles it."""
+        import ngsolve as ng
+
+        obstacle, alone = next(pair for pair in self._obstacles if pair[0].name == name)
+        residual = self.state.vec.CreateVector()
+        alone.Apply(self.state.vec, residual)
+        force = -self._translation_work(residual)
         position0 = ng.CoefficientFunction((ng.x, ng.y, ng.z))
         depth = obstacle.depth(position0 + self.displacement)
-        pressing = ng.IfPos(depth, depth, 0.0) * self.contact_stiffness_pa_per_m
+        pressing = ng.IfPos(depth, depth, 0.0)
         region = self.mesh.Boundaries(obstacle.pattern)
-        force = float(ng.Integrate(pressing, self.mesh, definedon=region, order=6))
+        weight = float(ng.Integrate(pressing, self.mesh, definedon=region, order=6))
         moments = ng.Integrate(pressing * position0, self.mesh, definedon=region, order=6)
-        centre = (np.asarray(moments, dtype=float) / force if force > 0.0
+        centre = (np.asarray(moments, dtype=float) / weight if weight > 0.0
                   else np.full(3, math.nan))
         # the largest depth, from a high norm of it over the boundary (exact as the power grows)
         power = 16
@@ -318,6 +344,14 @@ class Solid3D:
         deepest = (float(ng.Integrate(ng.IfPos(depth, depth, 0.0) ** power, self.mesh,
                                       definedon=region, order=8)) / area) ** (1.0 / power)
         return force, deepest, centre
+
+    def reaction_n(self, pattern: str) -> np.ndarray:
+        """(3,) the force (N) that the supports on the boundaries matching ``pattern`` exert on
+        the solid: the residual's work under a unit translation of those boundaries alone (the
+        residual vanishes at every free degree of freedom once converged)."""
+        residual = self.state.vec.CreateVector()
+        self.form.Apply(self.state.vec, residual)
+        return self._translation_work(residual, pattern)
 
     def contact_pair_gaps_m(self, index: int, points) -> np.ndarray:
         """The signed distance (m, < 0: overlapping) from each (K, 3) reference point of pair

@@ -8,6 +8,8 @@
   u_r(r) = q a^2 b^2 / (2 mu (b^2 - a^2) r). It checks the follower pressure, as an energy, on a
   curved wall of a quarter model cut by two symmetry planes.
 * **Mesh convergence**: the tip at three element sizes.
+* **Contact against a support**: the finger opened onto a rigid plane below its backbone; the
+  plane's force on it against the clamp's reaction, along the plane's normal.
 """
 from __future__ import annotations
 
@@ -94,6 +96,22 @@ def lame_cylinder(material: YeohMaterial | None = None,
         exact.append(q * a * a * b * b / (2.0 * material.shear_modulus_pa * (b * b - a * a) * r))
     return Comparison("Lame cylinder, u_r at the bore and the rim (m)", fe, exact,
                       _worst(fe, exact))
+
+
+def contact_balance(geometry: FingerGeometry, element_size_m: float = 3e-3,
+                    pressure_pa: float = 20e3, gap_m: float = 1e-3) -> Comparison:
+    """The finger at ``pressure_pa`` opened onto a rigid plane ``gap_m`` below its backbone: the
+    clamp's reaction (negated) against the plane's force, along its normal (N, half model)."""
+    from softgrip_ros.model.fe3d.solid import Obstacle
+
+    floor = Obstacle("floor", "backbone|tip_end", lambda x: -gap_m - x[1])
+    finger = Finger3D(geometry, element_size_m=element_size_m, obstacles=[floor])
+    finger.solve(pressure_pa)
+    force = finger.solid.obstacle_contact("floor")[0][1]
+    reaction = -finger.solid.reaction_n("clamp")[1]
+    return Comparison(f"contact with a plane {gap_m * 1e3:g} mm below the backbone at "
+                      f"{pressure_pa / 1e3:g} kPa: clamp reaction against the plane's force (N)",
+                      [reaction], [force], _worst([reaction], [force]))
 
 
 def mesh_convergence(geometry: FingerGeometry, sizes_m, pressure_pa: float,
