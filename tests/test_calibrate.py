@@ -145,6 +145,10 @@ def test_a_constant_the_data_do_not_move_is_dropped_when_chosen_and_refused_when
     ("pressure_pa,alpha_deg\n1e3,abc\n", "line 2, alpha_deg: not a number"),
     ("pressure_pa,alpha_deg\n90e3,40\n", "outside the model's range"),
     ("pressure_pa,alpha_deg,std_alpha_deg\n1e3,20,0\n", "std_alpha_deg must be a positive"),
+    # impossible values were fitted, and replaced a model with --force (#52, class 6)
+    ("pressure_pa,alpha_deg\n1e3,-1e300\n", r"line 2: alpha_deg -1e\+300 is outside"),
+    ("pressure_pa,tip_spacing_m\n1e3,0.01\n2e3,-5\n", "line 3: tip_spacing_m -5 is outside"),
+    ("pressure_pa,alpha_deg,std_alpha_deg\n1e3,20,1e9\n", "std_alpha_deg must be a positive"),
     ("pressure_pa,std_alpha_deg\n1e3,1\n", "no measured quantity"),
     ("", "empty file"),
 ])

@@ -50,10 +50,13 @@ class Quantity:
     to_column: float  # model SI value * this = the column's unit
     default_std: float
     label: str
+    # what a measurement may be at all, in the column's unit: beyond it, a typo or a unit slip
+    valid: tuple = (-1.0, 1.0)
 
 
 QUANTITIES = {
-    "alpha_deg": Quantity("included_angle_rad", 180.0 / math.pi, 1.0, "alpha (deg)"),
+    "alpha_deg": Quantity("included_angle_rad", 180.0 / math.pi, 1.0, "alpha (deg)",
+                          (-180.0, 360.0)),
     "tip_spacing_m": Quantity("tip_spacing_m", 1.0, 1e-3, "D2 (m)"),
     "root_spacing_m": Quantity("root_spacing_m", 1.0, 1e-3, "D1 (m)"),
     "left_tip_x_m": Quantity("left_tip_x_m", 1.0, 1e-3, "left tip x (m)"),
@@ -173,13 +176,19 @@ def load_csv(path) -> Measurements:
     for q in measured:
         if np.any(np.isinf(data[q])):
             raise ValueError(f"{path}: {q}: an infinite value")
+        low, high = QUANTITIES[q].valid
+        outside = np.isfinite(data[q]) & ((data[q] < low) | (data[q] > high))
+        if np.any(outside):
+            line = int(np.argmax(outside)) + 2
+            raise ValueError(f"{path}: line {line}: {q} {data[q][line - 2]:g} is outside "
+                             f"[{low:g}, {high:g}], what a {QUANTITIES[q].label} can be")
         s = data.get(f"std_{q}")
         if s is not None:
-            bad = np.isfinite(data[q]) & ~(np.isfinite(s) & (s > 0))
+            bad = np.isfinite(data[q]) & ~(np.isfinite(s) & (s > 0) & (s < high - low))
             if np.any(bad):
                 line = int(np.argmax(bad)) + 2
-                raise ValueError(f"{path}: line {line}: std_{q} must be a positive number where "
-                                 f"{q} is given")
+                raise ValueError(f"{path}: line {line}: std_{q} must be a positive number "
+                                 f"below {high - low:g} where {q} is given")
         std[q] = s
     result = Measurements(pressure, {q: data[q] for q in measured}, std, str(path))
     if result.observations() == 0:
