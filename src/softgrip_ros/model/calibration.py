@@ -27,6 +27,7 @@ import pathlib
 import yaml
 from scipy.optimize import least_squares
 
+from softgrip_ros.fileio import write_text_atomically
 from softgrip_ros.model.bending import BendingCalibration, Saturation
 from softgrip_ros.model.geometry import FingerGeometry, load_geometry
 from softgrip_ros.model.kinematics import GripperKinematics
@@ -184,12 +185,9 @@ def write_calibration(calibrations: dict, path, paper_path: str) -> None:
             for name, cal in calibrations.items()
         },
     }
-    with pathlib.Path(path).open("w") as handle:
-        handle.write(
-            "# Bending-model calibration, written by scripts/validate_model.py --calibrate. Do "
-            "not edit by hand.\n"
-        )
-        yaml.safe_dump(doc, handle, sort_keys=False)
+    write_text_atomically(path, "# Bending-model calibration, written by "
+                          "scripts/validate_model.py --calibrate. Do not edit by hand.\n"
+                          + yaml.safe_dump(doc, sort_keys=False))
 
 
 def load_calibration(cavity_type: str = "type_II", path=None) -> BendingCalibration:

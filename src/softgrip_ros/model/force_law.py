@@ -40,6 +40,7 @@ import numpy as np
 import yaml
 
 from softgrip_ros.checks import require_positive
+from softgrip_ros.fileio import write_text_atomically
 
 LOG = logging.getLogger(__name__)
 G_M_PER_S2 = 9.80665
@@ -229,15 +230,11 @@ def write_table(table: ForceTable, path, provenance: dict) -> pathlib.Path:
             "sizes_m": [float(s) for s in table.sizes_m[kind]],
             "normal_force_n": [[None if not math.isfinite(v) else round(float(v), 6) for v in row]
                                for row in table.forces_n[kind]]}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_suffix(".tmp")
-    temporary.write_text("# The clamp force law of one gripper model: each finger's normal force "
-                         "(N) against the pressure, per object size. Written by "
-                         "softgrip_ros.model.force_law; do not edit.\n" +
-                         yaml.safe_dump(document, sort_keys=False, default_flow_style=None,
-                                        width=100000))
-    temporary.replace(path)
-    return path
+    return write_text_atomically(
+        path, "# The clamp force law of one gripper model: each finger's normal force (N) "
+              "against the pressure, per object size. Written by softgrip_ros.model.force_law; "
+              "do not edit.\n" + yaml.safe_dump(document, sort_keys=False,
+                                                default_flow_style=None, width=100000))
 
 
 def read_table(path) -> ForceTable:

@@ -23,6 +23,7 @@ import pathlib
 
 import yaml
 
+from softgrip_ros.fileio import write_text_atomically
 from softgrip_ros.model.bending import BendingCalibration
 from softgrip_ros.model.geometry import FingerGeometry, geometry_from_fields
 
@@ -120,7 +121,6 @@ def write_file(path, name: str, geometry: FingerGeometry, calibration: BendingCa
                fit: dict, provenance: dict) -> pathlib.Path:
     """Write one gripper model: geometry, constants, how they were found."""
     path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     document = {
         "name": name,
         "geometry": geometry_fields(geometry),
@@ -129,5 +129,4 @@ def write_file(path, name: str, geometry: FingerGeometry, calibration: BendingCa
         "fit": fit,
         "provenance": provenance,
     }
-    path.write_text(FILE_HEADER + yaml.safe_dump(document, sort_keys=False))
-    return path
+    return write_text_atomically(path, FILE_HEADER + yaml.safe_dump(document, sort_keys=False))

@@ -24,6 +24,7 @@ import pathlib
 
 import yaml
 
+from softgrip_ros.fileio import write_text_atomically
 from softgrip_ros.model.pneumatics import PneumaticParameters
 
 FORMAT = "softgrip_plant/1"
@@ -199,9 +200,9 @@ def save(description: PlantDescription, path, header: str = "") -> pathlib.Path:
             flow = yaml.safe_dump(entry, default_flow_style=True, width=1000,
                                   sort_keys=False).strip()
             lines.append(f"    {field}: {flow}")
-    path.write_text("\n".join(lines) + "\n")
-    parse(yaml.safe_load(path.read_text()), str(path))  # what was written reads back
-    return path
+    text = "\n".join(lines) + "\n"
+    parse(yaml.safe_load(text), str(path))  # what is written reads back
+    return write_text_atomically(path, text)
 
 
 def today() -> str:

@@ -40,6 +40,8 @@ import sys
 import numpy as np
 
 from softgrip_ros.client import add_namespace_argument
+from softgrip_ros.fileio import (OutputError, check_writable_directory, replacing,
+                                write_text_atomically)
 from softgrip_ros.model import bending_fit, gripper_models
 from softgrip_ros.model.geometry import load_geometry
 from softgrip_ros.tools import calibrate_live
@@ -103,6 +105,7 @@ def main(argv=None) -> int:
     try:
         if output.exists() and not args.force:
             raise ValueError(f"{output} exists; --force replaces it")
+        check_writable_directory(output.parent)  # before a fit whose result it could not keep
         if args.live:
             calibrate_live.measure(pressures, columns, args.measurements, args.namespace)
         print(f"reading {args.measurements}", flush=True)
@@ -115,7 +118,7 @@ def main(argv=None) -> int:
         print(f"fitting {', '.join(names)} to {data.observations()} measured values at "
               f"{len(data)} pressures (then {len(data)} leave-one-out refits)", flush=True)
         result = bending_fit.fit(data, geometry, base, requested, args.loss, args.confidence)
-    except ValueError as error:
+    except (ValueError, OutputError) as error:
         print(f"softgrip_calibrate: {error}; nothing written", file=sys.stderr)
         return 1
     except ConnectionError as error:
@@ -126,7 +129,11 @@ def main(argv=None) -> int:
         print(f"softgrip_calibrate: {reason}; vented; the rows measured so far are in "
               f"{args.measurements}; no calibration written", file=sys.stderr)
         return 1
-    written = write(result, geometry, args, output, command)
+    try:
+        written = write(result, geometry, args, output, command)
+    except OutputError as error:
+        print(f"softgrip_calibrate: {error}", file=sys.stderr)
+        return 1
     for flag in result.flags:
         print(f"softgrip_calibrate: flagged: {flag}", file=sys.stderr)
     print(summary(result))
@@ -175,17 +182,18 @@ def write(result: bending_fit.BendingFit, geometry, args, output: pathlib.Path,
         "geometry": str(args.geometry) if args.geometry else f"{args.base}'s",
         "model": "L0 (eq. 16-17) with ballooning and saturation; L1 uses the same constants",
     }
-    written = [gripper_models.write_file(output, args.name, geometry, result.calibration,
-                                         _plain(fit_record), provenance)]
+    # the report and its figure first, the model last: a model on disk always has its report
     stem = output.with_name(f"{output.stem}_calibration")
-    figure = None if args.no_plot else plot(result, geometry, args.base,
-                                            stem.with_suffix(".png"))
-    report = stem.with_suffix(".md")
-    report.write_text(markdown(result, fit_record, provenance, figure))
-    written.append(report)
-    if figure:
-        written.append(figure)
-    return written
+    figure = None
+    if not args.no_plot:
+        figure = stem.with_suffix(".png")
+        with replacing(figure) as temporary:
+            plot(result, geometry, args.base, temporary)
+    report = write_text_atomically(stem.with_suffix(".md"),
+                                   markdown(result, fit_record, provenance, figure))
+    model = gripper_models.write_file(output, args.name, geometry, result.calibration,
+                                      _plain(fit_record), provenance)
+    return [model, report] + ([figure] if figure else [])
 
 
 def _plain(value):

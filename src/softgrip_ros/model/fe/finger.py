@@ -28,6 +28,7 @@ import time
 
 import numpy as np
 
+from softgrip_ros.fileio import write_text_atomically
 from softgrip_ros.model.fe.mesh import CORNER_REFINEMENT, FingerLayout
 from softgrip_ros.model.fe.solver import HyperelasticSolid, NotConverged, YeohMaterial
 from softgrip_ros.model.fe_data import at_pressure
@@ -333,11 +334,7 @@ def read_cache(key: str, parse):
 
 def write_cache(key: str, document: dict) -> None:
     """Store ``document`` as sweep ``key``, whole or not at all."""
-    cached = cache_dir() / f"{key}.json"
-    cached.parent.mkdir(parents=True, exist_ok=True)
-    tmp = cached.with_suffix(f".{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(document))
-    tmp.replace(cached)
+    write_text_atomically(cache_dir() / f"{key}.json", json.dumps(document))
 
 
 def _stderr_progress(message: str) -> None:
