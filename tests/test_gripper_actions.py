@@ -143,6 +143,12 @@ def test_parallel_gripper_command_carries_the_prefixed_tip_spacing_joint(suite):
     wrong.command.name, wrong.command.position = ["left_finger"], [0.02]
     _, refused = send(action, wrong)
     assert result_of(refused).status == GoalStatus.STATUS_ABORTED
+    # and why, on grasp_state, as the README says (it was a log line only: #52, class 3)
+    wait_for(lambda: "'g1_tip_spacing'" in client.state().message, timeout=2.0,
+             message="the refusal's reason on grasp_state")
+    state = client.state()
+    assert state.message.startswith("rejected: one joint") and "left_finger" in state.message
+    assert state.command_id == "parallel_gripper_cmd"
 
 
 @pytest.mark.parametrize("position_m, effort_n", [

@@ -115,10 +115,14 @@ class GraspActions:
         command = goal_handle.request.command
         names, positions = list(command.name), list(command.position)
         if names not in ([], [self.joint]) or len(positions) != 1:
+            m = self.manager
+            reason = (f"one joint, {self.joint!r}, and one position, got names {names} and "
+                      f"positions {positions}")
+            with m._lock:  # said on grasp_state, as every other refusal is
+                m.fsm.refuse("parallel_gripper_cmd", reason)
+                m._after_change(m._now())
+            m.get_logger().warn(f"parallel_gripper_cmd goal refused: {reason}")
             goal_handle.abort()
-            self.manager.get_logger().warn(
-                f"parallel_gripper_cmd refused: one joint, {self.joint!r}, and one position, "
-                f"got names {names} and positions {positions}")
             return self._parallel_result(self._present())
         effort = float(command.effort[0]) if len(command.effort) else 0.0
         progress = await self._run_gripper_goal(goal_handle, positions[0], effort,
