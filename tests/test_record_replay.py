@@ -204,6 +204,42 @@ def test_a_truncated_or_corrupt_bag_is_reported_not_a_traceback(demo_bag, tmp_pa
     assert done.returncode == 2 and "Traceback" not in done.stderr
 
 
+def _foreign_bag(path):
+    """A log with a std_msgs/String topic and one of a type the suite does not know."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    store = get_typestore(Stores.ROS2_JAZZY)
+    store.register(get_types_from_msg("float64 x\n", "my_pkg/msg/Foo"))
+    writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+    writer.open()
+    foo = writer.add_connection("/foo", "my_pkg/msg/Foo", typestore=store)
+    text = writer.add_connection("/note", "std_msgs/msg/String", typestore=store)
+    writer.write(foo, 1000, store.serialize_cdr(store.types["my_pkg/msg/Foo"](x=1.0),
+                                                "my_pkg/msg/Foo"))
+    writer.write(text, 2000, store.serialize_cdr(
+        store.types["std_msgs/msg/String"](data="hi"), "std_msgs/msg/String"))
+    writer.close()
+    return path
+
+
+def test_a_topic_of_an_unknown_type_is_skipped_with_a_note_not_a_traceback(tmp_path):
+    """softgrip_identify --from-log ended in a KeyError on such a log (#52, class 5)."""
+    from softgrip_ros.tools import bag
+
+    log = _foreign_bag(tmp_path / "log")
+    unknown = []
+    assert [(t, m.data) for t, _, _, m in bag.read(log, lambda *a: unknown.append(a))] == [
+        ("/note", "hi")]
+    assert unknown == [("/foo", "my_pkg/msg/Foo")]
+    for name, arguments, code in (("softgrip_identify", ["--from-log", log], 1),
+                                  ("softgrip_replay", [log, "--output", tmp_path / "out"], 2)):
+        done = tool(name, *arguments)
+        assert done.returncode == code and "Traceback" not in done.stderr, done.stderr
+        assert "ignoring /foo: its type my_pkg/msg/Foo" in done.stderr
+        assert done.stderr.strip().splitlines()[-1].startswith(f"{name}: ")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["log"]
+
+
 @pytest.mark.ros
 def test_the_recorder_refuses_an_existing_directory_and_warns_of_missing_topics(tmp_path):
     (tmp_path / "exists").mkdir()

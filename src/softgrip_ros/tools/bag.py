@@ -75,13 +75,21 @@ class BagWriter:
         self._writer.write(connection, int(stamp_ns), data)
 
 
-def read(path):
+def read(path, on_unknown=None):
     """Every message of the log at ``path``, in time order: (topic, msgtype, stamp_ns, message);
-    ValueError when it is not a readable rosbag2 directory."""
+    ValueError when it is not a readable rosbag2 directory. A topic whose type is neither ROS's
+    nor the suite's (none the tools read) is skipped, and ``on_unknown(topic, msgtype)`` hears of
+    it first."""
     store = typestore()
     try:
         with Reader(pathlib.Path(path)) as reader:
-            for connection, stamp_ns, data in reader.messages():
+            known = [c for c in reader.connections if c.msgtype in store.fielddefs]
+            for connection in reader.connections:
+                if connection not in known and on_unknown is not None:
+                    on_unknown(connection.topic, connection.msgtype)
+            if not known:  # rosbags reads every connection when given none
+                return
+            for connection, stamp_ns, data in reader.messages(connections=known):
                 yield (connection.topic, connection.msgtype, stamp_ns,
                        store.deserialize_cdr(data, connection.msgtype))
     except (FileNotFoundError, NotADirectoryError) as error:
@@ -90,6 +98,12 @@ def read(path):
         if type(error).__module__.startswith("rosbags"):
             raise ValueError(f"cannot read the log {path}: {error}") from None
         raise
+
+
+def note_unknown(topic: str, msgtype: str) -> None:
+    """What the tools say of a topic :func:`read` skips."""
+    import sys
+    print(f"ignoring {topic}: its type {msgtype} is not one the suite reads", file=sys.stderr)
 
 
 def custom_data(path) -> dict:

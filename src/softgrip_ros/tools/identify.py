@@ -334,7 +334,7 @@ def recording_from_log(path: pathlib.Path) -> tuple[identification.Recording, di
     base file's biases taken off (the controller did); they are put back, so that the biases
     found are the sensors' own."""
     info, sensors, regulator, inputs, last = None, {}, {}, [], None
-    for topic, msgtype, _, msg in bag.read(path):
+    for topic, msgtype, _, msg in bag.read(path, bag.note_unknown):
         if topic == INFO_TOPIC:
             info = yaml.safe_load(msg.data)
         elif msgtype == "sensor_msgs/msg/FluidPressure":

@@ -56,7 +56,7 @@ def load(path: pathlib.Path) -> dict:
     from softgrip_ros.nodes.common import stamp_seconds
     from softgrip_ros.tools import bag
     found = {"journal": [], "estimates": [], "sensors": [], "status": [], "d2": []}
-    for topic, _, _, message in bag.read(path):
+    for topic, _, _, message in bag.read(path, bag.note_unknown):
         if topic.endswith(JOURNAL_TOPIC):
             found["journal"].append(Event(
                 int(message.sequence), int(message.kind),
