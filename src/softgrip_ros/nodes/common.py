@@ -32,15 +32,61 @@ def stamp_msg(seconds: float):
     return Time(nanoseconds=round(seconds * 1e9)).to_msg()
 
 
-def publish(node, publisher, message) -> None:
-    """``publisher.publish(message)``, quietly dropped once SIGINT/SIGTERM has shut ROS down: a
-    callback or CAN thread still running then would raise ("publisher's context is invalid"),
-    and no check beforehand can close that race."""
-    try:
-        publisher.publish(message)
-    except RCLError:
-        if node.context.ok():
-            raise
+class _StampOrder:
+    """One publisher's last header stamp (ns), and the lock that makes checking it and publishing
+    one step: two threads that each decided to publish could otherwise send their messages in
+    the other order, and a stream's stamps went back (by up to 133 ms on tip_pose)."""
+
+    def __init__(self):
+        self.lock = threading.Lock()
+        self.last_ns = -1
+        self.dropped = 0
+
+
+def _stamp_ns(message) -> int | None:
+    stamp = getattr(getattr(message, "header", None), "stamp", None)
+    return None if stamp is None else int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def publish(node, publisher, message) -> bool:
+    """``publisher.publish(message)``, unless the message's header stamp is older than the last
+    one this publisher sent: every stamped stream goes forward in time, whichever threads
+    publish on it (a message that lost that race is dropped, counted by :func:`dropped_stale`).
+    Quietly dropped, too, once SIGINT/SIGTERM has shut ROS down: a callback or CAN thread still
+    running then would raise ("publisher's context is invalid"), and no check beforehand can
+    close that race. Whether it was published."""
+    stamp_ns = _stamp_ns(message)
+    order = None
+    if stamp_ns is not None:
+        order = getattr(publisher, "_softgrip_stamp_order", None)
+        if order is None:
+            with _ORDERS_LOCK:
+                order = getattr(publisher, "_softgrip_stamp_order", None)
+                if order is None:
+                    order = publisher._softgrip_stamp_order = _StampOrder()
+    with order.lock if order is not None else contextlib.nullcontext():
+        if order is not None:
+            if stamp_ns < order.last_ns:
+                order.dropped += 1
+                return False
+            order.last_ns = stamp_ns
+        try:
+            publisher.publish(message)
+        except RCLError:
+            if node.context.ok():
+                raise
+            return False
+    return True
+
+
+_ORDERS_LOCK = threading.Lock()
+
+
+def dropped_stale(publisher) -> int:
+    """How many messages :func:`publish` dropped on ``publisher`` for a stamp older than one
+    already sent."""
+    order = getattr(publisher, "_softgrip_stamp_order", None)
+    return 0 if order is None else order.dropped
 
 
 def listened(node, publisher) -> bool:
