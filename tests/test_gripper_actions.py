@@ -189,6 +189,41 @@ def test_a_canceled_gripper_goal_holds_the_present_pressure(suite):
              detail=lambda: f"it says {client.state().message!r}")
 
 
+def test_a_cancel_early_in_an_open_holds_near_the_pressure_it_came_at(suite):
+    """A cancel 14 ms into an OPEN let the gripper open fully: the goal learnt of it only at the
+    next state change, up to the manager's 0.5 s tick later (#52, class 2). The cancel now acts
+    in its own callback, so the hold is set near where the pressure was when it came. Five
+    cancels; how far on the hold is, per how far the opening had still to go: measured 0.00 in
+    each, and 0.02-0.88 (median 0.69) before."""
+    import statistics
+    import time
+
+    from action_msgs.msg import GoalStatus
+    from control_msgs.action import GripperCommand
+    from softgrip_ros.client import serial_action_client
+    from softgrip_ros.control.pressure import Source
+    nodes, user, client = suite
+    manager = nodes["grasp_manager"]
+    action = serial_action_client(user, GripperCommand, "gripper_cmd")
+    assert action.wait_for_server(timeout_sec=5.0)
+    shares = []
+    for _ in range(5):
+        wait_for(lambda: abs(manager.fsm.state.estimated_gauge_pa) < 500.0, timeout=5.0,
+                 message="at rest")
+        handle, result = send(action, gripper_goal(0.07))
+        goal_pa = wait_for(lambda: manager.fsm.request.target_gauge_pa > 1e3 and
+                           manager.fsm.request.target_gauge_pa, message="opening")
+        time.sleep(0.014)
+        at_cancel = manager.fsm.state.estimated_gauge_pa
+        handle.cancel_goal_async()
+        assert result_of(result).status == GoalStatus.STATUS_CANCELED
+        held = manager.fsm.request
+        assert held.source == Source.HOLD
+        shares.append((held.target_gauge_pa - at_cancel) / (goal_pa - at_cancel))
+        assert client.stop()
+    assert statistics.median(shares) < 0.25 and max(shares) < 0.6, shares
+
+
 def test_the_client_drives_a_full_envelop_clamp_release(suite):
     from action_msgs.msg import GoalStatus
     from softgrip_interfaces.msg import GripperState as S

@@ -19,6 +19,14 @@ from softgrip_ros.control.gripper_command import (gripper_progress, present_prog
 from softgrip_ros.nodes import messages
 
 
+# after acting on a cancel, how many milliseconds a goal waits for the server to mark it
+CANCEL_MARK_POLLS = 1000
+
+
+def _goal_id(goal_handle) -> bytes:
+    return bytes(goal_handle.goal_id.uuid)
+
+
 class GraspActions:
     """The three action servers of ``manager`` (a GraspManagerNode), each goal followed through
     the manager's state machine under its lock."""
@@ -27,8 +35,11 @@ class GraspActions:
         self.manager = manager
         v = manager.values
         self.joint = v["prefix"] + messages.TIP_SPACING_JOINT
+        # goal id -> what cancelling the goal does, while it is followed
+        self._cancels: dict = {}
+        self._cancelled_early: set = set()
         accept = {"goal_callback": lambda _: GoalResponse.ACCEPT,
-                  "cancel_callback": lambda _: CancelResponse.ACCEPT}
+                  "cancel_callback": self._on_cancel}
         self.servers = [
             ActionServer(manager, Grasp, "grasp", execute_callback=self._execute_grasp, **accept),
             ActionServer(manager, GripperCommand, v["gripper_action"],
@@ -41,27 +52,74 @@ class GraspActions:
         for server in self.servers:
             server.destroy()
 
+    def _on_cancel(self, goal_handle) -> CancelResponse:
+        """Accept a cancel, and act on it at once (the valves stop or hold now), then wake the
+        goal to end it: it waited for the next state change, up to the manager's 0.5 s tick."""
+        m, goal = self.manager, _goal_id(goal_handle)
+        with m._lock:
+            cancel = self._cancels.get(goal)
+            if cancel is not None and goal not in self._cancelled_early:
+                cancel()
+                self._cancelled_early.add(goal)
+            for waiter in m.waiters:
+                waiter.set_result(True)
+            m.waiters.clear()
+        return CancelResponse.ACCEPT
+
+    def _shortly(self) -> Future:
+        """A future done in a millisecond, by a one-shot timer."""
+        done, m = Future(), self.manager
+        timer = None
+
+        def fire():
+            m.destroy_timer(timer)
+            if not done.done():
+                done.set_result(True)
+
+        timer = m.create_timer(0.001, fire)
+        return done
+
     async def _follow(self, goal_handle, outcome_of, feedback_of, cancel) -> str:
         """Wait, a state change at a time, until ``outcome_of()`` names the goal's end, or a
-        cancel (``cancel()`` runs): "succeeded", "failed", "superseded" or "canceled", with the
-        goal handle ended to match. Each check registers its waiter under the lock, so that no
-        change slips between."""
-        m = self.manager
-        while True:
+        cancel (``cancel()`` runs, once, in the cancel's callback or here): "succeeded",
+        "failed", "superseded" or "canceled", with the goal handle ended to match. Each check
+        registers its waiter under the lock, so that no change slips between."""
+        m, goal = self.manager, _goal_id(goal_handle)
+        with m._lock:
+            self._cancels[goal] = cancel
+        polls = 0
+        try:
+            while True:
+                with m._lock:
+                    early = goal in self._cancelled_early
+                    if goal_handle.is_cancel_requested:
+                        if not early:
+                            cancel()
+                        goal_handle.canceled()
+                        return "canceled"
+                    if not early:
+                        outcome = outcome_of()
+                        if outcome:
+                            (goal_handle.succeed if outcome == "succeeded"
+                             else goal_handle.abort)()
+                            return outcome
+                        feedback = feedback_of()
+                        waiter = Future()
+                        m.waiters.append(waiter)
+                if early:  # acted on; the server marks the goal canceling right after
+                    polls += 1
+                    if polls > CANCEL_MARK_POLLS:  # it never did: end the goal all the same
+                        with m._lock:
+                            goal_handle.abort()
+                        return "canceled"
+                    await self._shortly()
+                    continue
+                goal_handle.publish_feedback(feedback)
+                await waiter
+        finally:
             with m._lock:
-                if goal_handle.is_cancel_requested:
-                    cancel()
-                    goal_handle.canceled()
-                    return "canceled"
-                outcome = outcome_of()
-                if outcome:
-                    (goal_handle.succeed if outcome == "succeeded" else goal_handle.abort)()
-                    return outcome
-                feedback = feedback_of()
-                waiter = Future()
-                m.waiters.append(waiter)
-            goal_handle.publish_feedback(feedback)
-            await waiter
+                self._cancels.pop(goal, None)
+                self._cancelled_early.discard(goal)
 
     # ---- softgrip_interfaces/action/Grasp ---------------------------------------------------
     async def _execute_grasp(self, goal_handle):
