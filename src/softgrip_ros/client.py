@@ -34,8 +34,9 @@ _FIELDS = ("object_diameter_m", "object_mass_kg", "target_tip_spacing_m", "frict
            "open_pressure_pa", "clamp_pressure_pa")
 
 
-def serial_action_client(node, action_type, action_name: str):
-    """An rclpy ActionClient whose goal responses wait until their request is registered.
+def serial_action_client(node, action_type, action_name: str, qos: dict | None = None):
+    """An rclpy ActionClient whose goal responses wait until their request is registered; its
+    services' queues as the servers' (``qos``: rclpy's keyword arguments, to choose others).
 
     rclpy registers a goal's future only after the request has gone out; an executor thread that
     takes the response in between drops it ("Ignoring unexpected goal response", rclpy#1123),
@@ -57,7 +58,9 @@ def serial_action_client(node, action_type, action_name: str):
                 pass
             return await super().execute(taken_data)
 
-    return SerialActionClient(node, action_type, action_name)
+    from softgrip_ros.nodes.common import action_qos
+    return SerialActionClient(node, action_type, action_name,
+                              **(action_qos() if qos is None else qos))
 
 
 def grasp_command(mode: int, command_id: str = "", **fields):

@@ -32,6 +32,23 @@ def stamp_msg(seconds: float):
     return Time(nanoseconds=round(seconds * 1e9)).to_msg()
 
 
+# requests to an action's goal, result and cancel services, and their responses, that may wait to
+# be taken: rclpy's default keeps 10 and drops the older ones, so that in a storm of 100 goals
+# a second some never got an answer
+ACTION_QUEUE_DEPTH = 1000
+
+
+def action_qos() -> dict:
+    """Keyword arguments for an rclpy ActionServer or ActionClient: its goal, result and cancel
+    services keep ACTION_QUEUE_DEPTH requests (and responses), reliably, as the default does
+    10."""
+    from rclpy.qos import QoSProfile, qos_profile_services_default as default
+
+    deep = QoSProfile(history=default.history, depth=ACTION_QUEUE_DEPTH,
+                      reliability=default.reliability, durability=default.durability)
+    return {f"{kind}_service_qos_profile": deep for kind in ("goal", "result", "cancel")}
+
+
 class _StampOrder:
     """One publisher's last header stamp (ns), and the lock that makes checking it and publishing
     one step: two threads that each decided to publish could otherwise send their messages in

@@ -17,6 +17,7 @@ from softgrip_ros.control.grasp_fsm import GraspMode, GraspRequest, Phase
 from softgrip_ros.control.gripper_command import (gripper_progress, present_progress,
                                                   start_gripper_goal)
 from softgrip_ros.nodes import messages
+from softgrip_ros.nodes.common import action_qos
 
 
 # after acting on a cancel, how many milliseconds a goal waits for the server to mark it
@@ -39,7 +40,7 @@ class GraspActions:
         self._cancels: dict = {}
         self._cancelled_early: set = set()
         accept = {"goal_callback": lambda _: GoalResponse.ACCEPT,
-                  "cancel_callback": self._on_cancel}
+                  "cancel_callback": self._on_cancel, **action_qos()}
         self.servers = [
             ActionServer(manager, Grasp, "grasp", execute_callback=self._execute_grasp, **accept),
             ActionServer(manager, GripperCommand, v["gripper_action"],
