@@ -186,3 +186,41 @@ def test_a_sweep_is_cached_by_its_inputs_and_read_back_whole(tmp_path, monkeypat
     wider = sweep_module.inputs_hash(GEOMETRY, YeohMaterial(), 0.03, 6e-3, False, (2e3,),
                                      (-2e3,))
     assert wider != first.inputs_hash
+
+
+def test_the_committed_fe3d_reference_matches_its_inputs_and_its_bounds():
+    """config/fe3d_reference.yaml was written by scripts/bench_fe.py from today's geometry and
+    code (its hash says so), and it meets the issue's bounds."""
+    from softgrip_ros.model.fe3d.sweep import (NEGATIVE_PRESSURES_PA, POSITIVE_PRESSURES_PA,
+                                               inputs_hash)
+    from softgrip_ros.model.fe_data import load_fe3d_reference
+
+    document = load_fe3d_reference()
+    sweep = document["sweep"]
+    expected = inputs_hash(GEOMETRY, YeohMaterial(), sweep["width_m"], sweep["element_size_m"],
+                           False, POSITIVE_PRESSURES_PA[1:], NEGATIVE_PRESSURES_PA)
+    assert sweep["inputs_hash"] == expected, (
+        "config/fe3d_reference.yaml is stale: run python scripts/bench_fe.py --3d-only")
+    figures = document["figures"]
+    # the default sweep keeps every surface within the issue's 0.05 mm; the band's coarser mesh
+    # does not everywhere (0.064 mm at w = 92 mm), and the figure over all says so
+    assert max(s["interpenetration_mm"] for s in document["states"]) < 0.05
+    assert figures["fe3d_interpenetration_max_mm"] == pytest.approx(max(
+        [s["interpenetration_mm"] for s in document["states"]]
+        + [b["interpenetration_max_mm"] for b in document["band"]]), abs=1e-4)
+    assert figures["fe3d_verification_error_pct"] < 1.0
+    assert figures["fe3d_volume_change_pct"] < 0.5
+    assert len(document["band"]) == 8
+
+
+def test_a_fe3d_reference_without_its_keys_is_refused_with_the_command(tmp_path):
+    from softgrip_ros.model.fe_data import load_fe3d_reference
+
+    path = tmp_path / "fe3d.yaml"
+    path.write_text("figures: {}\nband: []\nsweep: {}\n")
+    with pytest.raises(ValueError, match="no 'verification'.*bench_fe.py"):
+        load_fe3d_reference(path)
+    path.write_text("figures: {}\nsweep: {}\nverification: {}\nstates: []\n"
+                    "band: [{width_mm: 20}]\n")
+    with pytest.raises(ValueError, match="band entry lacks"):
+        load_fe3d_reference(path)

@@ -70,6 +70,25 @@ def test_validate_model_json_has_the_contract_keys():
     for law in ("l0", "l1"):
         assert (figures[f"{law}_fe_cal_tip_err_vs_fe_to_45kPa_mm"] <
                 figures[f"{law}_paper_cal_tip_err_vs_fe_to_45kPa_mm"])
+    # the 3-D FE (config/fe3d_reference.yaml): the keys, and its bounds met
+    assert figures["fe3d_width_mm"] == 20.0
+    assert 0.0 <= figures["fe3d_interpenetration_max_mm"] < 0.1  # the band's 0.064 mm: a miss
+    assert figures["fe3d_verification_error_pct"] < 1.0
+    # an upper bound: the sampled gap falls to 0.02 mm after the walls meet (30.5 kPa)
+    assert 10.0 < figures["fe_block_contact_first_kpa_plane_strain"] < 40.0
+    band = figures["fe3d_band"]
+    assert {(b["width_mm"], b["base_mm"]) for b in band} == {
+        (w, d) for w in (14.7, 20.0, 40.0, 92.0) for d in (13.0, 6.5)}
+    for entry in band:
+        assert set(entry) >= {"curvature_2kPa_per_m", "alpha_25kPa_deg", "D2_50kPa_mm",
+                              "D1_50kPa_mm", "block_contact_first_kpa",
+                              "clamp_force_sheet_n_at_-30kPa"}
+        assert entry["clamp_force_sheet_n_at_-30kPa"] is None  # no sheet modelled yet
+    # wider fingers bend more at 2 kPa, on either base
+    for base in (13.0, 6.5):
+        curvature = [b["curvature_2kPa_per_m"] for b in sorted(band, key=lambda b: b["width_mm"])
+                     if b["base_mm"] == base]
+        assert curvature == sorted(curvature), curvature
 
 
 def test_bench_fe_quick_runs_the_checks_and_a_coarse_sweep():
@@ -81,6 +100,17 @@ def test_bench_fe_quick_runs_the_checks_and_a_coarse_sweep():
     assert 20.0 < figures["fe_alpha_25kPa_deg"] < 60.0  # 29.6 deg on the 1 mm mesh
     assert figures["fe_vacuum_limit_kpa"] < 0.0
     assert "[fe]" in result.stderr or "sweep" in result.stderr  # progress on stderr
+    # the 3-D FE: Lame, a two-mesh study at 2 kPa, a sweep at 2 and 10 kPa and -10 kPa
+    assert figures["fe3d_verification_error_pct"] < 1.0
+    assert figures["fe3d_mesh_change_pct"] < 10.0  # 6 and 4.5 mm meshes: 1.1 %
+    assert figures["fe3d_volume_change_pct"] < 0.5
+    assert figures["fe3d_interpenetration_max_mm"] < 0.05
+    assert figures["fe3d_vacuum_limit_kpa"] == pytest.approx(-10.0)
+    (entry,) = figures["fe3d_band"]
+    assert (entry["width_mm"], entry["base_mm"]) == (20.0, 13.0)
+    assert 0.05 < entry["curvature_2kPa_per_m"] < 0.3  # 0.116 1/m
+    assert entry["alpha_25kPa_deg"] is None  # not in the quick sweep: null, not a guess
+    assert "[####################]" in result.stderr  # each sweep's progress bar ends full
 
 
 def test_bench_model_quick_json_reports_every_figure():

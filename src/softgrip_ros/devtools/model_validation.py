@@ -174,6 +174,20 @@ def fe_linearity(reference) -> tuple[float, float]:
     return float(np.max(np.abs(slope * p / kappa - 1.0)) * 100.0), slope
 
 
+FE3D_KEYS = ("fe3d_width_mm", "fe_block_contact_first_kpa_plane_strain",
+             "fe3d_interpenetration_max_mm", "fe3d_verification_error_pct",
+             "fe3d_mesh_change_pct", "fe3d_volume_change_pct", "fe3d_vacuum_limit_kpa")
+
+
+def fe3d_summary(document) -> dict:
+    """The --json keys of the 3-D FE (#49) from config/fe3d_reference.yaml's document."""
+    from softgrip_ros.model.fe_data import FE3D_BAND_KEYS
+    out = {key: document["figures"][key] for key in FE3D_KEYS}
+    out["fe3d_band"] = [{key: entry[key] for key in FE3D_BAND_KEYS}
+                        for entry in document["band"]]
+    return out
+
+
 def fe_summary(reference) -> dict:
     """The --json FE keys of the issue, and the models' worst errors against the FE."""
     out = {key: float(reference.figures[key]) for key in FE_KEYS}

@@ -24,6 +24,7 @@ from softgrip_ros.model.geometry import FingerGeometry
 from softgrip_ros.model.kinematics import GripperKinematics
 
 FE_REFERENCE_FILE = "fe_reference.yaml"
+FE3D_REFERENCE_FILE = "fe3d_reference.yaml"
 HELD_OUT_PRESSURES_PA = (15e3, 35e3, 55e3)  # FE points the calibration does not see
 FE_CALIBRATION_NAMES = {"l0": "type_II_fe", "l1": "type_II_fe_l1"}
 # residual scales: one degree of alpha weighs as one millimetre of D2
@@ -80,6 +81,30 @@ def load_fe_reference(path=None) -> FEReference:
         for s in document["states"])
     return FEReference(points, dict(document["figures"]), dict(document["sweep"]),
                        dict(document["verification"]))
+
+
+FE3D_BAND_KEYS = ("width_mm", "base_mm", "curvature_2kPa_per_m", "alpha_25kPa_deg",
+                  "D2_50kPa_mm", "D1_50kPa_mm", "block_contact_first_kpa",
+                  "clamp_force_sheet_n_at_-30kPa")
+
+
+def load_fe3d_reference(path=None) -> dict:
+    """config/fe3d_reference.yaml (scripts/bench_fe.py writes it) as a document: ``figures``,
+    ``band`` (a list of dicts with at least FE3D_BAND_KEYS), ``sweep``, ``verification`` and
+    ``states``. FileNotFoundError if it is absent; ValueError if a key is missing."""
+    if path is None:
+        from softgrip_ros.config_paths import config_file
+        path = config_file(FE3D_REFERENCE_FILE)
+    with open(path) as stream:
+        document = yaml.safe_load(stream)
+    for key in ("figures", "band", "sweep", "verification", "states"):
+        if key not in (document or {}):
+            raise ValueError(f"{path}: no {key!r}; rewrite it with python scripts/bench_fe.py")
+    for entry in document["band"]:
+        missing = [key for key in FE3D_BAND_KEYS if key not in entry]
+        if missing:
+            raise ValueError(f"{path}: a band entry lacks {missing}")
+    return document
 
 
 def fit_to_fe(geometry: FingerGeometry, reference: FEReference, law: str,
