@@ -320,10 +320,11 @@ def fe3d_run(geometry, quick: bool) -> dict:
         shape = dataclasses.replace(geometry, chamber_bottom_to_sidewall_m=base)
         for width in ((DEFAULT_WIDTH_M,) if quick else BAND_WIDTHS_M):
             log(f"3-D band: w = {width * 1e3:g} mm, d2 = {base * 1e3:g} mm")
-            band_options = options if quick else {"element_size_m": BAND_ELEMENT_SIZE_M,
-                                                   "negative_pa": BAND_NEGATIVE_PA}
-            result = sweep3d(shape, width, progress=progress, use_cache=not quick,
-                             **band_options)
+            if quick:  # the one entry is the default sweep itself
+                band.append(band_entry(default, base))
+                continue
+            result = sweep3d(shape, width, progress=progress, use_cache=True,
+                             element_size_m=BAND_ELEMENT_SIZE_M, negative_pa=BAND_NEGATIVE_PA)
             band.append(band_entry(result, base))
     with ng.TaskManager():
         # --quick: Lame's cylinder only (tests/test_fe3d.py checks the other two)
