@@ -301,15 +301,22 @@ def inputs_hash(geometry: FingerGeometry, material: YeohMaterial, element_size_m
                 pressures_pa, corner_refinement: float = CORNER_REFINEMENT) -> str:
     """What a sweep's results depend on: the geometry, the material, the mesh, the pressures and
     the FE code's version."""
-    document = {
-        "geometry": {k: (list(v) if isinstance(v, tuple) else v)
-                     for k, v in dataclasses.asdict(geometry).items()},
-        "material": dataclasses.asdict(material),
+    return hash_inputs(geometry, material, {
         "element_size_m": round(float(element_size_m), 9),
         "corner_refinement": float(corner_refinement),
         "pressures_pa": [round(float(p), 3) for p in pressures_pa],
         "wall_contact_gap_m": WALL_CONTACT_GAP_M,
         "version": FE_MODEL_VERSION,
+    })
+
+
+def hash_inputs(geometry: FingerGeometry, material: YeohMaterial, rest: dict) -> str:
+    """16 hex digits of the SHA-256 of a sweep's inputs: the geometry, the material and ``rest``
+    (plain values), so that any change to them makes a new cache key."""
+    document = {
+        "geometry": {k: (list(v) if isinstance(v, tuple) else v)
+                     for k, v in dataclasses.asdict(geometry).items()},
+        "material": dataclasses.asdict(material), **rest,
     }
     text = json.dumps(document, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]

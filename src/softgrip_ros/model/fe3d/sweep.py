@@ -8,12 +8,11 @@ measured before stays.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 import math
 import time
 
-from softgrip_ros.model.fe.finger import SweepProgress, read_cache, write_cache
+from softgrip_ros.model.fe.finger import (SweepProgress, hash_inputs, read_cache,
+                                         write_cache)
 from softgrip_ros.model.fe.solver import NotConverged, YeohMaterial
 from softgrip_ros.model.fe_data import at_pressure
 from softgrip_ros.model.fe3d.finger import DEFAULT_WIDTH_M, FE3DState, Finger3D
@@ -90,18 +89,13 @@ def inputs_hash(geometry: FingerGeometry, material: YeohMaterial, width_m: float
                 element_size_m: float, plane_strain: bool, positive_pa, negative_pa) -> str:
     """What a 3-D sweep depends on: the geometry, the material, the width, the mesh, the
     pressures and the code's version."""
-    document = {
-        "geometry": {k: (list(v) if isinstance(v, tuple) else v)
-                     for k, v in dataclasses.asdict(geometry).items()},
-        "material": dataclasses.asdict(material),
+    return "fe3d-" + hash_inputs(geometry, material, {
         "width_m": round(float(width_m), 9), "plane_strain": bool(plane_strain),
         "element_size_m": round(float(element_size_m), 9),
         "positive_pa": [round(float(p), 3) for p in positive_pa],
         "negative_pa": [round(float(p), 3) for p in negative_pa],
         "load_step_pa": LOAD_STEP_PA, "version": FE3D_MODEL_VERSION,
-    }
-    text = json.dumps(document, sort_keys=True, default=str)
-    return "fe3d-" + hashlib.sha256(text.encode()).hexdigest()[:16]
+    })
 
 
 def _check_side(pressures, sign: int, what: str) -> list:
