@@ -6,10 +6,11 @@ echo the goal's command, so the test can check the goal crossed intact.
 """
 import signal
 import sys
+import threading
 
 import rclpy
 from rclpy.action import ActionServer
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from softgrip_interfaces.action import Grasp
@@ -43,15 +44,21 @@ class RoundTripPeer(Node):
 
 
 def main():
-    rclpy.init()
+    rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = RoundTripPeer()
-    signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    # SIGTERM only asks the loop to stop: shutting ROS down inside the handler could land in
+    # the middle of a timer callback and fail its publish.
+    stop_requested = threading.Event()
+    for number in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(number, lambda *_: stop_requested.set())
     print("peer ready", flush=True)
     try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        while not stop_requested.is_set():
+            executor.spin_once(timeout_sec=0.05)
     finally:
+        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
