@@ -217,7 +217,7 @@ class Finger3D:
             if np.any(np.isfinite(gaps)):
                 deepest = max(deepest, -float(np.nanmin(gaps)))
         for name in self.solid.obstacle_names:
-            deepest = max(deepest, self.solid.obstacle_contact(name)[1])
+            deepest = max(deepest, self.solid.obstacle_contact(name).deepest_m)
         return deepest
 
     @property
@@ -290,7 +290,7 @@ class Finger3D:
         centres = [face[:, FACE_SAMPLES // 2] for face in faces]
         root_heading = heading(curvature_points[:, 1] - curvature_points[:, 0])
         end_heading = heading(curvature_points[:, 3] - curvature_points[:, 2])
-        volumes = tuple(self._volume_scale * self.solid.cavity_volume_m3(name)
+        volumes = tuple(self.whole_finger_scale * self.solid.cavity_volume_m3(name)
                         for name in self.chambers)
         with ng.TaskManager():
             parts = [self.solid.volume_m3(True, part) for part in self._parts()]
@@ -312,13 +312,13 @@ class Finger3D:
             interpenetration_m=self.interpenetration_m() if self.contact else 0.0)
 
     @property
-    def _volume_scale(self) -> float:
+    def whole_finger_scale(self) -> float:
         """From the meshed part's volumes to the whole finger's (per metre of width for a
         plane-strain slab)."""
         return (1.0 / PLANE_STRAIN_SLAB_M) if self.layout.plane_strain else 2.0
 
     def reference_chamber_volumes_m3(self) -> tuple:
-        return tuple(self._volume_scale * v for v in self._reference_chambers)
+        return tuple(self.whole_finger_scale * v for v in self._reference_chambers)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -70,6 +70,39 @@ class Obstacle:
     name: str
     pattern: str
     depth: object
+    # the penalty at each surface triangle's corners and edge midpoints too (a body with edges,
+    # such as the clamped object, is met first where a Gauss rule has no point)
+    corner_points: bool = False
+    # > 0: the penalty acts on softplus(depth) over this length, not on max(depth, 0), so that
+    # its stiffness does not jump where a point meets the obstacle (Newton cycled on a cylinder)
+    smoothing_m: float = 0.0
+
+    def penalised_depth(self, depth):
+        """The depth the penalty acts on, and its derivative by the depth (coefficients)."""
+        import ngsolve as ng
+
+        if self.smoothing_m <= 0.0:
+            return ng.IfPos(depth, depth, 0.0), ng.IfPos(depth, 1.0, 0.0)
+        delta = self.smoothing_m
+        # softplus, written so that neither branch overflows
+        smooth = ng.IfPos(depth, depth + delta * ng.log(1.0 + ng.exp(-depth / delta)),
+                          delta * ng.log(1.0 + ng.exp(depth / delta)))
+        slope = ng.IfPos(depth, 1.0 / (1.0 + ng.exp(-depth / delta)),
+                         ng.exp(depth / delta) / (1.0 + ng.exp(depth / delta)))
+        return smooth, slope
+
+
+@dataclasses.dataclass(frozen=True)
+class ObstacleContact:
+    """What a rigid obstacle and the solid exchange. Per reference area, the contact pressure is
+    the penalty's k times the depth, along the obstacle's normal."""
+
+    force_n: np.ndarray  # (3,) the resultant the obstacle exerts on the solid, from the residual
+    normal_force_n: float  # the magnitudes of the contact tractions summed (what friction uses)
+    area_m2: float  # the reference area in contact (within 5 smoothing lengths, if smoothed)
+    deepest_m: float  # the largest penetration
+    centre_m: np.ndarray  # (3,) the deformed contact's centre, weighted by pressure (NaN if none)
+    peak_pressure_pa: float  # the largest traction at the penalty's points
 
 
 @dataclasses.dataclass
@@ -148,15 +181,20 @@ class Solid3D:
                 raise ValueError(f"obstacle: no boundary of the mesh matches "
                                  f"{obstacle.pattern!r}")
             depth = obstacle.depth(position)
-            energy = ng.Variation(ng.IfPos(
-                depth, 0.5 * self.contact_stiffness_pa_per_m * depth * depth, 0.0).Compile()
-                * ng.ds(obstacle.pattern))
+            if obstacle.smoothing_m > 0.0:
+                penalised = obstacle.penalised_depth(depth)[0]
+                density = 0.5 * self.contact_stiffness_pa_per_m * penalised * penalised
+            else:
+                density = ng.IfPos(depth, 0.5 * self.contact_stiffness_pa_per_m * depth * depth,
+                                   0.0)
+            energy = ng.Variation(density.Compile() * _obstacle_ds(obstacle))
             self.form += energy
             # the same term alone: its residual is the force the obstacle exerts
             alone = ng.BilinearForm(self.space, symmetric=True)
             alone += energy
             self._obstacles.append((obstacle, alone))
         self.gas_pressures = {name: 0.0 for name in cavities}
+        self._corner_points = {}
 
     # ---- solving -----------------------------------------------------------------------------
     def _set_gas(self, gas: dict):
@@ -319,11 +357,9 @@ class Solid3D:
             out[axis] = translation.vec.InnerProduct(residual)
         return out
 
-    def obstacle_contact(self, name: str) -> tuple:
-        """(force (3,) N, largest penetration m, force-weighted mean reference point (3,)) of
-        the obstacle ``name``. The force is what the obstacle exerts on the solid, from the
-        penalty's own term of the residual, so it is the force the equilibrium balances. On a
-        half model the caller doubles it."""
+    def obstacle_contact(self, name: str) -> "ObstacleContact":
+        """How the solid presses the obstacle ``name`` (:class:`ObstacleContact`; on a half model
+        the caller doubles the forces and the area)."""
         import ngsolve as ng
 
         obstacle, alone = next(pair for pair in self._obstacles if pair[0].name == name)
@@ -332,18 +368,58 @@ class Solid3D:
         force = -self._translation_work(residual)
         position0 = ng.CoefficientFunction((ng.x, ng.y, ng.z))
         depth = obstacle.depth(position0 + self.displacement)
-        pressing = ng.IfPos(depth, depth, 0.0)
+        penalised, slope = obstacle.penalised_depth(depth)
+        # the traction per reference area is k times this, along the obstacle's normal
+        pressing = penalised * slope
         region = self.mesh.Boundaries(obstacle.pattern)
-        weight = float(ng.Integrate(pressing, self.mesh, definedon=region, order=6))
-        moments = ng.Integrate(pressing * position0, self.mesh, definedon=region, order=6)
+        where = _obstacle_ds(obstacle)
+
+        def integral(value, order=6):
+            # at the penalty's own points where it has corner points, else a high Gauss order
+            if obstacle.corner_points:
+                return ng.Integrate(value * where, self.mesh)
+            return ng.Integrate(value, self.mesh, definedon=region, order=order)
+
+        weight = float(integral(pressing))
+        current = position0 + self.displacement
+        moments = [integral(pressing * current[axis]) for axis in range(3)]
         centre = (np.asarray(moments, dtype=float) / weight if weight > 0.0
                   else np.full(3, math.nan))
-        # the largest depth, from a high norm of it over the boundary (exact as the power grows)
-        power = 16
-        area = float(ng.Integrate(1.0, self.mesh, definedon=region))
-        deepest = (float(ng.Integrate(ng.IfPos(depth, depth, 0.0) ** power, self.mesh,
-                                      definedon=region, order=8)) / area) ** (1.0 / power)
-        return force, deepest, centre
+        # in contact: inside, or (a smoothed penalty) within a few of its lengths of the surface
+        area = float(integral(ng.IfPos(depth + 5.0 * obstacle.smoothing_m, 1.0, 0.0)))
+        stiffness = self.contact_stiffness_pa_per_m
+        if obstacle.corner_points:
+            # at the penalty's own points, exactly
+            deepest = max(0.0, float(np.max(self._at_corner_points(depth, region))))
+            peak = stiffness * max(0.0, float(np.max(self._at_corner_points(pressing, region))))
+        else:
+            # the largest depth, from a high norm of it over the boundary (exact as the power
+            # grows)
+            power = 16
+            whole = float(ng.Integrate(1.0, self.mesh, definedon=region))
+            deepest = (float(integral(pressing ** power, order=8)) / whole) ** (1.0 / power)
+            peak = stiffness * deepest
+        return ObstacleContact(force, stiffness * weight, area, deepest, centre, peak)
+
+    def _at_corner_points(self, value, region) -> np.ndarray:
+        """The scalar coefficient ``value`` at the corners, edge midpoints and centroids of the
+        surface triangles of ``region`` (the obstacle rule's points)."""
+        import ngsolve as ng
+
+        key = region.Mask().__str__()
+        if key not in self._corner_points:
+            vertices = np.array([v.point for v in self.mesh.vertices])
+            triangles = [[v.nr for v in element.vertices]
+                         for element in region.Elements()]
+            corners = vertices[np.unique(np.ravel(triangles))]
+            edges = {tuple(sorted(pair)) for t in triangles
+                     for pair in ((t[0], t[1]), (t[1], t[2]), (t[0], t[2]))}
+            middles = np.array([0.5 * (vertices[a] + vertices[b]) for a, b in edges])
+            centroids = vertices[np.array(triangles)].mean(axis=1)
+            points = np.vstack([corners, middles, centroids])
+            self._corner_points[key] = self.mesh(points[:, 0], points[:, 1], points[:, 2],
+                                                 ng.BND)
+        return np.asarray(value(self._corner_points[key]), dtype=float).ravel()
 
     def reaction_n(self, pattern: str) -> np.ndarray:
         """(3,) the force (N) that the supports on the boundaries matching ``pattern`` exert on
@@ -378,3 +454,16 @@ class Solid3D:
         J = ng.Det(ng.Id(3) + ng.Grad(self.displacement)) if deformed else 1.0
         weight = 1.0 if where is None else where
         return float(ng.Integrate(J * weight, self.mesh, order=4))
+
+
+def _obstacle_ds(obstacle: Obstacle):
+    """ds on the obstacle's boundaries: NGSolve's Gauss rule, or with ``corner_points`` each
+    triangle's corners, edge midpoints and centroid (exact for cubics)."""
+    import ngsolve as ng
+
+    if not obstacle.corner_points:
+        return ng.ds(obstacle.pattern)
+    rule = ng.IntegrationRule(
+        [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (0.5, 0.0), (0.5, 0.5), (0.0, 0.5), (1 / 3, 1 / 3)],
+        [1 / 40] * 3 + [1 / 15] * 3 + [9 / 40])
+    return ng.ds(obstacle.pattern, intrules={ng.TRIG: rule})

@@ -107,7 +107,7 @@ def contact_balance(geometry: FingerGeometry, element_size_m: float = 3e-3,
     floor = Obstacle("floor", "backbone|tip_end", lambda x: -gap_m - x[1])
     finger = Finger3D(geometry, element_size_m=element_size_m, obstacles=[floor])
     finger.solve(pressure_pa)
-    force = finger.solid.obstacle_contact("floor")[0][1]
+    force = finger.solid.obstacle_contact("floor").force_n[1]
     reaction = -finger.solid.reaction_n("clamp")[1]
     return Comparison(f"contact with a plane {gap_m * 1e3:g} mm below the backbone at "
                       f"{pressure_pa / 1e3:g} kPa: clamp reaction against the plane's force (N)",
