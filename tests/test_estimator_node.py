@@ -245,7 +245,7 @@ def test_silent_sensors_are_reported_while_the_controller_status_keeps_coming(wi
     ("filter_type:=particle", "must be one of ['kf', 'ekf', 'ukf']"),
     ("process_noise_covariance:=[1.0,2.0,3.0]", "process noise needs 2 values"),
     ("sensors.rejection_threshold:=[16.0]", "one entry per sensor"),
-    ("plant_file:=/nonexistent/plant.yaml", "cannot read the plant file"),
+    ("plant_file:=/nonexistent/plant.yaml", "the plant file /nonexistent/plant.yaml: cannot read"),
     ("sensors.names:=[chamber_a,chamber_c]", "sensor 'chamber_c' is not in the plant file"),
     ("rest_frequency:=500.0", "rest_frequency (500 Hz) must not exceed frequency (200 Hz)"),
     ("fusion_window:=0.05", "fusion_window"),

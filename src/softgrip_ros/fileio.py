@@ -1,11 +1,13 @@
-"""Writing the files the tools produce: whole or not at all.
+"""Writing the files the tools produce, whole or not at all; and reading YAML input with a
+one-line error.
 
 Every file a tool writes goes through :func:`replacing` (or :func:`write_text_atomically`): the
 content is written to a temporary file beside the target, flushed to disk, then renamed over the
 target, so that a reader sees the old file or the new one, never half of one, and a failure
 leaves the old one as it was. :func:`check_writable_directory` lets a tool find out before a
 long computation that it could not write its result, without making anything. Errors are
-:class:`OutputError`, whose message is one line naming the path.
+:class:`OutputError`, whose message is one line naming the path. :func:`read_yaml` reads an input
+file and refuses one it cannot read or parse with a one-line ValueError.
 """
 from __future__ import annotations
 
@@ -75,3 +77,24 @@ def write_text_atomically(path, text: str) -> pathlib.Path:
     with replacing(path) as temporary:
         temporary.write_text(text)
     return path
+
+
+def read_yaml(path):
+    """The YAML document in ``path`` (None if empty). ValueError, in one line naming the path,
+    if it cannot be read or is not YAML (with where the parser stopped)."""
+    import yaml
+
+    path = pathlib.Path(path)
+    try:
+        text = path.read_text()
+    except OSError as error:
+        raise ValueError(f"{path}: cannot read: {_why(error)}") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: cannot read: not UTF-8 text") from None
+    try:
+        return yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+    except yaml.YAMLError as error:
+        problem = getattr(error, "problem", None) or "cannot parse"
+        mark = getattr(error, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        raise ValueError(f"{path}: not YAML: {' '.join(str(problem).split())}{where}") from None

@@ -14,8 +14,8 @@ import dataclasses
 import math
 import pathlib
 
-import yaml
 
+from softgrip_ros.fileio import read_yaml
 CHAMBER_COUNT = 5
 # h1 + L2 cos(theta0) and Table 1's L1 agree to 0.1 mm; allow for rounding in the table.
 TOTAL_LENGTH_TOLERANCE_M = 0.002
@@ -147,12 +147,7 @@ def load_geometry(cavity_type: str | None = None, path=None) -> FingerGeometry:
     of config/gripper_geometry.yaml (``types``, each maybe ``based_on`` another), or a user's
     file holding one finger's fields at its top level. ValueError naming what is wrong."""
     path = pathlib.Path(path) if path is not None else default_geometry_path()
-    try:
-        document = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as error:
-        raise ValueError(f"{path}: not YAML: {error}") from None
-    except OSError as error:
-        raise ValueError(f"{path}: cannot read: {error.strerror}") from None
+    document = read_yaml(path)
     if not isinstance(document, dict):
         raise ValueError(f"{path}: expected a mapping of geometry fields or a 'types' section")
     if "types" not in document:
@@ -203,6 +198,6 @@ def _resolve(types: dict, name: str, path, seen: tuple) -> dict:
     base = entry.pop("based_on", None)
     if base is None:
         return entry
-    if base not in types:
+    if not isinstance(base, str) or base not in types:
         raise ValueError(f"{path}: {name} is based_on unknown type {base!r}")
     return {**_resolve(types, base, path, seen + (name,)), **entry}

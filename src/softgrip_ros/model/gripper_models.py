@@ -23,7 +23,7 @@ import pathlib
 
 import yaml
 
-from softgrip_ros.fileio import write_text_atomically
+from softgrip_ros.fileio import read_yaml, write_text_atomically
 from softgrip_ros.model.bending import BendingCalibration
 from softgrip_ros.model.geometry import FingerGeometry, geometry_from_fields
 
@@ -78,10 +78,7 @@ def resolve(name: str) -> tuple[FingerGeometry, BendingCalibration]:
 
 def load_file(path) -> tuple[FingerGeometry, BendingCalibration]:
     path = pathlib.Path(path)
-    try:
-        document = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as error:
-        raise ValueError(f"{path}: not YAML: {error}") from None
+    document = read_yaml(path)
     if not isinstance(document, dict) or not isinstance(document.get("geometry"), dict) or \
             not isinstance(document.get("calibration"), dict):
         raise ValueError(f"{path}: not a softgrip calibration (needs 'geometry' and "

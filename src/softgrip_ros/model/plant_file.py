@@ -24,7 +24,7 @@ import pathlib
 
 import yaml
 
-from softgrip_ros.fileio import write_text_atomically
+from softgrip_ros.fileio import read_yaml, write_text_atomically
 from softgrip_ros.model.pneumatics import PneumaticParameters
 
 FORMAT = "softgrip_plant/1"
@@ -117,6 +117,10 @@ def parse(document: dict, where: str = "plant file") -> PlantDescription:
     if unknown:
         raise ValueError(f"{where}: unknown sections {sorted(unknown)}")
     entries = document.get("parameters") or {}
+    for section, value in (("parameters", entries), ("sensors", document.get("sensors") or {}),
+                           ("provenance", document.get("provenance") or {})):
+        if not isinstance(value, dict):
+            raise ValueError(f"{where}: {section} must be a mapping, got {value!r}")
     missing = sorted(set(PARAMETERS) - set(entries))
     extra = sorted(set(entries) - set(PARAMETERS))
     if missing or extra:
@@ -145,11 +149,9 @@ def parse(document: dict, where: str = "plant file") -> PlantDescription:
 def load(path) -> PlantDescription:
     path = pathlib.Path(path)
     try:
-        document = yaml.safe_load(path.read_text())
-    except OSError as error:
-        raise ValueError(f"cannot read the plant file {path}: {error.strerror}") from None
-    except yaml.YAMLError as error:
-        raise ValueError(f"{path} is not valid YAML: {error}") from None
+        document = read_yaml(path)
+    except ValueError as error:
+        raise ValueError(f"the plant file {error}") from None
     return parse(document, str(path))
 
 

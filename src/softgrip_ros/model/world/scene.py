@@ -37,10 +37,13 @@ import dataclasses
 import enum
 import math
 import pathlib
+import re
 
-import yaml
 
+from softgrip_ros.fileio import read_yaml
 FORMAT = "softgrip_scene/1"
+# a move is asked for by name (sim/play_arm_move)
+MOVE_NAME = re.compile(r"[A-Za-z0-9_-]+")
 SHEET_THICKNESS_M = 1.0e-4
 MAX_OBJECT_SIZE_M = 0.3
 MAX_MASS_KG = 20.0
@@ -116,11 +119,9 @@ def load_scene(path) -> Scene:
     """The scene of a YAML file; SceneError with a one-line reason."""
     path = pathlib.Path(path)
     try:
-        document = yaml.safe_load(path.read_text())
-    except OSError as error:
-        raise SceneError(f"{path}: cannot read: {error.strerror}") from None
-    except yaml.YAMLError as error:
-        raise SceneError(f"{path}: not YAML: {' '.join(str(error).split())}") from None
+        document = read_yaml(path)
+    except ValueError as error:
+        raise SceneError(str(error)) from None
     try:
         return scene_from_document(document, default_name=path.stem)
     except SceneError as error:
@@ -148,8 +149,9 @@ def scene_from_document(document, default_name: str = "scene") -> Scene:
     _mapping(moves_doc, "arm.moves")
     moves = {}
     for move_name, steps in moves_doc.items():
-        if not isinstance(move_name, str) or not move_name:
-            raise SceneError(f"arm.moves: a move's name must be a string, got {move_name!r}")
+        if not isinstance(move_name, str) or not MOVE_NAME.fullmatch(move_name):
+            raise SceneError("arm.moves: a move's name must be letters, digits, '_' or '-', "
+                             f"got {move_name!r}")
         if not isinstance(steps, list) or not steps:
             raise SceneError(f"arm.moves.{move_name} must be a non-empty list of steps")
         moves[move_name] = tuple(_step(step, f"arm.moves.{move_name}[{k}]")
