@@ -355,3 +355,104 @@ def test_a_goal_whose_acceptance_comes_too_late_is_reported_unstarted_and_then_c
     finally:
         gripper.close()
         node.destroy_node()
+
+
+def test_a_storm_on_both_actions_with_random_cancels_ends_every_goal_within_the_limits(suite):
+    """GripperCommand and ParallelGripperCommand at once, 100 goals a second each, from fully
+    open to a hard close, with a third of them cancelled at a random point (#52, the load test):
+    every goal is answered and ends (succeeded, superseded or cancelled), a goal after the storm
+    is cancelled on each, and the device's true pressure, sampled every millisecond, stays within
+    the controller's limits."""
+    import random
+    import threading
+    import time
+
+    from action_msgs.msg import GoalStatus
+    from control_msgs.action import GripperCommand, ParallelGripperCommand
+    from softgrip_ros.client import serial_action_client
+    nodes, user, client = suite
+    device = nodes["sim_device"].device
+    limits = nodes["pressure_controller"].controller.config
+    gripper = serial_action_client(user, GripperCommand, "gripper_cmd")
+    parallel = serial_action_client(user, ParallelGripperCommand, "parallel_gripper_cmd")
+    assert gripper.wait_for_server(timeout_sec=5.0) and parallel.wait_for_server(timeout_sec=5.0)
+    chooser = random.Random(52)
+    # a cancel comes 0-5 ms after the goal's acceptance: the next goal supersedes it in 10 ms
+    plan = [(chooser.choice([0.0, 0.01, 0.04, 0.2]), chooser.choice([0.0, 0.5, 20.0]),
+             chooser.random() < 0.33, chooser.uniform(0.0, 0.005)) for _ in range(100)]
+    sampled, stop_sampling = [], threading.Event()
+
+    def sample():
+        while not stop_sampling.is_set():
+            sampled.append(device.chamber_gauge_pa())
+            time.sleep(0.001)
+
+    def goal_of(kind, position, effort):
+        if kind is GripperCommand:
+            return gripper_goal(position, effort)
+        goal = ParallelGripperCommand.Goal()
+        goal.command.name, goal.command.position = ["g1_tip_spacing"], [position]
+        goal.command.effort = [effort]
+        return goal
+
+    sent = {GripperCommand: [], ParallelGripperCommand: []}
+    cancels = []
+
+    def cancel_after(future, delay_s):
+        deadline = time.monotonic() + 2.0
+        while not future.done() and time.monotonic() < deadline:
+            time.sleep(0.0005)
+        time.sleep(delay_s)
+        if future.done() and future.result().accepted:
+            future.result().cancel_goal_async()
+
+    def storm(kind, action):
+        for index, (position, effort, cancel, delay) in enumerate(plan):
+            if kind is ParallelGripperCommand:
+                position, cancel = plan[-1 - index][0], plan[-1 - index][2]
+            future = action.send_goal_async(goal_of(kind, position, effort))
+            sent[kind].append(future)
+            if cancel:
+                canceller = threading.Thread(target=cancel_after, args=(future, delay))
+                cancels.append(canceller)
+                canceller.start()
+            time.sleep(0.01)
+
+    sampler = threading.Thread(target=sample)
+    sampler.start()
+    threads = [threading.Thread(target=storm, args=pair)
+               for pair in ((GripperCommand, gripper), (ParallelGripperCommand, parallel))]
+    try:
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+        for canceller in cancels:
+            canceller.join()
+        goals = [future for each in sent.values() for future in each]
+        wait_for(lambda: all(f.done() for f in goals), timeout=20.0,
+                 message="an answer to every goal",
+                 detail=lambda: f"{sum(not f.done() for f in goals)} of {len(goals)} unanswered")
+        handles = [f.result() for f in goals]
+        results = [h.get_result_async() for h in handles if h.accepted]
+        wait_for(lambda: all(r.done() for r in results), timeout=20.0,
+                 message="every goal's end",
+                 detail=lambda: f"{sum(not r.done() for r in results)} without an end")
+        ended = {GoalStatus.STATUS_SUCCEEDED, GoalStatus.STATUS_ABORTED,
+                 GoalStatus.STATUS_CANCELED}
+        statuses = [r.result().status for r in results]
+        assert len(statuses) == 200 and set(statuses) <= ended, statuses
+        # most cancels meet a goal already superseded; a goal that is not is cancelled, on
+        # either action, and the storm leaves neither server stuck
+        for action, kind in ((gripper, GripperCommand), (parallel, ParallelGripperCommand)):
+            handle, result = send(action, goal_of(kind, 0.06, 0.0))
+            time.sleep(chooser.uniform(0.005, 0.03))
+            handle.cancel_goal_async()
+            assert result_of(result).status == GoalStatus.STATUS_CANCELED
+    finally:
+        stop_sampling.set()
+        sampler.join()
+    margin = limits.overpressure_margin_pa
+    assert limits.min_gauge_pa - margin <= min(sampled), min(sampled)
+    assert max(sampled) <= limits.max_gauge_pa + margin, max(sampled)
+    assert client.stop()
