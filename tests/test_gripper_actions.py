@@ -456,3 +456,45 @@ def test_a_storm_on_both_actions_with_random_cancels_ends_every_goal_within_the_
     assert limits.min_gauge_pa - margin <= min(sampled), min(sampled)
     assert max(sampled) <= limits.max_gauge_pa + margin, max(sampled)
     assert client.stop()
+
+
+def test_a_client_killed_mid_goal_leaves_its_goal_to_end_and_the_server_serving(suite):
+    """A client process sends an opening goal and is killed (SIGKILL) while it runs (#52): the
+    goal still reaches a terminal status on the action's status topic, and the next client's
+    goal is served."""
+    import os
+    import signal
+    import sys
+
+    from action_msgs.msg import GoalStatus, GoalStatusArray
+    from control_msgs.action import GripperCommand
+    from softgrip_ros.client import serial_action_client
+    nodes, user, client = suite
+    terminal = {GoalStatus.STATUS_SUCCEEDED, GoalStatus.STATUS_ABORTED,
+                GoalStatus.STATUS_CANCELED}
+    seen = {}
+    user.create_subscription(
+        GoalStatusArray, "gripper_cmd/_action/status",
+        lambda msg: seen.update({bytes(s.goal_info.goal_id.uuid).hex(): s.status
+                                 for s in msg.status_list}), 10)
+    dying = subprocess.Popen([sys.executable, "-m", "tests.helpers.goal_then_die", "0.07"],
+                             cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        goal_id = dying.stdout.readline().strip()
+        assert len(goal_id) == 32, dying.stderr.read() if dying.poll() is not None else goal_id
+        wait_for(lambda: seen.get(goal_id) == GoalStatus.STATUS_EXECUTING, timeout=5.0,
+                 message="the goal running")
+        dying.send_signal(signal.SIGKILL)
+        dying.wait(timeout=10)
+    finally:
+        stop_process(dying)
+        dying.stdout.close()
+        dying.stderr.close()
+    wait_for(lambda: seen.get(goal_id) in terminal, timeout=15.0,
+             message="the killed client's goal ended", detail=lambda: seen.get(goal_id))
+    action = serial_action_client(user, GripperCommand, "gripper_cmd")
+    assert action.wait_for_server(timeout_sec=5.0)
+    _, closed = send(action, gripper_goal(0.02))
+    assert result_of(closed).status == GoalStatus.STATUS_SUCCEEDED
+    assert client.stop()
