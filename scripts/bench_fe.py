@@ -15,6 +15,9 @@ The 3-D FE (skipped with --2d-only; alone with --3d-only):
 2. The sweep at the default width: 0 to +50 kPa and 0 to -60 kPa in 5 kPa steps, with contact,
    and the pressures at which neighbouring blocks first touch; the same in plane strain.
 3. The band: widths 14.7, 20, 40 and 92 mm, each with the base d2 of 13 and 6.5 mm.
+4. The clamp: F_n(p) on the 0.1 mm sheet and on cylinders of 10, 30 and 60 mm at the default
+   width, down to -60 kPa (softgrip_ros.model.fe3d.clamp), and on the sheet at each width of the
+   band, down to -30 kPa.
 
 Every sweep is cached by the hash of its inputs (~/.cache/softgrip_ros/fe), so a second run
 costs seconds. Writes config/fe_reference.yaml and config/fe3d_reference.yaml (what
@@ -255,6 +258,10 @@ BAND_NEGATIVE_PA = tuple(-5e3 * k for k in range(1, 7))
 BAND_ELEMENT_SIZE_M = 4e-3
 FE3D_CONVERGENCE_SIZES_M = (4.0e-3, 3.0e-3, 2.0e-3, 1.4e-3)  # the band's, the sweep's, finer
 FE3D_CONVERGENCE_PRESSURE_PA = 10e3
+# the band's clamp figure, and the friction under which the paper's "holds 1 kg" is read
+CLAMP_FIGURE_PA = -30e3
+PAPER_FRICTION = 0.5
+G_M_PER_S2 = 9.80665
 FE3D_QUICK = {"element_size_m": 6e-3, "positive_pa": (2e3, 10e3), "negative_pa": (-10e3,)}
 FE3D_TARGETS = {  # the issue's: key -> (bound, what)
     "fe3d_verification_error_pct": (1.0, "plane-strain limit, Lame and a contact's balance "
@@ -266,8 +273,9 @@ FE3D_TARGETS = {  # the issue's: key -> (bound, what)
 }
 
 
-def band_entry(result, base_m: float) -> dict:
-    """One width of the band: the issue's keys, from a sweep (NaN where it did not reach)."""
+def band_entry(result, base_m: float, sheet=None) -> dict:
+    """One width of the band: the issue's keys, from a sweep and the clamp sweep on the sheet
+    (NaN where they did not reach)."""
     from softgrip_ros.model.fe3d.sweep import curvature_at
 
     def figure(pressure_pa, read):
@@ -286,13 +294,53 @@ def band_entry(result, base_m: float) -> dict:
         "D1_50kPa_mm": figure(50e3, lambda s: s.root_spacing_m * 1e3),
         "block_contact_first_kpa": (None if math.isnan(touch[0]) else touch[0] / 1e3),
         "block_contact_kpa": [None if math.isnan(t) else round(t / 1e3, 2) for t in touch],
-        # the sheet is not modelled yet (the profile's flat block tops cross the centre line)
-        "clamp_force_sheet_n_at_-30kPa": None,
+        "clamp_force_sheet_n_at_-30kPa": (None if sheet is None
+                                          else sheet_force_at(sheet, CLAMP_FIGURE_PA)),
+        "clamp_sheet_stop": "" if sheet is None else sheet.stop,
+        **({} if sheet is None else {
+            "clamp_sheet_interpenetration_max_mm": sheet.interpenetration_max_m * 1e3}),
         "vacuum_limit_kpa": result.vacuum_limit_pa / 1e3,
         "interpenetration_max_mm": result.interpenetration_max_m * 1e3,
         "element_size_mm": result.element_size_m * 1e3, "tetrahedra": result.tetrahedra,
         "seconds": round(result.seconds, 1), "inputs_hash": result.inputs_hash,
     }
+
+
+def sheet_force_at(result, pressure_pa: float):
+    """F_n (N) of a clamp sweep at ``pressure_pa``; None where it did not reach it."""
+    value = result.normal_force_n(pressure_pa)
+    return None if math.isnan(value) else value
+
+
+def clamp_run(geometry, default, quick: bool, progress) -> list:
+    """The clamp sweeps at the default width: the sheet and each cylinder (a cylinder the finger
+    cannot open to clear, by the default sweep's D2 at its highest pressure, is not solved)."""
+    from softgrip_ros.model.fe3d.clamp import (CYLINDER_DIAMETERS_M, SHEET_THICKNESS_M,
+                                               clamp_sweep)
+    from softgrip_ros.model.fe3d.finger import DEFAULT_WIDTH_M
+    from softgrip_ros.model.fe3d.sweep import SWEEP_ELEMENT_SIZE_M as SIZE_3D
+    from softgrip_ros.model.force_law import ENVELOP_MARGIN_M, ObjectKind
+
+    top = max(default.states, key=lambda s: s.pressure_pa)
+    out = []
+    objects = [(ObjectKind.FLAT, SHEET_THICKNESS_M)]
+    objects += [] if quick else [(ObjectKind.ROUND, d) for d in CYLINDER_DIAMETERS_M]
+    for kind, size in objects:
+        log(f"3-D clamp: {kind.value} object {size * 1e3:g} mm, w = {DEFAULT_WIDTH_M * 1e3:g} mm")
+        if kind is ObjectKind.ROUND and top.tip_spacing_m < size + ENVELOP_MARGIN_M:
+            reason = (f"not solved: D2 at {top.pressure_pa / 1e3:g} kPa is "
+                      f"{top.tip_spacing_m * 1e3:.1f} mm, short of the {size * 1e3:g} mm "
+                      f"cylinder and the grasp's {ENVELOP_MARGIN_M * 1e3:g} mm margin")
+            log("  " + reason)
+            out.append({"kind": kind.value, "size_m": size, "result": None, "reason": reason})
+            continue
+        options = ({"element_size_m": FE3D_QUICK["element_size_m"], "lowest_pa": -5e3}
+                   if quick else {"element_size_m": SIZE_3D})
+        result = clamp_sweep(geometry, kind, size, DEFAULT_WIDTH_M, progress=progress,
+                             use_cache=not quick, **options)
+        out.append({"kind": kind.value, "size_m": size, "result": result,
+                    "reason": result.stop})
+    return out
 
 
 def fe3d_run(geometry, quick: bool) -> dict:
@@ -301,9 +349,11 @@ def fe3d_run(geometry, quick: bool) -> dict:
 
     import ngsolve as ng
 
+    from softgrip_ros.model.fe3d.clamp import SHEET_THICKNESS_M, clamp_sweep
     from softgrip_ros.model.fe3d.finger import DEFAULT_WIDTH_M
     from softgrip_ros.model.fe3d.sweep import SWEEP_ELEMENT_SIZE_M as SIZE_3D
     from softgrip_ros.model.fe3d.sweep import curvature_at, sweep3d
+    from softgrip_ros.model.force_law import ObjectKind
     from softgrip_ros.model.fe3d.verification import (contact_balance, lame_cylinder,
                                                       mesh_convergence, plane_strain_limit)
     ng.SetNumThreads(os_threads())
@@ -325,7 +375,12 @@ def fe3d_run(geometry, quick: bool) -> dict:
                 continue
             result = sweep3d(shape, width, progress=progress, use_cache=True,
                              element_size_m=BAND_ELEMENT_SIZE_M, negative_pa=BAND_NEGATIVE_PA)
-            band.append(band_entry(result, base))
+            log(f"3-D band: the sheet, w = {width * 1e3:g} mm, d2 = {base * 1e3:g} mm")
+            sheet = clamp_sweep(shape, ObjectKind.FLAT, SHEET_THICKNESS_M, width,
+                                BAND_ELEMENT_SIZE_M, lowest_pa=min(BAND_NEGATIVE_PA),
+                                progress=progress)
+            band.append(band_entry(result, base, sheet))
+    clamps = clamp_run(geometry, default, quick, progress)
     with ng.TaskManager():
         # --quick: Lame's cylinder only (tests/test_fe3d.py checks the other two)
         log("3-D: Lame's cylinder" + ("" if quick else ", the plane-strain limit, a contact's "
@@ -340,14 +395,19 @@ def fe3d_run(geometry, quick: bool) -> dict:
         log(f"3-D: mesh convergence at {pressure / 1e3:.0f} kPa")
         convergence = mesh_convergence(geometry, sizes, pressure, progress=progress)
     touch_plane = plane.block_contact_first_pa()[0]
+    sheet_default = clamps[0]["result"]
     figures_ = {
         "fe3d_width_mm": DEFAULT_WIDTH_M * 1e3,
         "fe3d_verification_error_pct": max(c.worst_error_pct for c in verification),
         "fe3d_mesh_change_pct": convergence.change_pct,
         "fe3d_volume_change_pct": 100.0 * max(s.volume_change for s in default.states),
+        # every sweep: the default, the band's, and every clamp's
         "fe3d_interpenetration_max_mm": 1e3 * max(
-            [default.interpenetration_max_m] + [b["interpenetration_max_mm"] / 1e3
-                                                 for b in band]),
+            [default.interpenetration_max_m]
+            + [b["interpenetration_max_mm"] / 1e3 for b in band]
+            + [b["clamp_sheet_interpenetration_max_mm"] / 1e3 for b in band
+               if "clamp_sheet_interpenetration_max_mm" in b]
+            + [c["result"].interpenetration_max_m for c in clamps if c["result"] is not None]),
         "fe_block_contact_first_kpa_plane_strain": (None if math.isnan(touch_plane)
                                                     else touch_plane / 1e3),
         "fe3d_vacuum_limit_kpa": default.vacuum_limit_pa / 1e3,
@@ -355,9 +415,16 @@ def fe3d_run(geometry, quick: bool) -> dict:
         "fe3d_sweep_seconds": default.seconds,
         "fe3d_sweep_tetrahedra": default.tetrahedra,
         "fe3d_sweep_element_size_mm": default.element_size_m * 1e3,
+        "fe3d_clamp_force_sheet_n_at_-30kPa": sheet_force_at(sheet_default, CLAMP_FIGURE_PA),
+        "fe3d_clamp_sheet_lowest_kpa": sheet_default.states[-1].pressure_pa / 1e3,
+        "fe3d_clamp_force_sheet_n_at_lowest": sheet_default.states[-1].normal_force_n,
+        "fe3d_clamp_interpenetration_max_mm": 1e3 * max(
+            c["result"].interpenetration_max_m for c in clamps if c["result"] is not None),
     }
+    figures_["fe3d_sheet_mass_held_kg_mu_0.5"] = (
+        2.0 * PAPER_FRICTION * figures_["fe3d_clamp_force_sheet_n_at_lowest"] / G_M_PER_S2)
     return {"figures": figures_, "verification": verification, "convergence": convergence,
-            "default": default, "plane_strain": plane, "band": band}
+            "default": default, "plane_strain": plane, "band": band, "clamps": clamps}
 
 
 def os_threads() -> int:
@@ -417,8 +484,38 @@ def fe3d_document(run) -> dict:
         },
         "band": plain([{k: (round(v, 5) if isinstance(v, float) else v) for k, v in b.items()}
                        for b in run["band"]]),
+        "clamp": [clamp_document(c) for c in run["clamps"]],
         "states": [state(s) for s in default.states],
     }
+
+
+def clamp_document(entry) -> dict:
+    """One object's clamp sweep as the reference keeps it (mm, kPa, N)."""
+    result = entry["result"]
+    out = {"kind": entry["kind"], "size_mm": round(entry["size_m"] * 1e3, 4),
+           "stop": entry["reason"]}
+    if result is None:
+        return out
+    contact = result.contact_pressure_pa()
+    out.update({
+        "inputs_hash": result.inputs_hash, "element_size_m": result.element_size_m,
+        "seconds": round(result.seconds, 1), "opening_kpa": result.opening_pa / 1e3,
+        "object_centre_mm": [round(v * 1e3, 4) for v in result.object_centre_m],
+        "first_contact_kpa": None if math.isnan(contact) else round(contact / 1e3, 3),
+        "states": [{
+            "pressure_kpa": round(s.pressure_pa / 1e3, 3),
+            "normal_force_n": round(s.normal_force_n, 6),
+            "resultant_n": [round(v, 6) for v in s.resultant_n],
+            "contact_area_mm2": round(s.contact_area_m2 * 1e6, 4),
+            "peak_contact_pressure_kpa": round(s.peak_contact_pressure_pa / 1e3, 3),
+            "contact_centre_mm": [None if math.isnan(v) else round(v * 1e3, 4)
+                                  for v in s.contact_centre_m],
+            "penetration_mm": round(s.penetration_m * 1e3, 6),
+            "D2_mm": round(s.finger.tip_spacing_m * 1e3, 4),
+            "alpha_deg": round(math.degrees(s.finger.included_angle_rad), 4),
+            "interpenetration_mm": round(s.finger.interpenetration_m * 1e3, 6)}
+            for s in result.states]})
+    return out
 
 
 def fe3d_plot(run, path: pathlib.Path) -> None:
@@ -426,7 +523,8 @@ def fe3d_plot(run, path: pathlib.Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     default = run["default"]
-    fig, (shapes, curves) = plt.subplots(1, 2, figsize=(12, 5.5))
+    fig, (shapes, curves, forces) = plt.subplots(1, 3, figsize=(17, 5.5))
+    draw_clamp_forces(forces, run["clamps"])
     draw_backbones(shapes, default.states, f"3-D FE backbones, w = {default.width_m * 1e3:g} mm")
     for entry in run["band"]:
         curves.plot([25], [entry["alpha_25kPa_deg"]], "o" if entry["base_mm"] > 10 else "s",
@@ -446,6 +544,63 @@ def fe3d_plot(run, path: pathlib.Path) -> None:
     plt.close(fig)
 
 
+def draw_clamp_forces(axes, clamps) -> None:
+    """F_n(p) of each clamp sweep, beside the force law's rod tables for the same objects."""
+    from softgrip_ros.model.force_law import ObjectKind, load_table
+
+    for entry, colour in zip(clamps, ("k", "C0", "C1", "C2")):
+        result = entry["result"]
+        kind = ObjectKind(entry["kind"])
+        label = f"{entry['kind']} {entry['size_m'] * 1e3:g} mm"
+        if result is not None and result.states:
+            axes.plot([s.pressure_pa / 1e3 for s in result.states],
+                      [s.normal_force_n for s in result.states], colour + "-o", ms=3,
+                      label=f"3-D FE, {label}")
+        table = load_table("type_II", "l0", compute_if_missing=False)
+        pressures = [p for p in table.pressures_pa if -60e3 <= p <= 0.0]
+        rod = [table.normal_force_n(p, entry["size_m"], kind) for p in pressures]
+        if any(math.isfinite(v) for v in rod):
+            axes.plot([p / 1e3 for p in pressures], rod, colour + ":",
+                      label=f"force law (L2 rod, type_II), {label}")
+    axes.set_xlabel("gauge pressure (kPa)")
+    axes.set_ylabel("normal force per finger F_n (N)")
+    axes.set_yscale("symlog", linthresh=0.01)
+    axes.grid(alpha=0.3)
+    axes.legend(fontsize=7)
+    axes.set_title("clamp force against pressure")
+
+
+def clamp_rows(clamps) -> list:
+    rows = ["| object | opened to (kPa) | first contact (kPa) | F_n at 0 | -10 | -20 | -30 kPa | "
+            "lowest reached (kPa): F_n | peak contact pressure there (kPa) | stop |",
+            "|---|---|---|---|---|---|---|---|---|---|"]
+    for entry in clamps:
+        result = entry["result"]
+        name = f"{entry['kind']} {entry['size_m'] * 1e3:g} mm"
+        if result is None or not result.states:
+            rows.append(f"| {name} | - | - | - | - | - | - | - | - | {entry['reason']} |")
+            continue
+
+        def force(pressure_pa):
+            value = result.normal_force_n(pressure_pa)
+            return "-" if math.isnan(value) else f"{value:.3f} N"
+
+        last = result.states[-1]
+        contact = result.contact_pressure_pa()
+        rows.append(
+            f"| {name} | {result.opening_pa / 1e3:+.1f} | "
+            f"{'-' if math.isnan(contact) else f'{contact / 1e3:+.1f}'} | {force(0.0)} | "
+            f"{force(-10e3)} | {force(-20e3)} | {force(-30e3)} | "
+            f"{last.pressure_pa / 1e3:+.0f}: {last.normal_force_n:.3f} N | "
+            f"{last.peak_contact_pressure_pa / 1e3:.0f} | {result.stop or '-'} |")
+    return rows
+
+
+def sheet_cell(entry) -> str:
+    value = entry.get("clamp_force_sheet_n_at_-30kPa")
+    return "not reached" if value is None else f"{value:.3f}"
+
+
 def fe3d_markdown(run, command) -> str:
     rows = ["| key | value | target | |", "|---|---|---|---|"]
     for key, value in run["figures"].items():
@@ -457,13 +612,15 @@ def fe3d_markdown(run, command) -> str:
         else:
             rows.append(f"| `{key}` | {shown} | reported | |")
     band = ["| w (mm) | d2 (mm) | curvature at 2 kPa (1/m) | alpha(25) (deg) | D2(50) (mm) | "
-            "D1(50) (mm) | blocks first touch (kPa) | vacuum reached (kPa) | mesh (mm) | "
-            "sweep (s) |", "|---|---|---|---|---|---|---|---|---|---|"]
+            "D1(50) (mm) | blocks first touch (kPa) | vacuum reached (kPa) | "
+            "F_n on the sheet at -30 kPa (N) | mesh (mm) | sweep (s) |",
+            "|---|---|---|---|---|---|---|---|---|---|---|"]
     for b in run["band"]:
         touch = ", ".join("-" if t is None else f"{t:.1f}" for t in b["block_contact_kpa"])
         band.append(f"| {b['width_mm']:g} | {b['base_mm']:g} | {b['curvature_2kPa_per_m']:.3f} | "
                     f"{b['alpha_25kPa_deg']:.1f} | {b['D2_50kPa_mm']:.1f} | "
                     f"{b['D1_50kPa_mm']:.1f} | {touch} | {b['vacuum_limit_kpa']:.1f} | "
+                    f"{sheet_cell(b)} | "
                     f"{b['element_size_mm']:g} | {b['seconds']:.0f} |")
     checks = "\n".join(f"- {c.name}: worst error {c.worst_error_pct:.2g} %"
                        for c in run["verification"])
@@ -489,6 +646,16 @@ Neighbouring blocks "touch" once their least gap is below 0.02 mm (the penalty l
 by micrometres); "-" where they do not by 50 kPa.
 
 {chr(10).join(band)}
+
+The clamp (`softgrip_ros.model.fe3d.clamp`) at w = {default.width_m * 1e3:g} mm: the finger
+opened clear of the object, the object put in (rigid, fixed, frictionless), the pressure lowered
+in 5 kPa steps. F_n sums the contact tractions' magnitudes over the whole finger. The band's
+sheet column above is F_n at -30 kPa on the band's mesh.
+
+{chr(10).join(clamp_rows(run["clamps"]))}
+
+Read with the paper's "holds 1 kg" (mu = {PAPER_FRICTION:g}, no safety factor): the sheet at the
+lowest pressure reached holds {run["figures"]["fe3d_sheet_mass_held_kg_mu_0.5"] * 1e3:.1f} g.
 
 ![3-D FE sweep](fe3d_sweep.png)
 """

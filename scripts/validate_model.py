@@ -403,14 +403,66 @@ def fe3d_markdown(paper) -> list:
         f"{figures['fe3d_vacuum_limit_kpa']:.1f} kPa: "
         f"{sweep['vacuum_stop'] or 'the whole range'}.",
         "",
+    ] + clamp_lines(document, width, shown) + [
         "**Not yet** (issue #49): the vacuum side past where Newton stops (the collapsing "
-        "cavities need a continuation); the sheet and the cylinders, and so the clamp force "
-        "table (the profile's flat block tops, tilted by the 15 deg inclination, cross the "
-        "centre line at rest: the FE needs the rounded chamber faces that L2 and the world use); "
-        "the refits of `type_II_fe` and `type_II_fe_l1`, the error bounds and the speed/accuracy "
-        "chart, which still rest on the plane-strain FE above.",
+        "cavities need a continuation); the cylinders' F_n, and so an FE clamp force table in "
+        "place of the L2 rod's; the refits of `type_II_fe` and `type_II_fe_l1`, the error bounds "
+        "and the speed/accuracy chart, which still rest on the plane-strain FE above.",
         "",
     ]
+    return lines
+
+
+def _cylinder_outcome(entry) -> str:
+    """What one cylinder's clamp sweep reached, in words."""
+    if not entry.get("states"):
+        return entry["stop"]
+    last = entry["states"][-1]
+    at_30 = next((s for s in entry["states"] if s["pressure_kpa"] == -30.0), None)
+    return (f"first contact at {entry['first_contact_kpa']:+.1f} kPa, F_n "
+            + (f"{at_30['normal_force_n']:.3f} N at -30 kPa and " if at_30 else "")
+            + f"{last['normal_force_n']:.3f} N at {last['pressure_kpa']:+.0f} kPa, the lowest "
+            "reached" + (" (Newton stops there)" if entry["stop"] else ""))
+
+
+def clamp_lines(document, width, shown) -> list:
+    """The clamp paragraph of the 3-D section: F_n on the sheet and the cylinders, against the
+    force law's table."""
+    from softgrip_ros.model.force_law import ObjectKind, load_table
+
+    clamps = document.get("clamp") or []
+    sheet = next((c for c in clamps if c["kind"] == "flat" and c.get("states")), None)
+    if sheet is None:
+        return []
+    table = load_table("type_II", "l0", compute_if_missing=False)
+    last = sheet["states"][-1]
+    at_30 = next((s for s in sheet["states"] if s["pressure_kpa"] == -30.0), None)
+    rod_30 = table.normal_force_n(-30e3, sheet["size_mm"] * 1e-3, ObjectKind.FLAT)
+    rod_60 = table.normal_force_n(-60e3, sheet["size_mm"] * 1e-3, ObjectKind.FLAT)
+    mass_g = 1e3 * 2.0 * 0.5 * last["normal_force_n"] / 9.80665
+    lines = [
+        f"**The clamp.** The finger of w = {width:g} mm, opened clear of a "
+        f"{sheet['size_mm']:g} mm sheet on the centre line ({sheet['opening_kpa']:+.1f} kPa: at "
+        "rest its tip reaches past the centre line), presses it from "
+        f"{shown(sheet['first_contact_kpa'])} kPa on; at -30 kPa with "
+        + (f"{at_30['normal_force_n']:.3f} N" if at_30 else "- (not reached)")
+        + f" (the force law's L2 rod for type_II: {rod_30:.3f} N), and at the lowest pressure "
+        f"it reaches, {last['pressure_kpa']:+.0f} kPa, with {last['normal_force_n']:.3f} N "
+        f"({sheet['stop'] or 'the whole range'}). The contact lies at the tip, where the finger "
+        "meets the sheet; the rest of the finger bows away from it as the vacuum curls it. "
+        f"At friction 0.5 and no safety factor that holds {mass_g:.0f} g: the paper's \"holds "
+        "1 kg\" is out of this finger's reach by the FE, and by the rod's "
+        f"{rod_60:.1f} N at -60 kPa too. F_n sums the contact tractions' magnitudes (a rigid, "
+        "fixed, frictionless sheet, by penalty at each surface triangle's corners, edge "
+        "midpoints and centroid).",
+        "",
+    ]
+    gaps = [c for c in clamps if c["kind"] == "round"]
+    if gaps:
+        lines += ["**The cylinders** (10, 30 and 60 mm, level with the tip block's face once the "
+                  "finger has opened to clear them by the grasp's 10 mm): "
+                  + "; ".join(f"{c['size_mm']:g} mm: " + _cylinder_outcome(c) for c in gaps)
+                  + ".", ""]
     return lines
 
 

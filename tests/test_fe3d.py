@@ -207,7 +207,10 @@ def test_the_committed_fe3d_reference_matches_its_inputs_and_its_bounds():
     assert max(s["interpenetration_mm"] for s in document["states"]) < 0.05
     assert figures["fe3d_interpenetration_max_mm"] == pytest.approx(max(
         [s["interpenetration_mm"] for s in document["states"]]
-        + [b["interpenetration_max_mm"] for b in document["band"]]), abs=1e-4)
+        + [b["interpenetration_max_mm"] for b in document["band"]]
+        + [b["clamp_sheet_interpenetration_max_mm"] for b in document["band"]]
+        + [s["interpenetration_mm"] for c in document["clamp"] for s in c.get("states", [])]),
+        abs=1e-4)
     assert figures["fe3d_verification_error_pct"] < 1.0
     assert figures["fe3d_volume_change_pct"] < 0.5
     assert len(document["band"]) == 8
@@ -224,3 +227,46 @@ def test_a_fe3d_reference_without_its_keys_is_refused_with_the_command(tmp_path)
                     "band: [{width_mm: 20}]\n")
     with pytest.raises(ValueError, match="band entry lacks"):
         load_fe3d_reference(path)
+
+
+def test_the_committed_clamp_sweeps_match_their_inputs_and_press_harder_as_pressure_falls():
+    """The clamp part of config/fe3d_reference.yaml: the sheet at the default width is today's
+    (its hash), F_n grows as the pressure falls, and the band's -30 kPa figure is the band's
+    sheet sweep read at -30 kPa."""
+    from softgrip_ros.model.fe3d import clamp
+    from softgrip_ros.model.fe_data import load_fe3d_reference
+    from softgrip_ros.model.force_law import ObjectKind
+
+    document = load_fe3d_reference()
+    sheet = next(c for c in document["clamp"] if c["kind"] == "flat")
+    assert sheet["inputs_hash"] == clamp.inputs_hash(
+        GEOMETRY, YeohMaterial(), ObjectKind.FLAT, clamp.SHEET_THICKNESS_M,
+        document["sweep"]["width_m"], sheet["element_size_m"], clamp.LOWEST_PRESSURE_PA), (
+        "the clamp sweeps in config/fe3d_reference.yaml are stale: run python "
+        "scripts/bench_fe.py --3d-only")
+    forces = [s["normal_force_n"] for s in sheet["states"]]
+    assert forces[0] == 0.0 and forces[-1] > 0.0
+    assert all(b >= a - 1e-6 for a, b in zip(forces, forces[1:])), forces
+    pressures = [s["pressure_kpa"] for s in sheet["states"]]
+    assert sheet["opening_kpa"] == pressures[0] > 0.0
+    for state in sheet["states"][1:]:
+        # a plane's tractions and their resultant agree (1 %), all along the sheet's normal
+        assert -state["resultant_n"][0] == pytest.approx(state["normal_force_n"], rel=0.01)
+    reached = [b for b in document["band"] if b["clamp_force_sheet_n_at_-30kPa"] is not None]
+    assert reached, "no width of the band reaches -30 kPa on the sheet"
+    assert all(b["clamp_force_sheet_n_at_-30kPa"] > 0.0 for b in reached)
+    for b in document["band"]:
+        if b["clamp_force_sheet_n_at_-30kPa"] is None:
+            assert b["clamp_sheet_stop"], b  # not reached, and says why
+    for cylinder in (c for c in document["clamp"] if c["kind"] == "round" and c.get("states")):
+        radius_mm = 0.5 * cylinder["size_mm"]
+        for state in cylinder["states"][1:]:
+            if state["normal_force_n"] <= 0.0:
+                continue
+            # tractions around an arc partly cancel: their magnitudes sum to at least the
+            # resultant; and the contact lies on the cylinder's surface (within 0.5 mm)
+            # (the file keeps micronewtons)
+            assert state["normal_force_n"] >= math.hypot(*state["resultant_n"]) - 2e-6
+            centre = state["contact_centre_mm"]
+            assert math.dist(centre, cylinder["object_centre_mm"]) == pytest.approx(
+                radius_mm, abs=0.5)

@@ -83,7 +83,10 @@ def test_validate_model_json_has_the_contract_keys():
         assert set(entry) >= {"curvature_2kPa_per_m", "alpha_25kPa_deg", "D2_50kPa_mm",
                               "D1_50kPa_mm", "block_contact_first_kpa",
                               "clamp_force_sheet_n_at_-30kPa"}
-        assert entry["clamp_force_sheet_n_at_-30kPa"] is None  # no sheet modelled yet
+        # the sheet's force at -30 kPa, or null where that width's vacuum stops short of it
+        force = entry["clamp_force_sheet_n_at_-30kPa"]
+        assert force is None or 0.0 < force < 5.0, entry
+    assert any(b["clamp_force_sheet_n_at_-30kPa"] is not None for b in band)
     # wider fingers bend more at 2 kPa, on either base
     for base in (13.0, 6.5):
         curvature = [b["curvature_2kPa_per_m"] for b in sorted(band, key=lambda b: b["width_mm"])
@@ -110,6 +113,10 @@ def test_bench_fe_quick_runs_the_checks_and_a_coarse_sweep():
     assert (entry["width_mm"], entry["base_mm"]) == (20.0, 13.0)
     assert 0.05 < entry["curvature_2kPa_per_m"] < 0.3  # 0.116 1/m
     assert entry["alpha_25kPa_deg"] is None  # not in the quick sweep: null, not a guess
+    # the sheet clamped to -5 kPa on the coarse mesh; -30 kPa is not in the quick sweep
+    assert figures["fe3d_clamp_sheet_lowest_kpa"] == pytest.approx(-5.0)
+    assert figures["fe3d_clamp_force_sheet_n_at_lowest"] > 0.0
+    assert figures["fe3d_clamp_force_sheet_n_at_-30kPa"] is None
     assert "[####################]" in result.stderr  # each sweep's progress bar ends full
 
 

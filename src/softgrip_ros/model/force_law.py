@@ -3,9 +3,12 @@ chamber pressure, tabulated per object size (as the tip tables are), and the cla
 mass that follows from it.
 
 **Source: the L2 rod** (:class:`~softgrip_ros.model.rod.RodFinger`, 32 elements per segment),
-frictionless, until the 3-D FE with contact gives F_n(p). Its assumptions are the rod's: the
-finger's width (20 mm), its bending stiffness from the same wall-stretch chain as the bending law
-(EI = 16 C10 t w d^2 / g), no ballooning of the faces in contact, a rigid object fixed in place.
+frictionless. The 3-D FE with contact (:mod:`softgrip_ros.model.fe3d.clamp`) computes F_n(p) for
+the sheet and three cylinders, and presses far less than this table
+(docs/model_validation.md); the table stays the rod's until an FE one covers the object sizes.
+Its assumptions are the rod's: the finger's width (20 mm), its bending stiffness from the same
+wall-stretch chain as the bending law (EI = 16 C10 t w d^2 / g), no ballooning of the faces in
+contact, a rigid object fixed in place.
 Two kinds of object, as the grasp manager plans them:
 
 * ``ROUND``: a cylinder of diameter d on the centre line, level with the tip chambers when the
