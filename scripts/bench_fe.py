@@ -15,9 +15,9 @@ The 3-D FE (skipped with --2d-only; alone with --3d-only):
 2. The sweep at the default width: 0 to +50 kPa and 0 to -60 kPa in 5 kPa steps, with contact,
    and the pressures at which neighbouring blocks first touch; the same in plane strain.
 3. The band: widths 14.7, 20, 40 and 92 mm, each with the base d2 of 13 and 6.5 mm.
-4. The clamp: F_n(p) on the 0.1 mm sheet and on cylinders of 10, 30 and 60 mm at the default
-   width, down to -60 kPa (softgrip_ros.model.fe3d.clamp), and on the sheet at each width of the
-   band, down to -30 kPa.
+4. The clamp: F_n(p) on the 0.1 mm sheet, on cylinders of 10, 30 and 60 mm and on the clamp
+   force table's other objects at the default width, down to -60 kPa
+   (softgrip_ros.model.fe3d.clamp), and on the sheet at each width of the band, down to -30 kPa.
 
 Every sweep is cached by the hash of its inputs (~/.cache/softgrip_ros/fe), so a second run
 costs seconds. Writes config/fe_reference.yaml and config/fe3d_reference.yaml (what
@@ -43,6 +43,7 @@ from softgrip_ros.model.fe.finger import (CONVERGENCE_SIZES_M, FE_MODEL_VERSION,
                                           WALL_CONTACT_GAP_M, fe_available, sweep, INSTALL_HINT)
 from softgrip_ros.model.fe.mesh import FingerLayout
 from softgrip_ros.model.fe.solver import YeohMaterial
+from softgrip_ros.model.fe_data import FE_GEOMETRY_NAME
 from softgrip_ros.model.geometry import load_geometry
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -313,18 +314,25 @@ def sheet_force_at(result, pressure_pa: float):
 
 
 def clamp_run(geometry, default, quick: bool, progress) -> list:
-    """The clamp sweeps at the default width: the sheet and each cylinder (a cylinder the finger
-    cannot open to clear, by the default sweep's D2 at its highest pressure, is not solved)."""
+    """The clamp sweeps at the default width: the sheet, each cylinder and the clamp force table's
+    objects (a cylinder the finger cannot open to clear, by the default sweep's D2 at its highest
+    pressure, is not solved)."""
     from softgrip_ros.model.fe3d.clamp import (CYLINDER_DIAMETERS_M, SHEET_THICKNESS_M,
                                                clamp_sweep)
     from softgrip_ros.model.fe3d.finger import DEFAULT_WIDTH_M
     from softgrip_ros.model.fe3d.sweep import SWEEP_ELEMENT_SIZE_M as SIZE_3D
     from softgrip_ros.model.force_law import ENVELOP_MARGIN_M, ObjectKind
 
+    from softgrip_ros.model.force_law import FE_FLAT_SIZES_M, FE_ROUND_SIZES_M
+
     top = max(default.states, key=lambda s: s.pressure_pa)
     out = []
     objects = [(ObjectKind.FLAT, SHEET_THICKNESS_M)]
-    objects += [] if quick else [(ObjectKind.ROUND, d) for d in CYLINDER_DIAMETERS_M]
+    # the issue's cylinders, then the rest of the clamp force table's objects
+    objects += [] if quick else sorted(
+        {(ObjectKind.ROUND, d) for d in CYLINDER_DIAMETERS_M + FE_ROUND_SIZES_M} |
+        {(ObjectKind.FLAT, t) for t in FE_FLAT_SIZES_M if t != SHEET_THICKNESS_M},
+        key=lambda o: (o[0] is ObjectKind.FLAT, o[1]))
     for kind, size in objects:
         log(f"3-D clamp: {kind.value} object {size * 1e3:g} mm, w = {DEFAULT_WIDTH_M * 1e3:g} mm")
         if kind is ObjectKind.ROUND and top.tip_spacing_m < size + ENVELOP_MARGIN_M:
@@ -513,6 +521,7 @@ def clamp_document(entry) -> dict:
             "penetration_mm": round(s.penetration_m * 1e3, 6),
             "D2_mm": round(s.finger.tip_spacing_m * 1e3, 4),
             "alpha_deg": round(math.degrees(s.finger.included_angle_rad), 4),
+            "tip_mm": [round(v * 1e3, 4) for v in s.finger.tip[:2]],
             "interpenetration_mm": round(s.finger.interpenetration_m * 1e3, 6)}
             for s in result.states]})
     return out
@@ -545,28 +554,29 @@ def fe3d_plot(run, path: pathlib.Path) -> None:
 
 
 def draw_clamp_forces(axes, clamps) -> None:
-    """F_n(p) of each clamp sweep, beside the force law's rod tables for the same objects."""
+    """F_n(p) of each clamp sweep (what the FE models' clamp force table holds), beside the L2
+    rod's table of type_II for the sheet and the 10 mm cylinder."""
     from softgrip_ros.model.force_law import ObjectKind, load_table
 
-    for entry, colour in zip(clamps, ("k", "C0", "C1", "C2")):
-        result = entry["result"]
-        kind = ObjectKind(entry["kind"])
+    table = load_table("type_II", "l0", compute_if_missing=False)
+    pressures = [p for p in table.pressures_pa if -60e3 <= p <= 0.0]
+    solved = [e for e in clamps if e["result"] is not None and e["result"].states]
+    for k, entry in enumerate(solved):
+        result, colour = entry["result"], f"C{k % 10}"
         label = f"{entry['kind']} {entry['size_m'] * 1e3:g} mm"
-        if result is not None and result.states:
-            axes.plot([s.pressure_pa / 1e3 for s in result.states],
-                      [s.normal_force_n for s in result.states], colour + "-o", ms=3,
-                      label=f"3-D FE, {label}")
-        table = load_table("type_II", "l0", compute_if_missing=False)
-        pressures = [p for p in table.pressures_pa if -60e3 <= p <= 0.0]
-        rod = [table.normal_force_n(p, entry["size_m"], kind) for p in pressures]
-        if any(math.isfinite(v) for v in rod):
-            axes.plot([p / 1e3 for p in pressures], rod, colour + ":",
-                      label=f"force law (L2 rod, type_II), {label}")
+        axes.plot([s.pressure_pa / 1e3 for s in result.states],
+                  [s.normal_force_n for s in result.states], "-o", color=colour, ms=3,
+                  label=f"3-D FE, {label}")
+        if (entry["kind"], round(entry["size_m"], 6)) in (("flat", 1e-4), ("round", 0.01)):
+            rod = [table.normal_force_n(p, entry["size_m"], ObjectKind(entry["kind"]))
+                   for p in pressures]
+            axes.plot([p / 1e3 for p in pressures], rod, ":", color=colour,
+                      label=f"L2 rod (type_II's table), {label}")
     axes.set_xlabel("gauge pressure (kPa)")
     axes.set_ylabel("normal force per finger F_n (N)")
     axes.set_yscale("symlog", linthresh=0.01)
     axes.grid(alpha=0.3)
-    axes.legend(fontsize=7)
+    axes.legend(fontsize=6)
     axes.set_title("clamp force against pressure")
 
 
@@ -672,7 +682,7 @@ def main(argv=None) -> int:
     if not fe_available():
         print(f"bench_fe: {INSTALL_HINT}", file=sys.stderr)
         return 2
-    geometry = load_geometry()
+    geometry = load_geometry(FE_GEOMETRY_NAME)
     FingerLayout.from_geometry(geometry)  # refuses a geometry the FE cannot mesh, early
     output = {}
     started = time.perf_counter()

@@ -1,7 +1,9 @@
 #!/usr/bin/env python3
-"""Compute the clamp force law (softgrip_ros.model.force_law) of the built-in gripper models with
-the L2 rod and write config/clamp_force/<model>.<law>.yaml; --check only verifies that every
-table is there and current (its inputs hash), exit 1 otherwise.
+"""Compute the clamp force law (softgrip_ros.model.force_law) of the built-in gripper models and
+write config/clamp_force/<model>.<law>.yaml: the L2 rod's for the paper's cavity types, the 3-D
+FE's for the models fitted to it (type_II_fe, type_II_fe_l1; the FE extra, and minutes per
+clamp sweep unless cached by scripts/bench_fe.py or an earlier run). --check only verifies that
+every table is there and current (its inputs hash), exit 1 otherwise.
 
     python scripts/build_force_tables.py                 # every built-in model, both laws
     python scripts/build_force_tables.py --models type_II --laws l0
@@ -33,13 +35,22 @@ OUT = REPO / "config" / force_law.TABLE_DIR
 
 def build(model: str, law: str) -> tuple[str, float]:
     started = time.monotonic()
-    table = force_law.compute_table(model, law)
     provenance = {"written_by": "scripts/build_force_tables.py",
                   "date": datetime.date.today().isoformat(),
-                  "machine": f"CPython {platform.python_version()}, {platform.machine()}",
-                  "source": f"the L2 rod, {force_law.ROD_ELEMENTS} elements per segment, "
-                            "frictionless, rigid objects fixed in place"}
-    path = force_law.write_table(table, OUT / force_law.table_file_name(model, law), provenance)
+                  "machine": f"CPython {platform.python_version()}, {platform.machine()}"}
+    sweeps = None
+    if force_law.table_source(model) is force_law.TableSource.FE3D:
+        table, sweeps = force_law.compute_fe_table(
+            model, law, progress=lambda *parts: print(f"  {model}.{law}:", *parts, flush=True))
+        provenance["source"] = ("the 3-D FE with contact (softgrip_ros.model.fe3d.clamp), "
+                                "w = 20 mm, rigid objects fixed in place, frictionless; below "
+                                "the lowest pressure a sweep solved, its last force")
+    else:
+        table = force_law.compute_table(model, law)
+        provenance["source"] = (f"the L2 rod, {force_law.ROD_ELEMENTS} elements per segment, "
+                                "frictionless, rigid objects fixed in place")
+    path = force_law.write_table(table, OUT / force_law.table_file_name(model, law), provenance,
+                                 sweeps)
     return str(path.relative_to(REPO)), time.monotonic() - started
 
 

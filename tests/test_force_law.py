@@ -1,7 +1,9 @@
 """The clamp force law (softgrip_ros.model.force_law): the packaged tables are current and are the
-L2 rod's, the law inverts itself, and a user's calibration gets a table of its own."""
+L2 rod's or the 3-D FE's, the law inverts itself, and a user's calibration gets a table of its
+own."""
 import math
 
+import numpy as np
 import pytest
 
 from softgrip_ros.model import force_law, gripper_models
@@ -83,3 +85,89 @@ def test_a_users_calibration_gets_its_table_computed_once_and_cached(tmp_path, m
     assert computed == ["mine"]  # read from the cache
     assert again.normal_force_n(-30e3, 0.04, ObjectKind.ROUND) == pytest.approx(
         table.normal_force_n(-30e3, 0.04, ObjectKind.ROUND))
+
+
+# ---- the FE's tables (type_II_fe, type_II_fe_l1) ------------------------------------------------
+def _fe_table_file(model="type_II_fe", law="l0"):
+    import yaml
+    from softgrip_ros.config_paths import config_dir
+    path = config_dir() / force_law.TABLE_DIR / force_law.table_file_name(model, law)
+    return yaml.safe_load(path.read_text())
+
+
+@pytest.mark.parametrize("model", ["type_II_fe", "type_II_fe_l1"])
+def test_the_fe_models_take_the_fes_table_and_the_paper_types_the_rods(model):
+    assert force_law.table_source(model) is force_law.TableSource.FE3D
+    assert load_table(model, "l1").source is force_law.TableSource.FE3D
+    assert load_table("type_II", "l1").source is force_law.TableSource.ROD
+
+
+def test_the_fe_table_was_built_from_todays_fe_clamp_sweeps():
+    """Each sweep the table records has the input hash the FE code gives today (so a change to
+    the FE makes the table stale), and the table's entries are the committed sweeps' F_n."""
+    import yaml
+    from softgrip_ros.config_paths import config_file
+    from softgrip_ros.model.fe.solver import YeohMaterial
+    from softgrip_ros.model.fe3d.clamp import LOWEST_PRESSURE_PA, inputs_hash
+    from softgrip_ros.model.fe3d.finger import DEFAULT_WIDTH_M
+    from softgrip_ros.model.fe3d.sweep import SWEEP_ELEMENT_SIZE_M
+
+    from softgrip_ros.model.fe_data import FE_GEOMETRY_NAME
+    from softgrip_ros.model.geometry import load_geometry
+    geometry = load_geometry(FE_GEOMETRY_NAME)
+    document = _fe_table_file()
+    recorded = {(s["kind"], s["size_m"]): s for s in document["fe_sweeps"]}
+    assert set(recorded) == ({("round", d) for d in force_law.FE_ROUND_SIZES_M} |
+                             {("flat", t) for t in force_law.FE_FLAT_SIZES_M})
+    for (kind, size), sweep in recorded.items():
+        assert sweep["inputs_hash"] == inputs_hash(
+            geometry, YeohMaterial(), ObjectKind(kind), size, DEFAULT_WIDTH_M,
+            SWEEP_ELEMENT_SIZE_M, LOWEST_PRESSURE_PA), (kind, size)
+    table = load_table("type_II_fe", "l0")
+    reference = yaml.safe_load(config_file("fe3d_reference.yaml").read_text())
+    checked = 0
+    for clamp in reference["clamp"]:
+        key = (clamp["kind"], clamp["size_mm"] * 1e-3)
+        if not clamp.get("states") or not any(
+                k == key[0] and s == pytest.approx(key[1]) for k, s in recorded):
+            continue
+        for state in clamp["states"]:
+            pressure = state["pressure_kpa"] * 1e3
+            if pressure % 5e3 == 0.0:
+                # the table makes F_n non-decreasing as the pressure falls; the FE's own is
+                assert table.normal_force_n(pressure, key[1], ObjectKind(key[0])) >= (
+                    state["normal_force_n"] - 1e-6)
+                assert table.normal_force_n(pressure, key[1], ObjectKind(key[0])) == (
+                    pytest.approx(state["normal_force_n"], rel=0.02, abs=2e-3))
+                checked += 1
+    assert checked >= 20
+
+
+def test_an_fe_row_is_zero_above_the_opening_and_holds_its_last_force_below_the_sweep():
+    from types import SimpleNamespace
+
+    from softgrip_ros.model.fe3d.clamp import FE3DClampSweep
+    states = [SimpleNamespace(pressure_pa=p, normal_force_n=f)
+              for p, f in ((10e3, 0.0), (5e3, 0.01), (0.0, 0.03), (-5e3, 0.02), (-10e3, 0.05))]
+    sweep = FE3DClampSweep("h", "flat", 1e-4, 0.02, 0.003, 1, 10e3, (0.0, 0.0), states, "", 1.0)
+    row, lowest = force_law.fe_row(sweep, (-20e3, -10e3, -5e3, 0.0, 5e3, 10e3, 15e3))
+    assert lowest == -10e3
+    # below the sweep: its last force; the dip at -5 kPa lifted to what 0 kPa pressed
+    assert list(row) == pytest.approx([0.05, 0.05, 0.03, 0.03, 0.01, 0.0, 0.0])
+    empty = FE3DClampSweep("h", "round", 0.06, 0.02, 0.003, 1, 50e3, (0.0, 0.0), [], "no", 1.0)
+    row, lowest = force_law.fe_row(empty, (-10e3, 0.0))
+    assert np.isnan(row).all() and math.isnan(lowest)
+
+
+def test_the_fe_law_refuses_what_the_fe_cannot_hold():
+    """Below the lowest pressure the FE solved the force stays flat: a mass that needs more is
+    planned past any pressure (the grasp manager refuses it), a light one is planned."""
+    law = ClampForceLaw(load_table("type_II_fe", "l0"))
+    most = law.normal_force_n(-60e3, 1e-4, ObjectKind.FLAT)
+    assert most == pytest.approx(law.normal_force_n(-100e3, 1e-4, ObjectKind.FLAT))
+    assert 0.0 < most < 0.5
+    light = law.clamp_pressure_pa(0.002, 1e-4, ObjectKind.FLAT, 0.5)
+    assert -40e3 < light < law.contact_pressure_pa(1e-4, ObjectKind.FLAT)
+    assert law.clamp_pressure_pa(0.1, 1e-4, ObjectKind.FLAT, 0.5) == -math.inf
+    # a cylinder the FE finger cannot open around
+    assert math.isnan(law.contact_pressure_pa(0.03, ObjectKind.ROUND))

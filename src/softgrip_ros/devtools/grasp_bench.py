@@ -15,7 +15,7 @@ failed (no HOLDING).
 **Offline** (the world alone, stepped faster than real time at the clamp pressure a planner
 chose, through the same moves): the hold margin, the largest extra mass held, by bisection; and
 planners compared at the grasp level (the one-number law with L0 or L1 contact, the L2 tables of
-the L0 and L1 laws, the table of the FE-calibrated model).
+the L0 and L1 laws, the 3-D FE's table of the FE-calibrated model).
 """
 from __future__ import annotations
 
@@ -449,8 +449,8 @@ class Planner:
 
 def planners(gripper_model: str = "type_II") -> list:
     """The grasp-level planners compared: the paper's one-number law with the L0 or L1 contact
-    pressure, and the tabulated L2 law of the L0 and L1 bending laws and of the FE-calibrated
-    model (its L0 law)."""
+    pressure, the tabulated L2 law of the L0 and L1 bending laws, and the 3-D FE's table of the
+    FE-calibrated model."""
     from softgrip_ros.model.calibration import build_kinematics
     from softgrip_ros.model.force_law import ClampForceLaw, load_table
     from softgrip_ros.model.grasp import OneNumberClampLaw
@@ -470,7 +470,7 @@ def planners(gripper_model: str = "type_II") -> list:
                                   case.mass_kg, contact(case), case.friction)))
     for model, law, name in ((gripper_model, "l0", "L2 table (L0 law)"),
                              (gripper_model, "l1", "L2 table (L1 law)"),
-                             ("type_II_fe", "l0", "L2 table of the FE-calibrated model")):
+                             ("type_II_fe", "l0", "the FE's table (type_II_fe)")):
         clamp_law = ClampForceLaw(load_table(model, law))
 
         def plan(case, clamp_law=clamp_law):

@@ -27,6 +27,8 @@ FE_REFERENCE_FILE = "fe_reference.yaml"
 FE3D_REFERENCE_FILE = "fe3d_reference.yaml"
 HELD_OUT_PRESSURES_PA = (15e3, 35e3, 55e3)  # FE points the calibration does not see
 FE_CALIBRATION_NAMES = {"l0": "type_II_fe", "l1": "type_II_fe_l1"}
+# the geometry both FE references are computed on (scripts/bench_fe.py); the FE models share it
+FE_GEOMETRY_NAME = "type_II"
 # residual scales: one degree of alpha weighs as one millimetre of D2
 ALPHA_SCALE_RAD = math.radians(1.0)
 D2_SCALE_M = 1e-3

@@ -2,13 +2,21 @@
 chamber pressure, tabulated per object size (as the tip tables are), and the clamp pressure for a
 mass that follows from it.
 
-**Source: the L2 rod** (:class:`~softgrip_ros.model.rod.RodFinger`, 32 elements per segment),
-frictionless. The 3-D FE with contact (:mod:`softgrip_ros.model.fe3d.clamp`) computes F_n(p) for
-the sheet and three cylinders, and presses far less than this table
-(docs/model_validation.md); the table stays the rod's until an FE one covers the object sizes.
-Its assumptions are the rod's: the finger's width (20 mm), its bending stiffness from the same
-wall-stretch chain as the bending law (EI = 16 C10 t w d^2 / g), no ballooning of the faces in
-contact, a rigid object fixed in place.
+Two sources, by gripper model (:func:`table_source`):
+
+* **The 3-D FE** (:mod:`softgrip_ros.model.fe3d.clamp`) for the models fitted to it
+  (``type_II_fe``, ``type_II_fe_l1``): the walled finger with contact, w = 20 mm, clamping a
+  rigid, fixed, frictionless sheet or cylinder (FE_FLAT_SIZES_M, FE_ROUND_SIZES_M), at
+  FE_PRESSURES_PA. Newton stops near -35 kPa, where the cavities collapse; below the lowest
+  pressure a sweep reached, the row holds its last force (no force is credited that the FE did
+  not compute). The finger cannot open around a cylinder wider than about 15 mm: NaN there.
+* **The L2 rod** (:class:`~softgrip_ros.model.rod.RodFinger`, 32 elements per segment,
+  frictionless) for the paper's cavity types and users' calibrations, whose bending the FE does
+  not reproduce. Its assumptions are the rod's: the finger's width (20 mm), its bending stiffness
+  from the same wall-stretch chain as the bending law (EI = 16 C10 t w d^2 / g), no ballooning of
+  the faces in contact, a rigid object fixed in place. It presses about nine times what the FE
+  does on the same sheet (docs/model_validation.md).
+
 Two kinds of object, as the grasp manager plans them:
 
 * ``ROUND``: a cylinder of diameter d on the centre line, level with the tip chambers when the
@@ -16,17 +24,18 @@ Two kinds of object, as the grasp manager plans them:
   the grasp manager's defaults), then clamped (ENVELOP_CLAMP, CLAMP, a gripper goal's close);
 * ``FLAT``: a sheet of thickness t on the centre line, pinched from the rest (PINCH).
 
-F_n is the sum of the magnitudes of each finger's contact forces (what friction can use). Where
-the rod cannot reach an object (wider than the fingers open) the table holds NaN.
+F_n is the sum of the magnitudes of each finger's contact forces (what friction can use), made
+non-decreasing as the pressure falls. Where the fingers cannot reach an object (wider than they
+open) the table holds NaN.
 
 **The clamp.** Two fingers hold a weight by friction when 2 mu F_n >= SF m g; the clamp pressure
 for a mass is where the table's F_n(p) reaches SF m g / (2 mu), at least ``min_squeeze_pa`` below
-the contact. Beyond the table's lowest pressure the law is extrapolated along its last cell and
-says so; the grasp manager refuses pressures below its limit.
+the contact. Beyond the table's lowest pressure the law follows its last cell (flat for the FE's
+tables) and says so; the grasp manager refuses pressures below its limit.
 
 The tables of the built-in gripper models are in ``config/clamp_force/`` (written by
 ``scripts/build_force_tables.py``; tests check their inputs hash against the code and the
-models); a user's calibration gets its table computed on first use, coarser (``USER_*``), and
+models); a user's calibration gets its rod table computed on first use, coarser (``USER_*``), and
 cached beside it.
 """
 from __future__ import annotations
@@ -63,9 +72,28 @@ ENVELOP_MARGIN_M = 0.01
 PRESSURE_TOLERANCE_PA = 1.5e3
 
 
+# the FE's tables (the module docstring): the objects it clamps and its pressures
+FE_TABLE_VERSION = 1
+FE_ROUND_SIZES_M = (0.005, 0.010, 0.015)
+FE_FLAT_SIZES_M = (1e-4, 0.002, 0.005, 0.010)
+FE_PRESSURES_PA = tuple(np.arange(-60e3, 50e3 + 1.0, 5e3))
+
+
 class ObjectKind(enum.Enum):
     ROUND = "round"
     FLAT = "flat"
+
+
+class TableSource(enum.Enum):
+    ROD = "rod"  # the L2 rod
+    FE3D = "fe3d"  # the 3-D FE with contact
+
+
+def table_source(gripper_model: str) -> TableSource:
+    """Where a gripper model's table comes from: the FE for the models fitted to it."""
+    from softgrip_ros.model.fe_data import FE_CALIBRATION_NAMES
+    return (TableSource.FE3D if gripper_model in FE_CALIBRATION_NAMES.values()
+            else TableSource.ROD)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,6 +107,7 @@ class ForceTable:
     sizes_m: dict
     forces_n: dict
     inputs_hash: str
+    source: TableSource = TableSource.ROD
 
     def normal_force_n(self, pressure_pa: float, size_m: float, kind: ObjectKind) -> float:
         """F_n at ``pressure_pa`` for an object ``size_m`` across (linear in both; NaN beyond the
@@ -157,6 +186,63 @@ def inputs_hash(geometry, calibration, bending: str, finger_width_m: float,
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def fe_inputs_hash(geometry) -> str:
+    """What an FE table depends on that is known without the FE library: the geometry, the grid
+    and this code's version (tests check the FE sweeps' own input hashes, recorded in the
+    table's file, against the FE code)."""
+    document = {"geometry": dataclasses.asdict(geometry), "version": FE_TABLE_VERSION,
+                "pressures": [float(p) for p in FE_PRESSURES_PA], "round": FE_ROUND_SIZES_M,
+                "flat": FE_FLAT_SIZES_M, "source": TableSource.FE3D.value}
+    text = json.dumps(document, sort_keys=True, default=str)
+    return "fe3d-" + hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def fe_row(sweep, pressures_pa) -> tuple:
+    """One table row from an FE clamp sweep (:class:`~softgrip_ros.model.fe3d.clamp.
+    FE3DClampSweep`): (F_n per pressure, the lowest pressure solved). 0 above the pressure the
+    finger was opened to, the sweep's F_n down to its lowest state, that state's F_n below it;
+    all NaN when the finger could not open clear of the object."""
+    pressures = np.asarray(pressures_pa, dtype=float)
+    if not sweep.states:
+        return np.full(len(pressures), math.nan), math.nan
+    lowest = sweep.states[-1]
+    row = np.array([0.0 if p > sweep.opening_pa + 1e-6 else
+                    lowest.normal_force_n if p < lowest.pressure_pa - 1e-6 else
+                    sweep.normal_force_n(p) for p in pressures])
+    return np.maximum.accumulate(row[::-1])[::-1], lowest.pressure_pa
+
+
+def compute_fe_table(gripper_model: str, bending: str, progress=print) -> tuple:
+    """The FE's table of ``gripper_model`` (a model fitted to the FE): (ForceTable, a list of
+    the sweeps it read, each {kind, size_m, inputs_hash, opening_pa, lowest_solved_pa, stop}).
+    Runs each clamp sweep (minutes each) unless it is cached; needs the FE extra."""
+    from softgrip_ros.model.fe3d.clamp import clamp_sweep
+    from softgrip_ros.model.fe3d.finger import DEFAULT_WIDTH_M
+    from softgrip_ros.model.fe_data import FE_GEOMETRY_NAME
+    from softgrip_ros.model.geometry import load_geometry
+
+    if table_source(gripper_model) is not TableSource.FE3D:
+        raise ValueError(f"{gripper_model} is not fitted to the FE: its table is the rod's")
+    # the FE's clamp sweeps run on the geometry the FE truth was computed on
+    geometry = load_geometry(FE_GEOMETRY_NAME)
+    forces, sweeps = {}, []
+    for kind, sizes in ((ObjectKind.ROUND, FE_ROUND_SIZES_M), (ObjectKind.FLAT, FE_FLAT_SIZES_M)):
+        rows = []
+        for size in sizes:
+            sweep = clamp_sweep(geometry, kind, size, DEFAULT_WIDTH_M, progress=progress)
+            row, lowest = fe_row(sweep, FE_PRESSURES_PA)
+            rows.append(row)
+            sweeps.append({"kind": kind.value, "size_m": size, "inputs_hash": sweep.inputs_hash,
+                           "opening_pa": sweep.opening_pa, "lowest_solved_pa": lowest,
+                           "stop": sweep.stop})
+        forces[kind] = np.array(rows)
+    table = ForceTable(gripper_model, bending, DEFAULT_WIDTH_M, np.array(FE_PRESSURES_PA),
+                       {ObjectKind.ROUND: np.array(FE_ROUND_SIZES_M),
+                        ObjectKind.FLAT: np.array(FE_FLAT_SIZES_M)},
+                       forces, fe_inputs_hash(geometry), TableSource.FE3D)
+    return table, sweeps
+
+
 def compute_table(gripper_model: str, bending: str, elements: int = ROD_ELEMENTS,
                   pressures_pa=PRESSURES_PA, progress=None) -> ForceTable:
     """The table of ``gripper_model`` under its ``bending`` law, solved by the L2 rod;
@@ -219,11 +305,13 @@ def table_file_name(gripper_model: str, bending: str) -> str:
     return f"{gripper_model}.{bending}.yaml"
 
 
-def write_table(table: ForceTable, path, provenance: dict) -> pathlib.Path:
+def write_table(table: ForceTable, path, provenance: dict, fe_sweeps=None) -> pathlib.Path:
+    """Write ``table`` atomically; ``fe_sweeps``: an FE table's sweeps (compute_fe_table)."""
     path = pathlib.Path(path)
     document = {
         "format": "softgrip_clamp_force/1",
         "provenance": provenance,
+        "source": table.source.value,
         "gripper_model": table.gripper_model, "bending": table.bending,
         "finger_width_m": table.finger_width_m, "inputs_hash": table.inputs_hash,
         "pressures_pa": [float(p) for p in table.pressures_pa],
@@ -233,6 +321,9 @@ def write_table(table: ForceTable, path, provenance: dict) -> pathlib.Path:
             "sizes_m": [float(s) for s in table.sizes_m[kind]],
             "normal_force_n": [[None if not math.isfinite(v) else round(float(v), 6) for v in row]
                                for row in table.forces_n[kind]]}
+    if fe_sweeps is not None:
+        document["fe_sweeps"] = [{k: (float(v) if isinstance(v, float) else v)
+                                  for k, v in sweep.items()} for sweep in fe_sweeps]
     return write_text_atomically(
         path, "# The clamp force law of one gripper model: each finger's normal force (N) "
               "against the pressure, per object size. Written by softgrip_ros.model.force_law; "
@@ -254,7 +345,8 @@ def read_table(path) -> ForceTable:
         return ForceTable(document["gripper_model"], document["bending"],
                           float(document["finger_width_m"]),
                           np.array(document["pressures_pa"], dtype=float), sizes, forces,
-                          str(document["inputs_hash"]))
+                          str(document["inputs_hash"]),
+                          TableSource(document.get("source", TableSource.ROD.value)))
     except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as error:
         raise ValueError(f"{path}: not a clamp force table: {error}") from None
 
@@ -270,7 +362,12 @@ def load_table(gripper_model: str, bending: str, compute_if_missing: bool = True
     model_path = gripper_models.model_path(gripper_model)
     resolution = ((ROD_ELEMENTS, PRESSURES_PA) if model_path is None else
                   (USER_ROD_ELEMENTS, USER_PRESSURES_PA))
-    expected = inputs_hash(geometry, calibration, bending, _default_width(), *resolution)
+    if model_path is None and table_source(gripper_model) is TableSource.FE3D:
+        from softgrip_ros.model.fe_data import FE_GEOMETRY_NAME
+        from softgrip_ros.model.geometry import load_geometry
+        expected = fe_inputs_hash(load_geometry(FE_GEOMETRY_NAME))
+    else:
+        expected = inputs_hash(geometry, calibration, bending, _default_width(), *resolution)
     name = table_file_name(pathlib.Path(gripper_model).stem, bending)
     path = (config_dir() / TABLE_DIR / name if model_path is None else
             model_path.with_name(model_path.stem + f".{bending}.clamp_force.yaml"))
