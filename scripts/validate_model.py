@@ -17,13 +17,13 @@ import numpy as np
 
 from softgrip_ros.devtools import model_validation as validation
 from softgrip_ros.model import calibration
-from softgrip_ros.model.fe_data import load_fe3d_reference, load_fe_reference
+from softgrip_ros.model.fe_data import (HELD_OUT_PRESSURES_PA, load_fe3d_reference,
+                                       load_fe_reference, load_fe_truth)
 
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
 DOCS = REPO_ROOT / "docs"
 PRESSURES_KPA = np.linspace(0.0, 60.0, 241)
 # a curvature proportional to the pressure grows by 55/50 - 1 and 60/55 - 1
-LINEAR_GROWTH_PCT = (100.0 * (55.0 / 50.0 - 1.0), 100.0 * (60.0 / 55.0 - 1.0))
 
 
 def plot_all(paper) -> list[pathlib.Path]:
@@ -151,24 +151,29 @@ def markdown(paper, images) -> str:
         "law.",
         "",
     ]
-    lines += fe_markdown(paper)
     lines += fe3d_markdown(paper)
+    lines += fe_markdown(paper)
     lines += ["## Plots", ""]
     lines += [f"![{p.stem}]({p.name})" for p in images]
     return "\n".join(lines) + "\n"
 
 
 def fe_markdown(paper) -> list:
-    """The FE reference against the paper's FEA, and L0/L1 against the FE."""
-    reference = load_fe_reference()
-    fe = validation.fe_summary(reference)
+    """L0/L1 against the FE truth (the 3-D FE's default sweep), and the plane-strain FE within
+    the range it is valid in."""
+    truth = load_fe_truth()
+    fe = validation.fe_summary(truth)
     table = {row.quantity: row for row in validation.rows(paper)}
-    deviation, _ = validation.fe_linearity(reference)
-    sweep = reference.sweep
-    figures = reference.figures
+    deviation, _ = validation.fe_linearity(truth)
+    width = truth.figures["fe3d_width_mm"]
 
     def gap(fe_value, paper_value):
+        if fe_value is None:
+            return "-"
         return f"{fe_value - paper_value:+.1f} ({100 * (fe_value / paper_value - 1):+.0f} %)"
+
+    def shown(value):
+        return "- (beyond the sweep)" if value is None else f"{value:.2f}"
 
     compared = [
         ("alpha at 25 kPa (deg)", fe["fe_alpha_25kPa_deg"], table["alpha at 25 kPa"]),
@@ -181,66 +186,36 @@ def fe_markdown(paper) -> list:
          table["curvature growth 55->60 kPa"]),
     ]
     lines = [
-        "## Against the finite-element reference",
+        "## The models against the FE truth",
         "",
-        "`config/fe_reference.yaml`, written by `python scripts/bench_fe.py` "
-        f"({sweep['triangles']} triangles of {sweep['element_size_m'] * 1e3:.2f} mm, "
-        f"{sweep['seconds']:.0f} s per sweep; see [benchmarks](benchmarks.md#finite-element-"
-        "reference-scriptsbench_fepy)): one finger of Table 1 in plane strain, incompressible "
-        "Yeoh (C10 0.08 MPa, C20 0.015 MPa), pressure as a follower load on every cavity wall, "
-        "the inclined part clamped at its start. The paper's geometry leaves open the base "
-        "thickness (taken as d2 = 13 mm from the backbone to the chamber bottoms), the tip piece "
-        "(d3 = 14.7 mm thick), the cavities (L3 - 2 m1 long, m_i - m1 deep, on the base) and the "
-        "finger's width (plane strain: it does not enter). Nothing in it was tuned to the "
-        "paper. Its checks: the known answers within "
-        f"{fe['fe_verification_error_pct']:.2f} % (planar Yeoh tension to twice the length, "
-        f"Lamé's thick cylinder), the tip within {fe['fe_mesh_change_pct']:.2f} % between the two "
-        f"finest meshes, and every part of the solid within {fe['fe_volume_change_pct']:.3f} % of "
-        "its volume.",
+        f"The truth is the 3-D FE's default sweep (below: w = {width:g} mm, contact between the "
+        "blocks and within the cavities, free bending from its vacuum limit to +50 kPa). Nothing "
+        "in it was tuned to the paper.",
         "",
-        "| quantity | paper (its FEA) | FE | gap FE - paper | L0, paper cal. | L1, paper cal. |",
+        "| quantity | paper (its FEA) | FE truth | gap FE - paper | L0, paper cal. | "
+        "L1, paper cal. |",
         "|---|---|---|---|---|---|",
     ]
     for name, value, row in compared:
-        lines.append(f"| {name} | {row.paper:.2f} | {value:.2f} | {gap(value, row.paper)} | "
+        lines.append(f"| {name} | {row.paper:.2f} | {shown(value)} | {gap(value, row.paper)} | "
                      f"{row.l0_calibrated:.2f} | {row.l1:.2f} |")
     lines += [
         f"| linear law: largest deviation up to 45 kPa (%) | within 3.5 | {deviation:.1f} "
         "(the FE's mean curvature from its best line through 0) | | | |",
         "",
-        "**Is the paper's D1 reachable on Table 1's geometry?** No. In the FE the root chamber "
-        f"faces move towards each other as the finger opens: D1 goes from "
-        f"{fe['fe_D1_0kPa_mm']:.1f} mm at rest to {fe['fe_D1_50kPa_mm']:.1f} mm at 50 kPa, "
-        "against the paper's 16 and 94.3 mm. D1 is measured at the root chamber's face, d2 + m = "
-        "32 mm inside the backbone: as the finger curls outwards, the section there turns and "
-        "carries its inner face towards the centre line, and the face's ballooning adds to that. "
-        "A D1 of 94.3 mm would need the root faces 47 mm "
-        "from the centre line, beyond the fingers' roots (41 mm).",
+        "**Does the saturation above about 50 kPa appear?** The truth's sweep ends at 50 kPa, so "
+        "it cannot say: a gap. Up to there its bending grows faster than linearly once blocks 1 "
+        "and 2 touch (the deviation above), not slower.",
         "",
-        "**Does the saturation above about 50 kPa appear from the material and geometry "
-        "alone?** "
-        + ("No. " if (fe["fe_curvature_growth_50_55_pct"] >= LINEAR_GROWTH_PCT[0] and
-                      fe["fe_curvature_growth_55_60_pct"] >= LINEAR_GROWTH_PCT[1])
-           else "Partly. ")
-        + f"The FE's mean curvature grows {fe['fe_curvature_growth_50_55_pct']:.1f} % from 50 to "
-        f"55 kPa and {fe['fe_curvature_growth_55_60_pct']:.1f} % from 55 to 60 kPa, where a "
-        f"linear law grows {LINEAR_GROWTH_PCT[0]:.1f} % and {LINEAR_GROWTH_PCT[1]:.1f} %, and "
-        "the paper's FEA 7.5 % and 0.61 %: the Yeoh "
-        "silicone on this geometry stiffens too little (C20 is small) to stop the bending, and "
-        "the chambers' growth makes the moment rise faster than the pressure. Whatever saturates "
-        "the paper's finger is not in a plane-strain model of Table 1: the 3-D side walls, "
-        "chambers touching each other, or an inextensible strain-limiting layer are candidates "
-        "that this FE does not model.",
-        "",
-        "**Which law follows the FE better, and where?** Worst errors against the FE over its "
+        "**Which law follows the FE better, and where?** Worst errors against the truth over its "
         "positive sweep (tip: the backbone end's position):",
         "",
         "| model | alpha to 45 kPa (deg) | D2 to 45 kPa (mm) | tip to 45 kPa (mm) | "
-        "alpha 50-60 kPa (deg) | D2 50-60 kPa (mm) | tip 50-60 kPa (mm) | tip, held-out "
-        "15/35/55 kPa (mm) |",
+        "alpha at 50 kPa (deg) | D2 at 50 kPa (mm) | tip at 50 kPa (mm) | tip, held-out "
+        "15/35 kPa (mm) |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    rows = validation.against_fe(reference)
+    rows = validation.against_fe(truth)
     for row in rows:
         lines.append(
             f"| {row.name} | {row.alpha_deg_to_45:.2f} | {row.d2_mm_to_45:.2f} | "
@@ -249,41 +224,61 @@ def fe_markdown(paper) -> list:
     fitted = {row.law: row for row in rows if row.calibration == "fe"}
     l0, l1 = fitted["l0"], fitted["l1"]
     better_low = "L1" if l1.tip_mm_to_45 < l0.tip_mm_to_45 else "L0"
-    better_high = "L1" if l1.tip_mm_beyond < l0.tip_mm_beyond else "L0"
     cal_l0 = calibration.load_calibration("type_II_fe")
     cal_l1 = calibration.load_calibration("type_II_fe_l1")
+    fitted_count = len(truth.positive()) - len(HELD_OUT_PRESSURES_PA)
     lines += [
         "",
-        f"Each law refitted to the FE (two constants each, from alpha and D2 at 9 of the 12 "
-        f"positive pressures): L0 gain {cal_l0.gain:.3f}, ballooning "
-        f"{cal_l0.ballooning_compliance_per_pa:.3g} 1/Pa; L1 gain {cal_l1.gain:.3f}, ballooning "
-        f"{cal_l1.ballooning_compliance_per_pa:.3g} 1/Pa (the paper's: {paper_constants()}). "
-        f"Up to 45 kPa {better_low} follows the FE better "
-        f"(tip {min(l0.tip_mm_to_45, l1.tip_mm_to_45):.2f} against "
-        f"{max(l0.tip_mm_to_45, l1.tip_mm_to_45):.2f} mm); from 50 to 60 kPa {better_high} does "
-        f"({min(l0.tip_mm_beyond, l1.tip_mm_beyond):.2f} against "
-        f"{max(l0.tip_mm_beyond, l1.tip_mm_beyond):.2f} mm). With the paper's calibration both "
-        "laws bend far more than the FE (they were fitted to alpha(25 kPa) = 68.4 deg and "
-        "D2(50 kPa) = 151 mm, which the FE does not reach). Choose by name: the nodes' "
-        "`gripper_model` is `type_II` (the paper's numbers), `type_II_fe` (L0 fitted to the FE) "
-        "or `type_II_fe_l1` (L1 fitted to the FE).",
-        "",
-        f"**The vacuum side** ends at {fe['fe_vacuum_limit_kpa']:.2f} kPa: "
-        f"{sweep['vacuum_stop']}. The root cavity (8 mm wide, 16 mm deep) folds first; no contact "
-        "between its walls is modelled, so the FE says nothing beyond that.",
-        "",
-        "**The chambers' compliance.** The five cavities' area grows "
-        f"{figures['fe_compliance_0_5kPa_pct_per_kPa']:.2f} % of its rest value per kPa from 0 "
-        f"to 5 kPa, {figures['fe_compliance_20_25kPa_pct_per_kPa']:.2f} %/kPa at 20-25 kPa and "
-        f"{figures['fe_compliance_45_50kPa_pct_per_kPa']:.2f} %/kPa at 45-50 kPa, where the "
-        "pneumatic plant (config/plant.yaml) assumes "
-        f"{figures['plant_compliance_pct_per_kPa']:.2f} %/kPa (dV/dp over V0, which the finger's "
-        "unknown width cancels from). Plane strain leaves out the side walls, which stiffen a "
-        "real chamber, so the FE's figure is an upper bound; the plant's is an assumption that "
-        "softgrip_identify measures on a user's hardware.",
+        f"Each law refitted to the truth (two constants each, from alpha and D2 at "
+        f"{fitted_count} of its {len(truth.positive())} positive pressures): L0 gain "
+        f"{cal_l0.gain:.3f}, ballooning {cal_l0.ballooning_compliance_per_pa:.3g} 1/Pa; L1 gain "
+        f"{cal_l1.gain:.3f}, ballooning {cal_l1.ballooning_compliance_per_pa:.3g} 1/Pa (the "
+        f"paper's: {paper_constants()}). Up to 45 kPa {better_low} follows the FE a little "
+        f"better (tip {min(l0.tip_mm_to_45, l1.tip_mm_to_45):.2f} against "
+        f"{max(l0.tip_mm_to_45, l1.tip_mm_to_45):.2f} mm); both miss most at 50 kPa, where the "
+        "blocks in contact bend the finger faster than a linear law. With the paper's "
+        "calibration both laws bend far more than the FE (they were fitted to alpha(25 kPa) = "
+        "68.4 deg and D2(50 kPa) = 151 mm). Choose by name: the nodes' `gripper_model` is "
+        "`type_II` (the paper's numbers), `type_II_fe` (L0 fitted to the FE truth) or "
+        "`type_II_fe_l1` (L1 fitted to it); the last two also take their clamp force table from "
+        "the FE.",
         "",
     ]
-    return lines
+    return lines + plane_strain_markdown()
+
+
+def plane_strain_markdown() -> list:
+    """The plane-strain FE (config/fe_reference.yaml), within the range it is valid in."""
+    reference = load_fe_reference()
+    sweep, figures = reference.sweep, reference.figures
+    valid_kpa = reference.valid_to_pa / 1e3
+    return [
+        "## The plane-strain FE, before its first block contact",
+        "",
+        "`config/fe_reference.yaml`, written by `python scripts/bench_fe.py` "
+        f"({sweep['triangles']} triangles of {sweep['element_size_m'] * 1e3:.2f} mm, "
+        f"{sweep['seconds']:.0f} s per sweep): one finger of Table 1 in plane strain on "
+        "scikit-fem, incompressible Yeoh, pressure as a follower load, the same readings of "
+        "Table 1 as the 3-D FE (base d2 = 13 mm, tip piece d3 = 14.7 mm, cavities L3 - 2 m1 "
+        "long and m_i - m1 deep). Its checks: the known answers within "
+        f"{figures['fe_verification_error_pct']:.2f} %, the tip within "
+        f"{figures['fe_mesh_change_pct']:.2f} % between the two finest meshes, every part within "
+        f"{figures['fe_volume_change_pct']:.3f} % of its volume.",
+        "",
+        "It has no contact between neighbouring blocks (blocks 1 and 2 come within its "
+        f"wall-contact gap of 0.2 mm just above {valid_kpa:.0f} kPa, `FingerFE.block_gaps_m`, "
+        "and pass through each other beyond) nor within a cavity (whose walls meet at "
+        f"{figures['fe_vacuum_limit_kpa']:.2f} kPa). So it is valid from "
+        f"{figures['fe_vacuum_limit_kpa']:.2f} to {valid_kpa:.0f} kPa only, and the suite reads "
+        "it there only: the 3-D FE's plane-strain check at 2 kPa, and the share of the chambers' "
+        "volume change that bending explains (-5 to +10 kPa), which the physics world's fingers "
+        "take. Its cavities' area grows "
+        f"{figures['fe_compliance_0_5kPa_pct_per_kPa']:.2f} % of its rest value per kPa from 0 "
+        "to 5 kPa, where the pneumatic plant (config/plant.yaml) assumes "
+        f"{figures['plant_compliance_pct_per_kPa']:.2f} %/kPa; without side walls that is an "
+        "upper bound, and softgrip_identify measures a user's.",
+        "",
+    ]
 
 
 def fe3d_markdown(paper) -> list:
@@ -396,18 +391,18 @@ def fe3d_markdown(paper) -> list:
         "**Blocks in contact.** In plane strain (the 3-D code's slab, with contact) blocks 1 and "
         f"2 first touch at {shown(plane_touch)} kPa, at w = {width:g} mm at "
         f"{shown(sweep['block_contact_kpa'][0])} kPa, both on the default mesh and both upper "
-        "bounds (above). The plane-strain FE above lets them pass through each other: its "
-        "figures past first contact are not a truth.",
+        "bounds (above). The plane-strain FE (below) lets them pass through each other: the "
+        "suite uses it only below that pressure.",
         "",
         f"**The vacuum side** at w = {width:g} mm reaches "
         f"{figures['fe3d_vacuum_limit_kpa']:.1f} kPa: "
         f"{sweep['vacuum_stop'] or 'the whole range'}.",
         "",
     ] + clamp_lines(document, width, shown) + [
-        "**Not yet** (issue #49): the vacuum side past where Newton stops (the collapsing "
-        "cavities need a continuation); the cylinders' F_n, and so an FE clamp force table in "
-        "place of the L2 rod's; the refits of `type_II_fe` and `type_II_fe_l1`, the error bounds "
-        "and the speed/accuracy chart, which still rest on the plane-strain FE above.",
+        "**Not reached:** the vacuum side past where Newton stops, about -35 kPa, where the "
+        "cavities collapse (a continuation through the collapse is not built; the clamp force "
+        "table holds its last force below it), and cylinders wider than the finger opens "
+        "around.",
         "",
     ]
     return lines
@@ -459,11 +454,41 @@ def clamp_lines(document, width, shown) -> list:
     ]
     gaps = [c for c in clamps if c["kind"] == "round"]
     if gaps:
-        lines += ["**The cylinders** (10, 30 and 60 mm, level with the tip block's face once the "
-                  "finger has opened to clear them by the grasp's 10 mm): "
+        lines += ["**The cylinders** (level with the tip block's face once the finger has "
+                  "opened to clear them by the grasp's 10 mm): "
                   + "; ".join(f"{c['size_mm']:g} mm: " + _cylinder_outcome(c) for c in gaps)
                   + ".", ""]
-    return lines
+    return lines + fe_table_lines()
+
+
+def fe_table_lines() -> list:
+    """The FE's clamp force table (type_II_fe's) and what the paper's "holds 1 kg" becomes."""
+    from softgrip_ros.model.force_law import (ClampForceLaw, FE_FLAT_SIZES_M, FE_ROUND_SIZES_M,
+                                              G_M_PER_S2, ObjectKind, load_table)
+
+    law = ClampForceLaw(load_table("type_II_fe", "l0", compute_if_missing=False))
+    cells, held = [], []
+    for kind, sizes in ((ObjectKind.FLAT, FE_FLAT_SIZES_M), (ObjectKind.ROUND, FE_ROUND_SIZES_M)):
+        for size in sizes:
+            force = law.table.normal_force_n(-60e3, size, kind)
+            held_g = (1e3 * 2.0 * law.friction_coefficient * force /
+                      (law.safety_factor * G_M_PER_S2))
+            held += [] if math.isnan(force) else [held_g]
+            cells.append(f"{'sheet' if kind is ObjectKind.FLAT else 'cylinder'} "
+                         f"{size * 1e3:g} mm: " + ("out of reach" if math.isnan(force) else
+                                                    f"{force:.3f} N, {held_g:.1f} g"))
+    return [
+        "**The clamp force table** of `type_II_fe` and `type_II_fe_l1` "
+        "(`config/clamp_force/`, `scripts/build_force_tables.py`) is these sweeps' F_n(p), in "
+        "place of the L2 rod's; the paper's types keep the rod's, since the FE does not bend "
+        "like the paper's finger. Each finger's most force, and the mass the grasp manager "
+        f"plans to hold with it (friction {law.friction_coefficient:g}, safety factor "
+        f"{law.safety_factor:g}): " + "; ".join(cells) + ". So the paper's \"holds 1 kg\" "
+        f"becomes, by the FE, {min(held):.0f} to {max(held):.0f} g with the safety factor "
+        f"({law.safety_factor * min(held):.0f} to {law.safety_factor * max(held):.0f} g "
+        "without).",
+        "",
+    ]
 
 
 def paper_constants() -> str:
@@ -483,13 +508,13 @@ def main(argv=None) -> int:
     if args.calibrate:
         target = REPO_ROOT / "config" / calibration.CALIBRATION_FILE
         calibration.write_calibration(
-            calibration.calibrate_all(paper, fe_reference=load_fe_reference()), target,
+            calibration.calibrate_all(paper, fe_reference=load_fe_truth()), target,
             "config/paper_results.yaml")
         print(f"calibration written to {target} (rebuild with scripts/setup.sh to install it)",
               file=sys.stderr)
     if args.json:
         print(json.dumps({**validation.summary(paper),
-                          **validation.fe_summary(load_fe_reference()),
+                          **validation.fe_summary(load_fe_truth()),
                           **validation.fe3d_summary(load_fe3d_reference())}, indent=2))
         return 0
     DOCS.mkdir(exist_ok=True)

@@ -132,3 +132,32 @@ def test_meshing_leaves_python_s_signal_handling_as_it_was():
                             timeout=120)
     assert result.returncode == 0 and result.stdout.strip() == "EPIPE", (result.returncode,
                                                                           result.stderr)
+
+
+def test_the_plane_strain_fe_is_read_only_before_its_blocks_meet():
+    """It has no contact between neighbouring blocks: at PLANE_STRAIN_VALID_TO_PA blocks 1 and 2
+    are still further apart than its wall-contact gap, 2.5 kPa later they are not (4 mm mesh);
+    the committed sweep refuses to be read beyond."""
+    from softgrip_ros.model.fe_data import PLANE_STRAIN_VALID_TO_PA, load_fe_reference
+    finger = FingerFE(GEOMETRY, element_size_m=4e-3)
+    finger.solve(PLANE_STRAIN_VALID_TO_PA)
+    assert min(finger.block_gaps_m()) > fe_finger.WALL_CONTACT_GAP_M
+    finger.solve(PLANE_STRAIN_VALID_TO_PA + 2.5e3)
+    assert finger.block_gaps_m()[0] < fe_finger.WALL_CONTACT_GAP_M
+    reference = load_fe_reference()
+    assert max(p.pressure_pa for p in reference.positive()) == PLANE_STRAIN_VALID_TO_PA
+    reference.at(5e3)
+    with pytest.raises(KeyError, match="blocks meet"):
+        reference.at(50e3)
+
+
+def test_the_fe_truth_is_the_3d_default_sweep():
+    """load_fe_truth reads the 3-D FE's default sweep, from its vacuum limit to +50 kPa."""
+    from softgrip_ros.model.fe_data import load_fe3d_reference, load_fe_truth
+    truth, document = load_fe_truth(), load_fe3d_reference()
+    assert len(truth.points) == len(document["states"])
+    assert min(p.pressure_pa for p in truth.points) == pytest.approx(
+        1e3 * document["figures"]["fe3d_vacuum_limit_kpa"])
+    assert math.degrees(truth.at(25e3).alpha_rad) == pytest.approx(
+        next(s["alpha_deg"] for s in document["states"] if s["pressure_pa"] == 25e3))
+    assert truth.at(50e3).d2_m > truth.at(25e3).d2_m > truth.at(0.0).d2_m

@@ -10,7 +10,7 @@ import yaml
 from softgrip_ros.control.grasp_fsm import GraspConfig, GraspRequest, GraspMode, Phase
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.fe_data import (FE_CALIBRATION_NAMES, HELD_OUT_PRESSURES_PA,
-                                        load_fe_reference)
+                                        load_fe_truth)
 from softgrip_ros.model.fidelity import (FREE, MODELS, ErrorBounds, ModelSelector, Scene,
                                          SceneModel, cylinder_scene)
 from softgrip_ros.runtime.rod_solver import LatestSolveThread, RodSolverProcess
@@ -28,20 +28,21 @@ def selector(fidelity="auto", tolerance_m=DEFAULT_TOLERANCE_M):
     return ModelSelector(fidelity, tolerance_m, BOUNDS, MODEL.selector.validated_range_pa)
 
 
-def test_the_shipped_bounds_are_the_fe_in_free_bending_and_pyelastica_in_contact():
+def test_the_shipped_bounds_are_the_fe_in_free_bending_and_fe_or_pyelastica_in_contact():
     """config/model_error_bounds.yaml (scripts/bench_speed_accuracy.py): in free bending each
     law's error against the FE with the law fitted to it (a few mm: no law is within 1 mm of an
-    independent truth), larger beyond 46 kPa; in contact against PyElastica, where only L2 sees
-    the object. L0 is the cheapest."""
+    independent truth), larger beyond 46 kPa; in contact the larger of its errors against
+    PyElastica and against the FE's clamp scenes, where only L2 sees the object (within the
+    default tolerance; L0 and L1 are not). L0 is the cheapest."""
     b, cost = BOUNDS.tip_error_bound_m, BOUNDS.median_cost_s
     assert cost["l0"] < cost["l1"] < cost["l2"]
     for model in MODELS:
         assert 1e-3 < b[model]["free"] < DEFAULT_TOLERANCE_M
         assert b[model]["free_beyond"] > b[model]["free"]
-    assert b["l2"]["contact"] < 1e-3 < min(b["l0"]["contact"], b["l1"]["contact"])
+    assert b["l2"]["contact"] < DEFAULT_TOLERANCE_M < min(b["l0"]["contact"], b["l1"]["contact"])
     references = yaml.safe_load(pathlib.Path(BOUNDS.source).read_text())["references"]
     assert "FE" in references["free"] and "FE" in references["free_beyond"]
-    assert "PyElastica" in references["contact"]
+    assert "PyElastica" in references["contact"] and "FE" in references["contact"]
 
 
 def test_auto_picks_the_cheapest_within_the_tolerance_else_the_nearest_and_says_so():
@@ -75,15 +76,17 @@ def test_in_free_bending_the_chosen_model_is_within_the_tolerance_of_the_fe(pres
                                                                  "l1"])
     evaluation = model.evaluate(pressure_pa)
     assert evaluation.model == chosen and evaluation.meets_tolerance
-    truth = load_fe_reference().at(pressure_pa).tip
+    truth = load_fe_truth().at(pressure_pa).tip
     error = math.hypot(evaluation.tip[0] - truth[0], evaluation.tip[1] - truth[1])
     assert error <= DEFAULT_TOLERANCE_M
     # the bound, from the other pressures, holds where it was not computed
     assert error <= BOUNDS.tip_error_bound_m[chosen]["free"]
 
 
-def test_in_contact_the_chosen_model_is_within_the_tolerance_of_pyelastica():
-    model = SceneModel("auto", 1e-3)
+def test_in_contact_the_chosen_model_is_within_1_mm_of_pyelastica():
+    """L2, chosen in contact within the default tolerance, against the PyElastica rod driven by
+    the same law (the bound's other half is against the FE, in bench_speed_accuracy)."""
+    model = SceneModel("auto", DEFAULT_TOLERANCE_M)
     evaluation = model.evaluate(-10e3, CLAMP_40MM)
     assert evaluation.model == "l2" and evaluation.meets_tolerance
     reference = ReferenceFinger(model.rod).solve(

@@ -105,7 +105,7 @@ def summary(paper: PaperNumbers | None = None) -> dict:
     return result
 
 
-# ---- against the FE reference (config/fe_reference.yaml, written by scripts/bench_fe.py) ------
+# ---- against the FE truth (config/fe3d_reference.yaml, written by scripts/bench_fe.py) -------
 FE_KEYS = ("fe_alpha_25kPa_deg", "fe_D2_50kPa_mm", "fe_D1_0kPa_mm", "fe_D1_50kPa_mm",
            "fe_curvature_growth_50_55_pct", "fe_curvature_growth_55_60_pct",
            "fe_verification_error_pct", "fe_mesh_change_pct", "fe_volume_change_pct")
@@ -130,7 +130,7 @@ class ModelAgainstFE:
 
 def fe_models():
     """{(law, calibration): (name, kinematics)}: L0 and L1 with the paper's calibration
-    (type_II) and with the FE's (type_II_fe, type_II_fe_l1)."""
+    (type_II) and with the FE truth's (type_II_fe, type_II_fe_l1)."""
     from softgrip_ros.model.fe_data import FE_CALIBRATION_NAMES
     geometry = load_geometry("type_II")
     top = GripperKinematics.MODEL_MAX_PRESSURE_PA
@@ -188,12 +188,33 @@ def fe3d_summary(document) -> dict:
     return out
 
 
-def fe_summary(reference) -> dict:
-    """The --json FE keys of the issue, and the models' worst errors against the FE."""
-    out = {key: float(reference.figures[key]) for key in FE_KEYS}
-    out["fe_linear_law_max_deviation_to_45kPa_pct"] = fe_linearity(reference)[0]
-    out["fe_vacuum_limit_kpa"] = float(reference.figures["fe_vacuum_limit_kpa"])
-    for row in against_fe(reference):
+def _fe_growth_pct(truth, low_pa: float, high_pa: float):
+    """The mean curvature's growth from ``low_pa`` to ``high_pa`` (%); None past the sweep."""
+    try:
+        low, high = truth.at(low_pa), truth.at(high_pa)
+    except KeyError:
+        return None
+    return 100.0 * (high.mean_curvature_per_m / low.mean_curvature_per_m - 1.0)
+
+
+def fe_summary(truth) -> dict:
+    """The --json FE keys of the FE truth (:func:`softgrip_ros.model.fe_data.load_fe_truth`, the
+    3-D FE's default sweep), and the models' worst errors against it."""
+    figures = truth.figures
+    out = {
+        "fe_alpha_25kPa_deg": math.degrees(truth.at(25e3).alpha_rad),
+        "fe_D2_50kPa_mm": truth.at(50e3).d2_m * 1e3,
+        "fe_D1_0kPa_mm": truth.at(0.0).d1_m * 1e3,
+        "fe_D1_50kPa_mm": truth.at(50e3).d1_m * 1e3,
+        "fe_curvature_growth_50_55_pct": _fe_growth_pct(truth, 50e3, 55e3),
+        "fe_curvature_growth_55_60_pct": _fe_growth_pct(truth, 55e3, 60e3),
+        "fe_verification_error_pct": float(figures["fe3d_verification_error_pct"]),
+        "fe_mesh_change_pct": float(figures["fe3d_mesh_change_pct"]),
+        "fe_volume_change_pct": float(figures["fe3d_volume_change_pct"]),
+        "fe_linear_law_max_deviation_to_45kPa_pct": fe_linearity(truth)[0],
+        "fe_vacuum_limit_kpa": float(figures["fe3d_vacuum_limit_kpa"]),
+    }
+    for row in against_fe(truth):
         key = f"{row.law}_{row.calibration}_cal"
         out[f"{key}_tip_err_vs_fe_to_45kPa_mm"] = row.tip_mm_to_45
         out[f"{key}_D2_err_vs_fe_to_45kPa_mm"] = row.d2_mm_to_45

@@ -144,8 +144,8 @@ def calibrate_gain_from_alpha(geometry: FingerGeometry, paper: PaperNumbers,
 
 def calibrate_all(paper: PaperNumbers, geometry_path=None, fe_reference=None) -> dict:
     """Calibrations of types II, I and III from the paper, keyed by type name; with
-    ``fe_reference`` (softgrip_ros.model.fe_data.FEReference) also type II's L0 and L1 fitted
-    to the FE (type_II_fe, type_II_fe_l1)."""
+    ``fe_reference`` (softgrip_ros.model.fe_data.FEReference, the FE truth) also type II's L0
+    and L1 fitted to the FE (type_II_fe, type_II_fe_l1)."""
     type_ii = calibrate_type_ii(load_geometry("type_II", geometry_path), paper)
     result = {"type_II": type_ii}
     for name in ("type_I", "type_III"):
@@ -172,10 +172,10 @@ def write_calibration(calibrations: dict, path, paper_path: str) -> None:
                 "gain only, from their alpha(25 kPa). Held out: D1(0), D1(50 kPa)."),
             "fe_types": (
                 "type_II_fe (L0) and type_II_fe_l1 (L1): gain and ballooning compliance fitted "
-                "by least squares to the FE sweep's alpha(p) and D2(p) in "
-                "config/fe_reference.yaml "
-                "(softgrip_ros.model.fe_data.fit_to_fe), 15, 35 and 55 kPa held out; no "
-                "saturation (the FE shows none)."),
+                "by least squares to the FE truth's alpha(p) and D2(p) at its positive "
+                "pressures (config/fe3d_reference.yaml: the 3-D FE with contact at its default "
+                "width; softgrip_ros.model.fe_data.fit_to_fe), 15 and 35 kPa held out; no "
+                "saturation."),
         },
         "types": {
             name: {

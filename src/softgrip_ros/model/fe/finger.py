@@ -236,6 +236,24 @@ class FingerFE:
     def _probe_displacement(self):
         return (self._probe @ self.solid.u).reshape(2, -1)
 
+    def block_gaps_m(self) -> tuple:
+        """Between blocks i and i + 1: the closest approach of block i's far end wall and block
+        i + 1's near one (m, sampled up to the lower block's top). This FE has no contact between
+        them, so below the suite's gap (WALL_CONTACT_GAP_M) it is no longer a truth."""
+        if not hasattr(self, "_gap_probe"):
+            eps, walls = 1e-7, []
+            for a, b in zip(self.layout.blocks, self.layout.blocks[1:]):
+                n = np.linspace(a.n0 + eps, min(a.n1, b.n1) - eps, PERIMETER_SAMPLES)
+                walls += [np.vstack([np.full_like(n, a.s1 - eps), n]),
+                          np.vstack([np.full_like(n, b.s0 + eps), n])]
+            self._gap_points = np.hstack(walls)
+            self._gap_probe = self.solid.basis_u.probes(self._gap_points)
+        moved = self._gap_points + (self._gap_probe @ self.solid.u).reshape(2, -1)
+        k = PERIMETER_SAMPLES
+        return tuple(_closest(moved[:, 2 * i * k:(2 * i + 1) * k],
+                              moved[:, (2 * i + 1) * k:(2 * i + 2) * k])
+                     for i in range(len(self.layout.blocks) - 1))
+
 
 def finger_frame_to_global(geometry: FingerGeometry, local) -> np.ndarray:
     """(2, K) points of a finger's own (s, n) frame to the left finger's (x, z), m."""
