@@ -313,7 +313,7 @@ def test_the_softgrip_command_drives_a_full_grasp_on_the_installed_controller(tm
         assert refused.returncode == 1 and "wider than the gripper opens" in refused.stdout
         usage = subprocess.run([softgrip, "grasp", "--diameter", "-1", "--mass", "0.2"],
                                capture_output=True, text=True, timeout=30)
-        assert usage.returncode == 2 and "must be a finite number >= 0" in usage.stderr
+        assert usage.returncode == 2 and "--diameter: must lie in [0, 0.5] m" in usage.stderr
         endless = subprocess.run([softgrip, "grasp", "--diameter", "0.04", "--mass", "0.02",
                                   "--clamp-after", "inf"], capture_output=True, text=True,
                                  timeout=30)  # it would have waited for ever

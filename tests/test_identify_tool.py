@@ -22,13 +22,13 @@ def _run(*args, timeout=120):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--volume-m3", "5"], "--volume-m3 must lie in"),
-    (["--vacuum-source-pa", "5"], "--vacuum-source-pa must lie in"),
-    (["--vacuum-source-pa", "nan"], "--vacuum-source-pa must lie in"),
+    (["--volume-m3", "5"], "argument --volume-m3: must lie in"),
+    (["--vacuum-source-pa", "5"], "argument --vacuum-source-pa: must lie in"),
+    (["--vacuum-source-pa", "nan"], "argument --vacuum-source-pa: must lie in"),
     (["--from-log", "/nonexistent"], "no rosbag2 log there"),
-    (["--timeout", "0"], "--timeout must be > 0"),
-    (["--fit-budget-s", "0"], "--fit-budget-s must be > 0"),
-    (["--fit-budget-s", "nan"], "--fit-budget-s must be > 0"),
+    (["--timeout", "0"], "argument --timeout: must lie in (0, 3600] s"),
+    (["--fit-budget-s", "0"], "argument --fit-budget-s: must lie in (0, inf] s"),
+    (["--fit-budget-s", "nan"], "argument --fit-budget-s: must lie in"),
 ])
 def test_bad_arguments_exit_2_with_the_reason(args, message):
     result = _run(*args)

@@ -14,58 +14,54 @@ the task succeeded, 1 when it was refused, failed or timed out, 3 when no grippe
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 
+from softgrip_ros.argtypes import Number
 from softgrip_ros.client import add_namespace_argument
 
 PHASES = ("IDLE", "OPENING", "ENVELOPED", "CLAMPING", "HOLDING", "RELEASING", "FAULT")
 
 
-def _positive(text: str) -> float:
-    value = float(text)
-    if not 0.0 < value < math.inf:
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
-    return value
-
-
-def _non_negative(text: str) -> float:
-    value = float(text)
-    if not 0.0 <= value < math.inf:
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return value
+# the ranges of the options (softgrip_ros.argtypes): physical sanity, the grasp manager judges
+# the rest against its limits and says why
+TIMEOUT_S = Number(0.0, 3600.0, "s", low_open=True)
+SIZE_M = Number(0.0, 0.5, "m")
+MASS_KG = Number(0.0, 100.0, "kg")
+FRICTION = Number(0.0, 10.0, low_open=True)
+PRESSURE_PA = Number(-1e6, 1e6, "Pa")
+DELAY_S = Number(0.0, 3600.0, "s")
 
 
 def parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
     add_namespace_argument(common)
-    common.add_argument("--timeout", type=_positive, default=15.0,
+    common.add_argument("--timeout", type=TIMEOUT_S, default=15.0,
                         help="seconds to wait for the gripper and for the task (default 15)")
     top = argparse.ArgumentParser(prog="softgrip", description=__doc__,
                                   formatter_class=argparse.RawDescriptionHelpFormatter)
     commands = top.add_subparsers(dest="command", required=True)
     grasp = commands.add_parser("grasp", parents=[common],
                                 help="envelop an object (ENVELOP_CLAMP), then clamp")
-    grasp.add_argument("--diameter", type=_non_negative, required=True, help="object size, m")
-    grasp.add_argument("--mass", type=_non_negative, required=True, help="object mass, kg")
-    grasp.add_argument("--friction", type=_positive, help="friction coefficient (default: the "
+    grasp.add_argument("--diameter", type=SIZE_M, required=True, help="object size, m")
+    grasp.add_argument("--mass", type=MASS_KG, required=True, help="object mass, kg")
+    grasp.add_argument("--friction", type=FRICTION, help="friction coefficient (default: the "
                        "grasp manager's)")
-    grasp.add_argument("--open-pressure", type=float, help="opening pressure override, Pa")
-    grasp.add_argument("--clamp-pressure", type=float, help="clamp pressure override, Pa")
-    grasp.add_argument("--clamp-after", type=_non_negative, metavar="S",
+    grasp.add_argument("--open-pressure", type=PRESSURE_PA, help="opening pressure override, Pa")
+    grasp.add_argument("--clamp-pressure", type=PRESSURE_PA, help="clamp pressure override, Pa")
+    grasp.add_argument("--clamp-after", type=DELAY_S, metavar="S",
                        help="clamp S seconds after ENVELOPED and wait for HOLDING")
     pinch = commands.add_parser("pinch", parents=[common], help="close the tips on a thin object")
-    pinch.add_argument("--diameter", type=_non_negative, required=True, help="object size, m")
-    pinch.add_argument("--mass", type=_non_negative, required=True, help="object mass, kg")
+    pinch.add_argument("--diameter", type=SIZE_M, required=True, help="object size, m")
+    pinch.add_argument("--mass", type=MASS_KG, required=True, help="object mass, kg")
     opening = commands.add_parser("open", parents=[common], help="open and hold")
-    opening.add_argument("--spacing", type=_non_negative, help="tip spacing D2, m (default: "
+    opening.add_argument("--spacing", type=SIZE_M, help="tip spacing D2, m (default: "
                          "fully open)")
     clamp = commands.add_parser("clamp", parents=[common],
                                 help="clamp what the gripper holds open")
-    clamp.add_argument("--diameter", type=_non_negative, help="object size, m (after open)")
-    clamp.add_argument("--mass", type=_non_negative, help="object mass, kg (after open)")
-    clamp.add_argument("--clamp-pressure", type=float, help="clamp pressure override, Pa")
+    clamp.add_argument("--diameter", type=SIZE_M, help="object size, m (after open)")
+    clamp.add_argument("--mass", type=MASS_KG, help="object mass, kg (after open)")
+    clamp.add_argument("--clamp-pressure", type=PRESSURE_PA, help="clamp pressure override, Pa")
     commands.add_parser("release", parents=[common], help="vent, then open to let go")
     commands.add_parser("stop", parents=[common], help="vent now")
     state = commands.add_parser("state", parents=[common], help="print grasp_state")

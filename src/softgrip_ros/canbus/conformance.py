@@ -53,6 +53,16 @@ class Row:
         return dataclasses.asdict(self)
 
 
+# CheckConfig's ranges, which softgrip_check_device's options take too
+CHECK_RANGES = {
+    "listen_s": (0.5, 60.0), "rate_tolerance": (0.01, 0.5),
+    "test_pressure_pa": (1000.0, 50000.0), "pressure_limit_pa": (2000.0, 100000.0),
+    "lifetime_s": (0.001, 0.255), "response_timeout_s": (0.1, 10.0),
+    "control_period_s": (0.002, 0.05)
+}
+MAX_RATE_HZ = 100e3  # a frame rate beyond any CAN bus's
+
+
 @dataclasses.dataclass
 class CheckConfig:
     """listen_s: how long the passive checks (rates, counters, CRC, ranges) listen.
@@ -76,13 +86,7 @@ class CheckConfig:
     control_period_s: float = 0.01
 
     def __post_init__(self):
-        checks = {
-            "listen_s": (0.5, 60.0), "rate_tolerance": (0.01, 0.5),
-            "test_pressure_pa": (1000.0, 50000.0), "pressure_limit_pa": (2000.0, 100000.0),
-            "lifetime_s": (0.001, 0.255), "response_timeout_s": (0.1, 10.0),
-            "control_period_s": (0.002, 0.05)
-        }
-        for name, (low, high) in checks.items():
+        for name, (low, high) in CHECK_RANGES.items():
             value = getattr(self, name)
             if not (math.isfinite(value) and low <= value <= high):
                 raise ValueError(f"{name} must lie in [{low:g}, {high:g}], got {value!r}")
@@ -90,8 +94,9 @@ class CheckConfig:
             raise ValueError(f"test_pressure_pa ({self.test_pressure_pa:g}) must stay below 90 % "
                              f"of pressure_limit_pa ({self.pressure_limit_pa:g})")
         for name, hz in self.rates_hz.items():
-            if not (math.isfinite(hz) and hz > 0.0):
-                raise ValueError(f"the rate of {name} must be positive, got {hz!r}")
+            if not (math.isfinite(hz) and 0.0 < hz <= MAX_RATE_HZ):
+                raise ValueError(f"the rate of {name} must lie in (0, {MAX_RATE_HZ:g}] Hz, got "
+                                 f"{hz!r}")
         if not self.channels or any(not 0 <= c < VALVE_CHANNELS for c in self.channels):
             raise ValueError(f"channels must be among 0..{VALVE_CHANNELS - 1}, got "
                              f"{self.channels!r}")

@@ -39,6 +39,7 @@ import sys
 
 import numpy as np
 
+from softgrip_ros.argtypes import Number
 from softgrip_ros.client import add_namespace_argument
 from softgrip_ros.fileio import (OutputError, check_writable_directory, replacing,
                                 write_text_atomically)
@@ -66,7 +67,8 @@ def parser() -> argparse.ArgumentParser:
                      f"determine: {', '.join(bending_fit.CONSTANTS)}")
     top.add_argument("--loss", default="linear", choices=("linear", "soft_l1", "huber", "cauchy"),
                      help="robust loss for outliers (default: linear, plain least squares)")
-    top.add_argument("--confidence", type=float, default=0.95, help="the intervals' level")
+    top.add_argument("--confidence", type=Number(0.5, 1.0, high_open=True), default=0.95,
+                     help="the intervals' level")
     top.add_argument("--output", type=pathlib.Path, help="the calibration file (default: "
                      "NAME.yaml in the calibration directory)")
     top.add_argument("--force", action="store_true", help="replace an existing calibration")
@@ -88,8 +90,6 @@ def main(argv=None) -> int:
     if not NAME_PATTERN.match(args.name) or args.name in gripper_models.built_in():
         top.error(f"--name {args.name!r}: letters, digits, _ and - only, and not a built-in "
                   f"type ({', '.join(gripper_models.built_in())})")
-    if not 0.5 <= args.confidence < 1.0:
-        top.error(f"--confidence must lie in [0.5, 1), got {args.confidence}")
     output = args.output or gripper_models.calibration_dir() / f"{args.name}.yaml"
     command = "softgrip_calibrate " + " ".join(sys.argv[1:] if argv is None else argv)
     if args.live:

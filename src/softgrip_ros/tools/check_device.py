@@ -28,19 +28,15 @@ import sys
 
 from softgrip_ros.canbus import open_bus
 from softgrip_ros.canbus.codec import FrameCodec
-from softgrip_ros.canbus.conformance import CheckConfig, DeviceChecker, format_table
+from softgrip_ros.argtypes import Assignment, Number
+from softgrip_ros.canbus.conformance import (CHECK_RANGES, MAX_RATE_HZ, VALVE_CHANNELS,
+                                             CheckConfig, DeviceChecker, format_table)
 
 
-def _assignment(kind):
-    def parse(text: str):
-        name, sep, value = text.partition("=")
-        if not sep or not name:
-            raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
-        try:
-            return name, kind(value)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r}: {value!r} is not a number") from None
-    return parse
+def _option(name: str, scale: float, unit: str) -> Number:
+    """CheckConfig's range of ``name``, in the option's unit (``scale`` per config unit)."""
+    low, high = CHECK_RANGES[name]
+    return Number(low * scale, high * scale, unit)
 
 
 def parser() -> argparse.ArgumentParser:
@@ -49,27 +45,33 @@ def parser() -> argparse.ArgumentParser:
     top.add_argument("--interface", default="socketcan", help="python-can interface: "
                      "socketcan, softgrip_ipc, pcan, ... (default: socketcan)")
     top.add_argument("--channel", default="can0", help="python-can channel (default: can0)")
-    top.add_argument("--bitrate", type=int, default=500000, help="bit/s (default: 500000; "
+    top.add_argument("--bitrate", type=Number(10_000, 1_000_000, "bit/s", integer=True),
+                     default=500000, help="bit/s (default: 500000; "
                      "ignored by virtual and softgrip_ipc)")
     top.add_argument("--dbc", type=pathlib.Path, help="the DBC (default: the packaged "
                      "config/softgrip.dbc)")
-    top.add_argument("--frame-id", type=_assignment(lambda v: int(v, 0)), action="append",
+    top.add_argument("--frame-id", type=Assignment(Number(0, 0x1FFFFFFF, integer=True)),
+                     action="append",
                      default=[], metavar="MESSAGE=ID", help="an arbitration ID other than the "
                      "DBC's, as the nodes' can.frame_ids.* parameters (e.g. "
                      "PressureSensor1=0x220); repeatable")
-    top.add_argument("--rate", type=_assignment(float), action="append", default=[],
+    top.add_argument("--rate", type=Assignment(Number(0.0, MAX_RATE_HZ, "Hz", low_open=True)),
+                     action="append", default=[],
                      metavar="MESSAGE=HZ", help="a device frame's expected rate other than the "
                      "DBC's cycle time (e.g. PressureSensor1=250); repeatable")
-    top.add_argument("--channels", type=int, nargs="+", default=[0], metavar="N",
+    top.add_argument("--channels", type=Number(0, VALVE_CHANNELS - 1, integer=True), nargs="+",
+                     default=[0], metavar="N",
                      help="the valve channels to exercise; each must be seen by the pressure "
                      "sensors (default: 0)")
-    top.add_argument("--listen", type=float, default=2.0, metavar="S",
+    top.add_argument("--listen", type=_option("listen_s", 1.0, "s"), default=2.0, metavar="S",
                      help="seconds of listening for the rates, counters and CRCs (default: 2)")
-    top.add_argument("--test-pressure-kpa", type=float, default=8.0,
+    top.add_argument("--test-pressure-kpa", type=_option("test_pressure_pa", 1e-3, "kPa"),
+                     default=8.0,
                      help="the regulator setpoint of the active checks (default: 8)")
-    top.add_argument("--limit-kpa", type=float, default=10.0,
+    top.add_argument("--limit-kpa", type=_option("pressure_limit_pa", 1e-3, "kPa"),
+                     default=10.0,
                      help="any reading beyond +-this vents and ends the check (default: 10)")
-    top.add_argument("--lifetime-ms", type=float, default=10.0,
+    top.add_argument("--lifetime-ms", type=_option("lifetime_s", 1e3, "ms"), default=10.0,
                      help="the OpenLifetime of the watchdog check's one command (default: 10)")
     top.add_argument("--json", action="store_true", help="print the rows as JSON, not a table")
     return top

@@ -35,6 +35,7 @@ import time
 
 import yaml
 
+from softgrip_ros.argtypes import Number
 from softgrip_ros.client import add_namespace_argument
 from softgrip_ros.control.reports import outputs_changed_at
 from softgrip_ros.estimation import identification
@@ -58,6 +59,12 @@ class Stopped(Exception):
     """The live run stopped: the reason, said to the user."""
 
 
+def _plant_range(name: str) -> Number:
+    """The plant file's range of ``name`` (softgrip_ros.model.plant_file.PARAMETERS)."""
+    unit, low, high, _ = plant_file.PARAMETERS[name]
+    return Number(low, high, unit)
+
+
 def parser() -> argparse.ArgumentParser:
     top = argparse.ArgumentParser(prog="softgrip_identify", description=__doc__,
                                   formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -67,9 +74,11 @@ def parser() -> argparse.ArgumentParser:
     top.add_argument("--from-log", type=pathlib.Path, metavar="DIR",
                      help="fit a log recorded earlier (its recording/ directory) instead of "
                      "running the excitation")
-    top.add_argument("--volume-m3", type=float, help="the channel's air volume at 0 Pa gauge, "
-                     "measured (default: the base file's, said to be inherited)")
-    top.add_argument("--vacuum-source-pa", type=float, metavar="PA",
+    top.add_argument("--volume-m3", type=_plant_range("chamber_volume_m3"),
+                     help="the channel's air volume at 0 Pa gauge, measured (default: the base "
+                     "file's, said to be inherited)")
+    top.add_argument("--vacuum-source-pa", type=_plant_range("vacuum_source_gauge_pa"),
+                     metavar="PA",
                      help="the vacuum pump's level, gauge Pa (negative: -80000, or "
                      "--vacuum-source-pa=-80e3), measured: held instead of fitted (within the "
                      "limits the data hardly tell it from the vacuum path's critical ratio; "
@@ -77,33 +86,24 @@ def parser() -> argparse.ArgumentParser:
     top.add_argument("--base", type=pathlib.Path, help="the plant file for what the data cannot "
                      "give (default: the controller's own)")
     top.add_argument("--quick", action="store_true", help="a shorter excitation (~19 s)")
-    top.add_argument("--seed", type=int, default=0, help="the PRBS's seed")
-    top.add_argument("--fit-budget-s", type=float, default=identification.FIT_BUDGET_S,
+    top.add_argument("--seed", type=Number(0, 2**32 - 1, integer=True), default=0,
+                     help="the PRBS's seed")
+    top.add_argument("--fit-budget-s", type=Number(0.0, math.inf, "s", low_open=True),
+                     default=identification.FIT_BUDGET_S,
                      metavar="S", help="the time the fit should take (default %(default)g s): "
                      "the fit starts no pass re-dating the valve switches that would end past "
                      f"{100 * identification.REDATE_SHARE:g} %% of it, and flags the result if "
                      "they had not settled; inf for no limit")
-    top.add_argument("--timeout", type=float, default=15.0,
+    top.add_argument("--timeout", type=Number(0.0, 3600.0, "s", low_open=True), default=15.0,
                      help="seconds to wait for the controller's services")
     return top
 
 
 def _check(args, error) -> None:
-    # a measured value within the plant file's range for it
-    for option, value, name in (("--volume-m3", args.volume_m3, "chamber_volume_m3"),
-                                ("--vacuum-source-pa", args.vacuum_source_pa,
-                                 "vacuum_source_gauge_pa")):
-        unit, low, high, _ = plant_file.PARAMETERS[name]
-        if value is not None and not (math.isfinite(value) and low <= value <= high):
-            error(f"{option} must lie in [{low:g}, {high:g}] {unit}, got {value}")
     if args.from_log is not None and not (args.from_log / "metadata.yaml").is_file():
         error(f"--from-log {args.from_log}: no rosbag2 log there (no metadata.yaml)")
     if args.output is not None and (args.output / "plant.yaml").exists():
         error(f"{args.output / 'plant.yaml'} exists: choose another --output")
-    if not args.fit_budget_s > 0.0:
-        error(f"--fit-budget-s must be > 0 (inf for no limit), got {args.fit_budget_s}")
-    if args.timeout <= 0.0:
-        error("--timeout must be > 0")
 
 
 # ---- live ---------------------------------------------------------------------------------------

@@ -35,6 +35,7 @@ import sys
 import threading
 import time
 
+from softgrip_ros.argtypes import Number
 from softgrip_ros.client import add_namespace_argument
 
 DEFAULT_TOPICS = ("grasp_command", "grasp_state", "controller/status", "pressure/*", "tip_pose/*",
@@ -86,8 +87,8 @@ def parser() -> argparse.ArgumentParser:
                      "exist)")
     top.add_argument("--topics", nargs="+", help="topics or patterns, relative to --namespace "
                      "unless they start with / (default: " + " ".join(DEFAULT_TOPICS) + ")")
-    top.add_argument("--duration", type=float, help="stop after this many seconds (default: "
-                     "until Ctrl-C)")
+    top.add_argument("--duration", type=Number(0.0, 1e6, "s", low_open=True),
+                     help="stop after this many seconds (default: until Ctrl-C)")
     add_namespace_argument(top)
     top.add_argument("--can", type=pathlib.Path, metavar="FILE", help="also log the raw CAN "
                      "traffic to FILE (.blf, .asc or .log)")
@@ -95,8 +96,8 @@ def parser() -> argparse.ArgumentParser:
                      "--can (default: socketcan)")
     top.add_argument("--can-channel", default="can0", help="python-can channel for --can "
                      "(default: can0)")
-    top.add_argument("--min-free-mb", type=float, default=100.0, help="stop when the disk has "
-                     "less than this left (default: 100)")
+    top.add_argument("--min-free-mb", type=Number(0.0, 1e12, "MB"), default=100.0,
+                     help="stop when the disk has less than this left (default: 100)")
     return top
 
 
@@ -230,9 +231,6 @@ def main(argv=None) -> int:
     args = parser().parse_args(argv)
     if args.outdir.exists():
         print(f"softgrip_record: {args.outdir} exists; give a new directory", file=sys.stderr)
-        return 2
-    if args.duration is not None and not args.duration > 0.0:
-        print("softgrip_record: --duration must be positive", file=sys.stderr)
         return 2
     if not args.outdir.parent.resolve().is_dir():
         print(f"softgrip_record: {args.outdir.parent} is not a directory", file=sys.stderr)

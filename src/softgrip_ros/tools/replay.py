@@ -31,6 +31,8 @@ import statistics
 import sys
 import time
 
+from softgrip_ros.argtypes import Number
+
 REPRODUCED_RELATIVE = 1e-9
 D2_POINTS = 2000  # the kinematics is evaluated at most this often over the run
 
@@ -40,8 +42,8 @@ def parser() -> argparse.ArgumentParser:
                                   formatter_class=argparse.RawDescriptionHelpFormatter)
     top.add_argument("bag", type=pathlib.Path, help="a softgrip_record bag directory")
     pace = top.add_mutually_exclusive_group()
-    pace.add_argument("--speed", type=float, help="replay at this multiple of the recorded "
-                      "pace (e.g. 1 or 10)")
+    pace.add_argument("--speed", type=Number(0.0, 1000.0, low_open=True),
+                      help="replay at this multiple of the recorded pace (e.g. 1 or 10)")
     pace.add_argument("--fast", action="store_true", help="as fast as it goes (the default)")
     top.add_argument("--output", type=pathlib.Path, help="where to write (default: BAG_replay)")
     top.add_argument("--no-plot", action="store_true", help="write no replay.png")
@@ -247,9 +249,6 @@ def plot(path: pathlib.Path, found: dict, replayed: list, d2: list) -> None:
 
 def main(argv=None) -> int:
     args = parser().parse_args(argv)
-    if args.speed is not None and not (math.isfinite(args.speed) and args.speed > 0.0):
-        print("softgrip_replay: --speed must be positive", file=sys.stderr)
-        return 2
     output = args.output or args.bag.with_name(args.bag.name + "_replay")
     try:
         found = load(args.bag)
