@@ -33,6 +33,11 @@ from here, as an arm would:
   from its acceptance to its result (``reached_goal``), and ``grasp_open_s``, the grasp manager's
   own OPEN to the same D2 as a Grasp action goal, in alternation from IDLE (40 and 60 mm); their
   medians' ratio is ``gripper_open_ratio``.
+* ``cancel_to_valve_frame_ms``: a GripperCommand opening goal from IDLE, cancelled a random
+  0-150 ms after its first valve frame (the opening under way), from the cancel request sent
+  here to the first ValveCommand frame after which channel 0 stays off the supply for 0.5 s
+  (held, as ros2_controllers' gripper controllers stop where they are); ``--cancels`` of them
+  per run.
 
 Each figure is the median over ``--runs`` whole measurements (3; fresh processes each): on a
 shared 2-core VM a p99 or a CPU median moves by about a millisecond or a percent from run to run.
@@ -72,7 +77,11 @@ TARGETS = {
     "cmd_to_valve_frame_ms_p99": (10.0, True), "sensor_to_tip_pose_ms_p99": (5.0, True),
     "controller_cpu_pct_idle": (15.0, True), "controller_cpu_pct_grasp": (40.0, True),
     "joint_states_p99_excess_ms": (0.5, True), "gripper_open_ratio": (1.2, True),
+    "cancel_to_valve_frame_ms_p99": (20.0, True),
 }
+CANCEL_DELAY_S = (0.0, 0.15)  # after the goal's first valve frame: the opening under way
+CANCEL_WATCH_S = 0.5  # after a cancel, how long the supply must stay shut
+SUPPLY = 1  # ValveCommand's channel state
 OPEN_SPACINGS_M = (0.04, 0.06)  # the gripper and grasp opening goals, in alternation
 SENSOR_FRAMES = ("PressureSensor1", "PressureSensor2")
 STAMP_MATCH_S = 2e-4  # well under the 1.4 ms between sensor frames
@@ -115,6 +124,12 @@ class BusWatch:
     def first_valve_change_after(self, sent_s: float, timeout_s: float = 2.0):
         """Sender time of the first valve frame after ``sent_s`` whose state differs from the last
         one before it."""
+        change = self.valve_change_after(sent_s, timeout_s)
+        return None if change is None else change[0]
+
+    def valve_change_after(self, sent_s: float, timeout_s: float = 2.0):
+        """(sender time, channel-0 state) of the first valve frame after ``sent_s`` whose state
+        differs from the last one before it; None if none comes within ``timeout_s``."""
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             count = len(self.valve_states)  # appended after the times: both hold this many
@@ -122,9 +137,16 @@ class BusWatch:
             previous = self.valve_states[first_after - 1] if first_after else None
             for index in range(first_after, count):
                 if self.valve_states[index] != previous:
-                    return self.valve_times[index]
+                    return self.valve_times[index], self.valve_states[index]
             time.sleep(WATCH_PERIOD_S)
         return None
+
+    def valve_frames(self, after_s: float, until_s: float) -> list:
+        """(sender time, channel-0 state) of every valve frame sent in (after_s, until_s]."""
+        count = len(self.valve_states)
+        first = bisect.bisect_right(self.valve_times, after_s, 0, count)
+        last = bisect.bisect_right(self.valve_times, until_s, 0, count)
+        return list(zip(self.valve_times[first:last], self.valve_states[first:last]))
 
     def sensor_frame_before(self, stamp_s: float):
         """Sender time of the newest sensor frame sent by ``stamp_s`` (None if none)."""
@@ -256,6 +278,60 @@ def open_goals(node, states, pairs: int) -> dict:
     return times
 
 
+def cancel_goals(node, states, watch, count: int, seed: int = 0) -> dict:
+    """``count`` GripperCommand opening goals from IDLE, each cancelled a random CANCEL_DELAY_S
+    after its first valve frame (the supply open): {"latencies_ms": [...], "states": {channel-0
+    state at the end: count}, "failed": n, "why": [...]}. A latency runs from the cancel request
+    to the first valve frame after which channel 0 does not open to the supply again within
+    CANCEL_WATCH_S (the opening pulses between closed frames, so the first change alone would
+    time the pulses)."""
+    import random
+
+    from control_msgs.action import GripperCommand
+    from rclpy.action import ActionClient
+    gripper = ActionClient(node, GripperCommand, "gripper_cmd")
+    stops = node.create_publisher(GraspCommand, "grasp_command", 10)
+    rng = random.Random(seed)
+    out = {"latencies_ms": [], "states": {}, "failed": 0, "why": []}
+    try:
+        if not gripper.wait_for_server(timeout_sec=10.0):
+            raise RuntimeError("no gripper_cmd action server")
+        for n in range(count):
+            goal = GripperCommand.Goal()
+            goal.command.position = max(OPEN_SPACINGS_M)
+            sent = time.time()
+            handle = wait_future(gripper.send_goal_async(goal), 5.0)
+            started = watch.first_valve_change_after(sent) if handle and handle.accepted else None
+            why = ("not accepted" if not (handle and handle.accepted) else
+                   "no valve frame of the opening" if started is None else "")
+            if not why:
+                time.sleep(max(0.0, started + rng.uniform(*CANCEL_DELAY_S) - time.time()))
+                cancel_sent = time.time()
+                cancelled = handle.cancel_goal_async()
+                time.sleep(CANCEL_WATCH_S + 2 * WATCH_PERIOD_S)
+                frames = watch.valve_frames(cancel_sent, cancel_sent + CANCEL_WATCH_S)
+                supplied = [k for k, (_, state) in enumerate(frames) if state == SUPPLY]
+                settled = supplied[-1] + 1 if supplied else 0
+                if settled < len(frames):
+                    out["latencies_ms"].append(1e3 * (frames[settled][0] - cancel_sent))
+                    end_state = frames[-1][1]
+                    out["states"][end_state] = out["states"].get(end_state, 0) + 1
+                else:
+                    why = f"still supplied {CANCEL_WATCH_S:g} s after the cancel"
+                wait_future(cancelled, 2.0)
+                wait_future(handle.get_result_async(), 5.0)
+            if why:
+                out["failed"] += 1
+                out["why"].append(why)
+            stops.publish(command(GraspCommand.STOP, f"bench-cancel-stop-{n}"))
+            wait_phase(states, GripperState.IDLE, 5.0)
+            time.sleep(0.3)  # vented
+    finally:
+        gripper.destroy()
+        node.destroy_publisher(stops)
+    return out
+
+
 def matched_latencies(watch, samples) -> list:
     """ms from each sample's sensor frame to its publish: ``samples`` [(published, received,
     stamp)]."""
@@ -265,7 +341,7 @@ def matched_latencies(watch, samples) -> list:
 
 
 def measure(idle_s: float, grasp_s: float, window_s: float,
-            open_pairs: int) -> tuple[dict, dict]:
+            open_pairs: int, cancels: int) -> tuple[dict, dict]:
     channel = f"bench-e2e-{uuid.uuid4().hex[:8]}"
     ros_args = [
         "--ros-args", "-p", "can.interface:=softgrip_ipc", "-p", f"can.channel:={channel}",
@@ -350,6 +426,8 @@ def measure(idle_s: float, grasp_s: float, window_s: float,
             node.create_subscription(JointState, "joint_states", on_joints, 100)
             time.sleep(1.0)  # the device catches up; discovery of the new subscription
             opens = open_goals(node, states, open_pairs)
+            progress(f"{cancels} opening goals cancelled under way")
+            cancelled = cancel_goals(node, states, watch, cancels)
             poses.clear()
             joints.clear()
             arm_end = time.monotonic() + grasp_s / 2
@@ -373,9 +451,10 @@ def measure(idle_s: float, grasp_s: float, window_s: float,
         raise RuntimeError("the rmw gave no source timestamp: the publish time cannot be measured")
     to_joints, to_pose_arm = matched_latencies(watch, arm_joints), matched_latencies(
         watch, arm_poses)
-    if not (to_joints and to_pose_arm and opens["gripper"] and opens["grasp"]):
+    if not (to_joints and to_pose_arm and opens["gripper"] and opens["grasp"]
+            and cancelled["latencies_ms"]):
         raise RuntimeError(f"as an arm stack: {len(to_joints)} joint_states, {len(to_pose_arm)} "
-                           f"poses, opening goals {opens}")
+                           f"poses, opening goals {opens}, cancels {cancelled}")
     to_pose = [1e3 * (published_s - sent_s) for published_s, _, sent_s in matched]
     to_received = [1e3 * (received_s - sent_s) for _, received_s, sent_s in matched]
     hops = [1e3 * (received_s - published_s) for published_s, received_s, _ in matched]
@@ -399,6 +478,8 @@ def measure(idle_s: float, grasp_s: float, window_s: float,
         "grasp_open_s": statistics.median(opens["grasp"]),
         "gripper_open_ratio": statistics.median(opens["gripper"]) /
         statistics.median(opens["grasp"]),
+        "cancel_to_valve_frame_ms_median": statistics.median(cancelled["latencies_ms"]),
+        "cancel_to_valve_frame_ms_p99": p99(cancelled["latencies_ms"]),
     }
     details = {
         "cmd_to_valve_frame_ms": {
@@ -413,6 +494,7 @@ def measure(idle_s: float, grasp_s: float, window_s: float,
         "cpu_windows_pct": {"idle": idle, "grasp": grasp, "device_paused": paused},
         "grasp_cycles": cycles,
         "open_goals_s": opens,
+        "cancels": cancelled,
         "arm_samples": {"joint_states": len(to_joints), "tip_pose": len(to_pose_arm)},
         "reception_clock_offset_ms_median": 1e3 *
         statistics.median(clock_offsets) if clock_offsets else None,
@@ -429,21 +511,25 @@ def main(argv=None) -> int:
                         help="CPU window (median over windows)")
     parser.add_argument("--open-pairs", type=int, default=5,
                         help="pairs of gripper and grasp opening goals per spacing")
+    parser.add_argument("--cancels", type=int, default=30,
+                        help="opening goals cancelled under way, per run")
     parser.add_argument(
         "--runs", type=int, default=3,
         help="whole measurements, each with fresh processes; each figure is the median over them")
     args = parser.parse_args(argv)
     if args.quick:
         args.runs, args.idle_s, args.grasp_s, args.window_s, args.open_pairs = 1, 3.0, 6.0, 1.0, 1
+        args.cancels = 3
     if args.window_s <= 0 or args.idle_s < 3 * args.window_s or args.grasp_s < 3 * args.window_s:
         parser.error("need --window-s > 0 and at least three windows in --idle-s and --grasp-s")
-    if args.runs < 1 or args.open_pairs < 1:
-        parser.error("need --runs >= 1 and --open-pairs >= 1")
+    if args.runs < 1 or args.open_pairs < 1 or args.cancels < 1:
+        parser.error("need --runs >= 1, --open-pairs >= 1 and --cancels >= 1")
     started = time.perf_counter()
     runs = []
     for run in range(args.runs):
         progress(f"run {run + 1} of {args.runs}")
-        runs.append(measure(args.idle_s, args.grasp_s, args.window_s, args.open_pairs))
+        runs.append(measure(args.idle_s, args.grasp_s, args.window_s, args.open_pairs,
+                            args.cancels))
     # a p99 of one run on a shared 2-core VM moves by a millisecond from run to run: the median of
     # runs
     figures = {key: statistics.median(f[key] for f, _ in runs) for key in runs[0][0]}
@@ -505,6 +591,15 @@ def main(argv=None) -> int:
         "failed. The grasp OPEN aims `pressure_tolerance_pa` (1.5 kPa) above the D2's pressure so "
         "that D2 clears an object; the gripper goal aims at it and is judged by "
         "`goal_tolerance_m`.\n"
+        f"- Cancels: {len(details['cancels']['latencies_ms'])} opening goals cancelled "
+        f"{CANCEL_DELAY_S[0] * 1e3:.0f}-{CANCEL_DELAY_S[1] * 1e3:.0f} ms after their first "
+        f"valve frame ({details['cancels']['failed']} failed: "
+        f"{'; '.join(details['cancels']['why']) or 'none'}); channel 0 at the end (0 closed, "
+        "1 supply, 2 vacuum, 3 vent): "
+        + ", ".join(f"{k}: {v}" for k, v in sorted(details["cancels"]["states"].items()))
+        + ". From the cancel request sent here over DDS to the action server, the grasp "
+        "manager's hold and the CAN send; the opening pulses the supply, so the latency runs "
+        "to the frame after its last pulse.\n"
         "- With the device paused (no frames) the controller uses "
         f"{figures['controller_cpu_pct_device_paused']:.0f} %: "
         "the control loop at its 50 Hz rest rate (`rest_rate_hz`) with controller/status at 50 "

@@ -173,10 +173,14 @@ def test_bench_e2e_quick_json_reports_every_figure():
                 "controller_cpu_pct_grasp", "controller_cpu_pct_device_paused",
                 "controller_rss_mb", "sensor_to_joint_states_ms_p99",
                 "sensor_to_tip_pose_arm_ms_p99", "gripper_open_s", "grasp_open_s",
-                "gripper_open_ratio"):
+                "gripper_open_ratio", "cancel_to_valve_frame_ms_median",
+                "cancel_to_valve_frame_ms_p99"):
         assert figures[key] > 0, key
     assert "joint_states_p99_excess_ms" in figures
     assert figures["details"]["open_goals_s"]["failed"] == 0, figures["details"]["open_goals_s"]
+    # every cancel of an opening under way closes the valves: it holds, as a STOP would not
+    cancels = figures["details"]["cancels"]
+    assert cancels["failed"] == 0 and set(cancels["states"]) == {"0"}, cancels
     assert set(
         figures["details"]["runs"]) >= {"cmd_to_valve_frame_ms_p99", "controller_cpu_pct_idle"}
 
