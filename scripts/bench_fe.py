@@ -726,7 +726,7 @@ def fe2d_run(geometry, args) -> dict:
     for case in verification:
         log(f"  {case.name}: worst error {case.worst_error_pct:.2g} %")
     sizes = QUICK_SIZES_M if args.quick else CONVERGENCE_SIZES_M
-    pressure = 30e3 if args.quick else CONVERGENCE_PRESSURE_PA
+    pressure = PLANE_STRAIN_VALID_TO_PA if args.quick else CONVERGENCE_PRESSURE_PA
     log(f"mesh convergence at {pressure / 1e3:.0f} kPa")
     convergence = mesh_convergence(geometry, sizes, pressure, progress=lambda m: log("  " + m))
     size = QUICK_SWEEP_SIZE_M if args.quick else SWEEP_ELEMENT_SIZE_M

@@ -34,12 +34,25 @@ def test_lame_thick_cylinder_matches_within_one_percent():
 
 
 def test_the_finger_is_incompressible_and_opens_outwards_under_pressure():
+    """... and is a truth only up to PLANE_STRAIN_VALID_TO_PA: it has no contact between
+    neighbouring blocks, and 2.5 kPa later blocks 1 and 2 are closer than its wall-contact gap
+    (the committed sweep refuses to be read beyond)."""
+    from softgrip_ros.model.fe_data import PLANE_STRAIN_VALID_TO_PA, load_fe_reference
     finger = FingerFE(GEOMETRY, element_size_m=4e-3)
     rest = finger.measure()
     # the faces are sampled 0.1 um inside the solid, so that each point finds its triangle
     assert rest.tip_spacing_m == pytest.approx(GEOMETRY.tip_gap_m, abs=1e-6)
     assert rest.root_spacing_m == pytest.approx(0.01398, abs=1e-5)  # the geometry's D1(0)
     assert math.degrees(rest.included_angle_rad) == pytest.approx(15.0, abs=1e-6)
+    finger.solve(PLANE_STRAIN_VALID_TO_PA)
+    assert min(finger.block_gaps_m()) > fe_finger.WALL_CONTACT_GAP_M
+    finger.solve(PLANE_STRAIN_VALID_TO_PA + 2.5e3)
+    assert finger.block_gaps_m()[0] < fe_finger.WALL_CONTACT_GAP_M
+    reference = load_fe_reference()
+    assert max(p.pressure_pa for p in reference.positive()) == PLANE_STRAIN_VALID_TO_PA
+    reference.at(5e3)
+    with pytest.raises(KeyError, match="blocks meet"):
+        reference.at(50e3)
     finger.solve(20e3)
     loaded = finger.measure()
     assert loaded.tip_spacing_m > rest.tip_spacing_m + 0.01  # opens by more than 1 cm
@@ -132,23 +145,6 @@ def test_meshing_leaves_python_s_signal_handling_as_it_was():
                             timeout=120)
     assert result.returncode == 0 and result.stdout.strip() == "EPIPE", (result.returncode,
                                                                           result.stderr)
-
-
-def test_the_plane_strain_fe_is_read_only_before_its_blocks_meet():
-    """It has no contact between neighbouring blocks: at PLANE_STRAIN_VALID_TO_PA blocks 1 and 2
-    are still further apart than its wall-contact gap, 2.5 kPa later they are not (4 mm mesh);
-    the committed sweep refuses to be read beyond."""
-    from softgrip_ros.model.fe_data import PLANE_STRAIN_VALID_TO_PA, load_fe_reference
-    finger = FingerFE(GEOMETRY, element_size_m=4e-3)
-    finger.solve(PLANE_STRAIN_VALID_TO_PA)
-    assert min(finger.block_gaps_m()) > fe_finger.WALL_CONTACT_GAP_M
-    finger.solve(PLANE_STRAIN_VALID_TO_PA + 2.5e3)
-    assert finger.block_gaps_m()[0] < fe_finger.WALL_CONTACT_GAP_M
-    reference = load_fe_reference()
-    assert max(p.pressure_pa for p in reference.positive()) == PLANE_STRAIN_VALID_TO_PA
-    reference.at(5e3)
-    with pytest.raises(KeyError, match="blocks meet"):
-        reference.at(50e3)
 
 
 def test_the_fe_truth_is_the_3d_default_sweep():

@@ -22,7 +22,7 @@ TOOLS = {
     "softgrip_record": "softgrip_ros.tools.record",
     "softgrip_replay": "softgrip_ros.tools.replay",
 }
-EXAMPLES = settings(max_examples=40, deadline=None)
+EXAMPLES = settings(max_examples=20, deadline=None)
 
 
 def _parsers(parser, path=()):
