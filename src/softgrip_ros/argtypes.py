@@ -2,7 +2,7 @@
 
 Every numeric option of the tools is one of these, so that a value out of its range (or not a
 number, or NaN) is a usage error at parsing: the tool's name, the option and the range on one
-line, exit 2, before anything is opened, started or written. tests/test_input_properties.py
+line, exit 2, before anything is opened, started or written. tests/test_tool_arguments.py
 checks every tool's parser for it.
 """
 from __future__ import annotations

@@ -26,9 +26,9 @@ import json
 import pathlib
 import sys
 
+from softgrip_ros.argtypes import Assignment, Number
 from softgrip_ros.canbus import open_bus
 from softgrip_ros.canbus.codec import FrameCodec
-from softgrip_ros.argtypes import Assignment, Number
 from softgrip_ros.canbus.conformance import (CHECK_RANGES, MAX_RATE_HZ, VALVE_CHANNELS,
                                              CheckConfig, DeviceChecker, format_table)
 
