@@ -265,7 +265,6 @@ FE3D_CONVERGENCE_PRESSURE_PA = 10e3
 # the band's clamp figure, and the friction under which the paper's "holds 1 kg" is read
 CLAMP_FIGURE_PA = -30e3
 PAPER_FRICTION = 0.5
-G_M_PER_S2 = 9.80665
 FE3D_QUICK = {"element_size_m": 6e-3, "positive_pa": (2e3, 10e3), "negative_pa": (-10e3,)}
 FE3D_TARGETS = {  # the issue's: key -> (bound, what)
     "fe3d_verification_error_pct": (1.0, "plane-strain limit, Lame and a contact's balance "
@@ -324,9 +323,8 @@ def clamp_run(geometry, default, quick: bool, progress) -> list:
                                                clamp_sweep)
     from softgrip_ros.model.fe3d.finger import DEFAULT_WIDTH_M
     from softgrip_ros.model.fe3d.sweep import SWEEP_ELEMENT_SIZE_M as SIZE_3D
-    from softgrip_ros.model.force_law import ENVELOP_MARGIN_M, ObjectKind
-
-    from softgrip_ros.model.force_law import FE_FLAT_SIZES_M, FE_ROUND_SIZES_M
+    from softgrip_ros.model.force_law import (ENVELOP_MARGIN_M, FE_FLAT_SIZES_M,
+                                              FE_ROUND_SIZES_M, ObjectKind)
 
     top = max(default.states, key=lambda s: s.pressure_pa)
     out = []
@@ -364,7 +362,7 @@ def fe3d_run(geometry, quick: bool) -> dict:
     from softgrip_ros.model.fe3d.finger import DEFAULT_WIDTH_M
     from softgrip_ros.model.fe3d.sweep import SWEEP_ELEMENT_SIZE_M as SIZE_3D
     from softgrip_ros.model.fe3d.sweep import curvature_at, sweep3d
-    from softgrip_ros.model.force_law import ObjectKind
+    from softgrip_ros.model.force_law import ObjectKind, mass_held_kg
     from softgrip_ros.model.fe3d.verification import (contact_balance, lame_cylinder,
                                                       mesh_convergence, plane_strain_limit)
     ng.SetNumThreads(os_threads())
@@ -432,8 +430,8 @@ def fe3d_run(geometry, quick: bool) -> dict:
         "fe3d_clamp_interpenetration_max_mm": 1e3 * max(
             c["result"].interpenetration_max_m for c in clamps if c["result"] is not None),
     }
-    figures_["fe3d_sheet_mass_held_kg_mu_0.5"] = (
-        2.0 * PAPER_FRICTION * figures_["fe3d_clamp_force_sheet_n_at_lowest"] / G_M_PER_S2)
+    figures_["fe3d_sheet_mass_held_kg_mu_0.5"] = mass_held_kg(
+        figures_["fe3d_clamp_force_sheet_n_at_lowest"], PAPER_FRICTION)
     return {"figures": figures_, "verification": verification, "convergence": convergence,
             "default": default, "plane_strain": plane, "band": band, "clamps": clamps}
 

@@ -423,7 +423,7 @@ def _cylinder_outcome(entry) -> str:
 def clamp_lines(document, width, shown) -> list:
     """The clamp paragraph of the 3-D section: F_n on the sheet and the cylinders, against the
     force law's table."""
-    from softgrip_ros.model.force_law import ObjectKind, load_table
+    from softgrip_ros.model.force_law import ObjectKind, load_table, mass_held_kg
 
     clamps = document.get("clamp") or []
     sheet = next((c for c in clamps if c["kind"] == "flat" and c.get("states")), None)
@@ -434,7 +434,7 @@ def clamp_lines(document, width, shown) -> list:
     at_30 = next((s for s in sheet["states"] if s["pressure_kpa"] == -30.0), None)
     rod_30 = table.normal_force_n(-30e3, sheet["size_mm"] * 1e-3, ObjectKind.FLAT)
     rod_60 = table.normal_force_n(-60e3, sheet["size_mm"] * 1e-3, ObjectKind.FLAT)
-    mass_g = 1e3 * 2.0 * 0.5 * last["normal_force_n"] / 9.80665
+    mass_g = 1e3 * mass_held_kg(last["normal_force_n"], 0.5)
     lines = [
         f"**The clamp.** The finger of w = {width:g} mm, opened clear of a "
         f"{sheet['size_mm']:g} mm sheet on the centre line ({sheet['opening_kpa']:+.1f} kPa: at "
@@ -464,15 +464,14 @@ def clamp_lines(document, width, shown) -> list:
 def fe_table_lines() -> list:
     """The FE's clamp force table (type_II_fe's) and what the paper's "holds 1 kg" becomes."""
     from softgrip_ros.model.force_law import (ClampForceLaw, FE_FLAT_SIZES_M, FE_ROUND_SIZES_M,
-                                              G_M_PER_S2, ObjectKind, load_table)
+                                              ObjectKind, load_table)
 
     law = ClampForceLaw(load_table("type_II_fe", "l0", compute_if_missing=False))
     cells, held = [], []
     for kind, sizes in ((ObjectKind.FLAT, FE_FLAT_SIZES_M), (ObjectKind.ROUND, FE_ROUND_SIZES_M)):
         for size in sizes:
             force = law.table.normal_force_n(-60e3, size, kind)
-            held_g = (1e3 * 2.0 * law.friction_coefficient * force /
-                      (law.safety_factor * G_M_PER_S2))
+            held_g = 1e3 * law.mass_held_kg(force)
             held += [] if math.isnan(force) else [held_g]
             cells.append(f"{'sheet' if kind is ObjectKind.FLAT else 'cylinder'} "
                          f"{size * 1e3:g} mm: " + ("out of reach" if math.isnan(force) else

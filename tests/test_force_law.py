@@ -60,6 +60,9 @@ def test_the_clamp_holds_the_mass_with_the_safety_factor_or_goes_past_the_limit(
     assert -60e3 < light < law.contact_pressure_pa(0.04, ObjectKind.ROUND) - 3e3 + 1e-6
     force = law.normal_force_n(light, 0.04, ObjectKind.ROUND)
     assert 2 * 0.5 * force == pytest.approx(2.0 * 0.02 * force_law.G_M_PER_S2, rel=1e-6)
+    # the mass a force holds is the inverse of the force a mass needs
+    assert law.mass_held_kg(force, 0.5) == pytest.approx(0.02, rel=1e-6)
+    assert force_law.mass_held_kg(force, 0.5) == pytest.approx(2.0 * 0.02, rel=1e-6)
     # past what -60 kPa gives: extrapolated below the limit, which the grasp manager refuses
     assert law.clamp_pressure_pa(0.5, 0.04, ObjectKind.ROUND, 0.5) < -60e3
     # beyond the fingers' reach where the law places an object: no force at all

@@ -36,7 +36,7 @@ from softgrip_ros.checks import require_positive
 from softgrip_ros.control.pressure import ERROR_FAULTS, Fault, Source
 from softgrip_ros.control.safety import SAFETY_FAULTS
 from softgrip_ros.model.fidelity import FREE, Scene, cylinder_scene
-from softgrip_ros.model.force_law import G_M_PER_S2, ClampForceLaw, ObjectKind, load_table
+from softgrip_ros.model.force_law import ClampForceLaw, ObjectKind, load_table
 from softgrip_ros.model.rod import Sheet
 
 HALTING_FAULTS = ERROR_FAULTS | Fault.REGULATOR | Fault.BUS_ERROR
@@ -515,9 +515,8 @@ class GraspStateMachine:
         clamp = (r.clamp_pressure_pa if not math.isnan(r.clamp_pressure_pa) else
                  law.clamp_pressure_pa(r.object_mass_kg, r.object_diameter_m, kind, mu))
         if clamp < c.min_gauge_pa:
-            most_kg = (2.0 * (law.friction_coefficient if mu is None else mu) *
-                       law.normal_force_n(c.min_gauge_pa, r.object_diameter_m, kind) /
-                       (law.safety_factor * G_M_PER_S2))
+            most_kg = law.mass_held_kg(
+                law.normal_force_n(c.min_gauge_pa, r.object_diameter_m, kind), mu)
             return (
                 f"holding {r.object_mass_kg:.3g} kg needs {max(clamp, -1e9) / 1e3:.1f} kPa, "
                 f"below the limit {c.min_gauge_pa / 1e3:.0f} kPa: too heavy for this gripper (at "

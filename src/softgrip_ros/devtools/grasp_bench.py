@@ -487,8 +487,7 @@ def rated_mass_kg(clamp_law, case: GraspCase, min_gauge_pa: float = -60e3) -> fl
     force = clamp_law.normal_force_n(min_gauge_pa, case.size_m, case.kind)
     if not math.isfinite(force):
         return math.nan
-    from softgrip_ros.model.force_law import G_M_PER_S2
-    return 2.0 * case.friction * force / (clamp_law.safety_factor * G_M_PER_S2)
+    return clamp_law.mass_held_kg(force, case.friction)
 
 
 def free_bending_max_err_mm(gripper_model: str = "type_II", bending: str = "l0") -> float:

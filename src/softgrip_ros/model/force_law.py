@@ -79,6 +79,12 @@ FE_FLAT_SIZES_M = (1e-4, 0.002, 0.005, 0.010)
 FE_PRESSURES_PA = tuple(np.arange(-60e3, 50e3 + 1.0, 5e3))
 
 
+def mass_held_kg(force_n: float, friction_coefficient: float,
+                 safety_factor: float = 1.0) -> float:
+    """The mass two fingers hold by friction, each pressing ``force_n`` N: 2 mu F_n / (SF g)."""
+    return 2.0 * friction_coefficient * force_n / (safety_factor * G_M_PER_S2)
+
+
 class ObjectKind(enum.Enum):
     ROUND = "round"
     FLAT = "flat"
@@ -209,7 +215,7 @@ def fe_row(sweep, pressures_pa) -> tuple:
     row = np.array([0.0 if p > sweep.opening_pa + 1e-6 else
                     lowest.normal_force_n if p < lowest.pressure_pa - 1e-6 else
                     sweep.normal_force_n(p) for p in pressures])
-    return np.maximum.accumulate(row[::-1])[::-1], lowest.pressure_pa
+    return _credited_as_growing(row), lowest.pressure_pa
 
 
 def compute_fe_table(gripper_model: str, bending: str, progress=print) -> tuple:
@@ -296,7 +302,13 @@ def _solve_row(rod, obstacle, pressures: np.ndarray, opening_pa: float) -> np.nd
             raise RuntimeError(f"the L2 rod did not converge at {pressure:.0f} Pa on "
                                f"{obstacle}: {solution.message}")
         row[k] = float(solution.contact_forces_n.sum())
-    # the force can only grow as the pressure falls: rounding of the rod's solution aside
+    return _credited_as_growing(row)
+
+
+def _credited_as_growing(row: np.ndarray) -> np.ndarray:
+    """``row`` (ascending pressures) made non-increasing in p: as the pressure falls no less
+    force is credited than at any higher pressure (a solver's rounding, or a contact that moves,
+    aside; the law's inverse needs it)."""
     return np.maximum.accumulate(row[::-1])[::-1]
 
 
@@ -431,6 +443,12 @@ class ClampForceLaw:
                                 friction_coefficient: float | None = None) -> float:
         mu = self.friction_coefficient if friction_coefficient is None else friction_coefficient
         return self.safety_factor * mass_kg * G_M_PER_S2 / (2.0 * mu)
+
+    def mass_held_kg(self, force_n: float, friction_coefficient: float | None = None) -> float:
+        """The inverse of :meth:`required_normal_force_n`: the mass ``force_n`` per finger holds
+        with this law's safety factor."""
+        mu = self.friction_coefficient if friction_coefficient is None else friction_coefficient
+        return mass_held_kg(force_n, mu, self.safety_factor)
 
     def clamp_pressure_pa(self, mass_kg: float, size_m: float, kind: ObjectKind,
                           friction_coefficient: float | None = None) -> float:
