@@ -357,3 +357,84 @@ def test_a_rejected_command_leaves_a_running_grasp_untouched(kinematics):
             loop.fsm._open_pa) == before
     loop.run_for(0.1)
     assert loop.fsm.state.clamp_force_n == pytest.approx(force, rel=0.1)
+
+
+def test_a_settled_hold_traps_its_air_and_tops_it_up_when_it_drifts(kinematics):
+    """hold_air trap: settle_s into HOLDING the valves close on the clamp's pressure (HOLD at
+    the same target); a drift past the tolerance regulates again, then traps again once
+    settled. hold_air regulate (the default) keeps the regulated line."""
+    loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0, hold_air="trap"))
+    loop.command(
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02))
+    loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
+    target = loop.fsm.request.target_gauge_pa
+    loop.run_for(0.5)
+    assert loop.fsm.request.source == Source.HOLD
+    assert loop.fsm.request.target_gauge_pa == target
+    assert loop.fsm.air_trapped_since is not None
+    # a leak: 2 kPa off
+    loop.fsm.update(loop.now + 0.01, target + 2e3)
+    assert loop.fsm.request.source in (Source.SUPPLY, Source.VACUUM)
+    assert loop.fsm.air_trapped_since is None and loop.fsm.top_ups == 1
+    loop.run_for(0.5)
+    assert loop.fsm.request.source == Source.HOLD and loop.fsm.state.phase == Phase.HOLDING
+    regulated = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
+    regulated.command(
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04, object_mass_kg=0.02))
+    regulated.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
+    regulated.run_for(0.5)
+    assert regulated.fsm.request.source in (Source.SUPPLY, Source.VACUUM)
+
+
+@pytest.mark.parametrize("on_lost", ["hold", "release", "fault"])
+def test_the_sensed_verdicts_end_the_goal_and_act_on_a_loss(kinematics, on_lost):
+    """With sensing on, a HOLDING goal waits for the closing's verdict; NO_OBJECT fails it
+    "closed on nothing" (the fingers stay closed); LOST does what on_object_lost says."""
+    from softgrip_ros.estimation.grasp_sensing import Detection, ObjectStatus
+    loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0, on_object_lost=on_lost))
+    loop.fsm.sensing_enabled = True
+    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04,
+                              object_mass_kg=0.02, command_id="g"))
+    task = loop.fsm.task
+    loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
+    assert loop.fsm.outcome(task, GraspMode.ENVELOP_CLAMP) == ""  # the verdict is awaited
+    assert not loop.fsm.object_held()
+    loop.fsm.sensed(Detection(ObjectStatus.HELD, 0.99, "held: felt 41 mm", loop.now, 0.041),
+                    loop.now)
+    assert loop.fsm.outcome(task, GraspMode.ENVELOP_CLAMP) == "succeeded"
+    assert loop.fsm.object_held() and loop.fsm.state.object_size_m == 0.041
+    loop.fsm.sensed(Detection(ObjectStatus.LOST, 0.9, "stepped +400 Pa", loop.now), loop.now)
+    expected = {"hold": Phase.HOLDING, "release": Phase.RELEASING, "fault": Phase.FAULT}
+    assert loop.fsm.state.phase == expected[on_lost]
+    assert "lost" in loop.fsm.state.message and not loop.fsm.object_held()
+    if on_lost != "hold":
+        assert loop.fsm.request.source == Source.VENT
+    nothing = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
+    nothing.fsm.sensing_enabled = True
+    nothing.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04,
+                                 object_mass_kg=0.02))
+    nothing.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
+    nothing.fsm.sensed(Detection(ObjectStatus.NO_OBJECT, 0.99, "as if free", nothing.now, 0.0),
+                       nothing.now)
+    assert nothing.fsm.outcome(nothing.fsm.task, GraspMode.ENVELOP_CLAMP) == "failed"
+    assert nothing.fsm.state.message.startswith("closed on nothing")
+    assert nothing.fsm.state.phase == Phase.HOLDING
+
+
+def test_a_goal_stops_waiting_for_a_verdict_that_never_comes(kinematics):
+    loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0, sensing_wait_s=0.3))
+    loop.fsm.sensing_enabled = True
+    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04,
+                              object_mass_kg=0.02))
+    loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
+    loop.run_for(0.4)
+    assert loop.fsm.outcome(loop.fsm.task, GraspMode.ENVELOP_CLAMP) == "succeeded"
+
+
+def test_bad_sensing_configuration_is_refused():
+    with pytest.raises(ValueError, match="hold_air"):
+        GraspConfig(hold_air="pump")
+    with pytest.raises(ValueError, match="on_object_lost"):
+        GraspConfig(on_object_lost="panic")
+    with pytest.raises(ValueError, match="sensing_wait_s"):
+        GraspConfig(sensing_wait_s=math.inf)

@@ -35,6 +35,7 @@ import math
 from softgrip_ros.checks import require_positive
 from softgrip_ros.control.pressure import ERROR_FAULTS, Fault, Source
 from softgrip_ros.control.safety import SAFETY_FAULTS
+from softgrip_ros.estimation.grasp_sensing import Detection, ObjectStatus
 from softgrip_ros.model.fidelity import FREE, Scene, cylinder_scene
 from softgrip_ros.model.force_law import ClampForceLaw, ObjectKind, load_table
 from softgrip_ros.model.rod import Sheet
@@ -42,6 +43,12 @@ from softgrip_ros.model.rod import Sheet
 HALTING_FAULTS = ERROR_FAULTS | Fault.REGULATOR | Fault.BUS_ERROR
 # the controller holds, and resumes by itself
 TRANSIENT_FAULTS = Fault.SENSOR_TIMEOUT | Fault.BUS_SILENT
+
+
+HOLD_AIR = ("trap", "regulate")
+ON_OBJECT_LOST = ("hold", "release", "fault")
+# the sensed statuses that mean an object is between the fingers
+HOLDING_STATUSES = (ObjectStatus.HELD, ObjectStatus.CONTACT_CLOSING)
 
 
 def fault_text(fault_flags: int) -> str:
@@ -132,6 +139,15 @@ class GraspConfig:
     vented_below_pa: float = 1.5e3
     hold_error_limit_pa: float = 5e3
     hold_error_time_s: float = 0.3
+    # "trap": once HOLDING has settled the valves close on the air (topped up when it drifts
+    # past pressure_tolerance_pa), so that an object's loss shows in the pressure; "regulate":
+    # the regulated line stays open (a loss is then not sensed)
+    hold_air: str = "regulate"
+    # what a sensed loss during HOLDING does: "hold" (report it), "release" or "fault" (vent)
+    on_object_lost: str = "hold"
+    # how long a HOLDING goal waits for the sensed verdict on its closing before it succeeds
+    # without one
+    sensing_wait_s: float = 2.0
 
     def __post_init__(self):
         if not self.min_gauge_pa < 0.0 < self.max_gauge_pa:
@@ -142,6 +158,14 @@ class GraspConfig:
                          "hold_error_limit_pa", "hold_error_time_s")
         if not math.isfinite(self.auto_clamp_delay_s):
             raise ValueError("auto_clamp_delay_s must be finite (negative: never)")
+        if self.hold_air not in HOLD_AIR:
+            raise ValueError(f"hold_air must be one of {', '.join(HOLD_AIR)}, got "
+                             f"{self.hold_air!r}")
+        if self.on_object_lost not in ON_OBJECT_LOST:
+            raise ValueError(f"on_object_lost must be one of {', '.join(ON_OBJECT_LOST)}, got "
+                             f"{self.on_object_lost!r}")
+        if not (math.isfinite(self.sensing_wait_s) and self.sensing_wait_s >= 0.0):
+            raise ValueError("sensing_wait_s must be >= 0 and finite")
 
 
 @dataclasses.dataclass
@@ -165,6 +189,10 @@ class GraspState:
     model_fidelity: str = ""
     in_validated_range: bool = True
     message: str = "idle"
+    # the air's verdict on the object (estimation.grasp_sensing), and its size as felt (m)
+    object_status: ObjectStatus = ObjectStatus.UNKNOWN
+    object_size_m: float = math.nan
+    object_evidence: str = "no grasp yet"
 
 
 class ControllerFeedback:
@@ -288,11 +316,19 @@ class GraspStateMachine:
         self._open_pa = 0.0
         self._clamp_pa = 0.0
         self._release_step = ""
+        # the hold's air: trapped since (s; None while the regulated line is open)
+        self.air_trapped_since: float | None = None
+        self.top_ups = 0
+        # sensing: None when nothing judges the object (the verdicts never come)
+        self.sensing_enabled = False
+        self._closing_judged = False
+        self._last_now = 0.0  # the latest time update() or command() was given
 
     # ---- commands -----------------------------------------------------------------------------
     def command(self, request: GraspRequest, now: float, controller_fault: str = "") -> str:
         """Accept ``request`` ('' returned) or reject it (the reason returned); nothing moves on a
         rejection. Each mode has a planner that checks the command and works out what it does."""
+        self._last_now = now
         try:
             mode = GraspMode(request.mode)
         except ValueError:
@@ -589,6 +625,7 @@ class GraspStateMachine:
         IDLE too (a fault found just after a release ends, for one): grasp_state then says why
         the next grasp is refused, and IDLE's hold is not asked for again."""
         s, c = self.state, self.config
+        self._last_now = now
         s.estimated_gauge_pa, s.estimated_std_pa = estimate_gauge_pa, estimate_std_pa
         self._model(estimate_gauge_pa)
         idle_and_safe = s.phase == Phase.IDLE and controller_safe_state
@@ -619,9 +656,13 @@ class GraspStateMachine:
                             "clamping (automatic)")
         elif s.phase == Phase.HOLDING:
             self._check_hold(now, estimate_gauge_pa)
+            if s.phase == Phase.HOLDING and c.hold_air == "trap":
+                self._trap_air(now, estimate_gauge_pa, settled)
         elif s.phase == Phase.CLAMPING:
             if settled:
                 self._enter(Phase.HOLDING, self.request, now, "holding")
+                if c.hold_air == "trap":  # settled already: the air is trapped at once
+                    self._trap_air(now, estimate_gauge_pa, True)
             elif elapsed > c.clamping_timeout_s:
                 self._timeout(now, "clamping")
         elif s.phase == Phase.RELEASING:
@@ -669,6 +710,53 @@ class GraspStateMachine:
                 Phase.FAULT, PressureRequest(0.0, Source.VENT), now,
                 f"fault: holding lost, {estimate:.0f} Pa against a target of "
                 f"{self.request.target_gauge_pa:.0f} Pa; venting")
+
+    def _trap_air(self, now: float, estimate: float, settled: bool) -> None:
+        """HOLDING with trapped air: close the valves once settled at the target (at once on
+        entering HOLDING, which the clamp reached settled); top up (regulate again) when the
+        pressure drifts past the tolerance, and close them again once settled."""
+        c, target = self.config, self.request.target_gauge_pa
+        if self.request.source in (Source.SUPPLY, Source.VACUUM):
+            if settled:
+                self.request = PressureRequest(target, Source.HOLD)
+                self.air_trapped_since = now
+                self.changes += 1
+        elif (self.request.source == Source.HOLD and math.isfinite(estimate) and
+              abs(estimate - target) > c.pressure_tolerance_pa):
+            self.request = self._pressure(target)
+            self.air_trapped_since = None
+            self._settled_since = None
+            self.top_ups += 1
+            self.changes += 1
+
+    def sensed(self, detection: Detection, now: float) -> None:
+        """The air's verdict on the object (see :mod:`softgrip_ros.estimation.grasp_sensing`).
+        In HOLDING: NO_OBJECT ends the grasp's goal as failed ("closed on nothing"), the fingers
+        still closed; LOST does what ``on_object_lost`` says."""
+        s, c = self.state, self.config
+        previous = s.object_status
+        s.object_status, s.object_evidence = detection.status, detection.evidence
+        s.object_size_m = detection.object_size_m
+        if detection.status in (ObjectStatus.CONTACT_CLOSING, ObjectStatus.NO_OBJECT,
+                                ObjectStatus.HELD) or (
+                detection.status == ObjectStatus.UNKNOWN and s.phase == Phase.HOLDING):
+            self._closing_judged = True
+        if detection.status != previous:
+            self.changes += 1
+        if s.phase != Phase.HOLDING or detection.status == previous:
+            return
+        if detection.status == ObjectStatus.NO_OBJECT:
+            s.message = f"closed on nothing: {detection.evidence}"
+        elif detection.status == ObjectStatus.LOST:
+            if c.on_object_lost == "fault":
+                self._enter(Phase.FAULT, PressureRequest(0.0, Source.VENT), now,
+                            f"fault: object lost ({detection.evidence}); venting")
+            elif c.on_object_lost == "release":
+                self._release_step = "vent"
+                self._enter(Phase.RELEASING, PressureRequest(0.0, Source.VENT), now,
+                            f"object lost, releasing: {detection.evidence}")
+            else:
+                s.message = f"object lost: {detection.evidence}"
 
     def _required_spacing(self) -> float:
         r = self._request
@@ -747,6 +835,9 @@ class GraspStateMachine:
                                       if request.source != Source.VENT else 0.0)
         self.request = request
         self._phase_start, self._settled_since, self._off_target_since = now, None, None
+        self.air_trapped_since = None
+        if phase == Phase.CLAMPING:
+            self._closing_judged = False
         self.changes += 1
 
     def done(self, mode: int) -> bool:
@@ -763,4 +854,27 @@ class GraspStateMachine:
             return "superseded"
         if self.state.phase == Phase.FAULT:
             return "failed"
-        return "succeeded" if self.state.phase in TERMINAL.get(GraspMode(mode), ()) else ""
+        if self.state.phase not in TERMINAL.get(GraspMode(mode), ()):
+            return ""
+        if self.state.phase == Phase.HOLDING and self.sensing_enabled:
+            if self.state.object_status == ObjectStatus.NO_OBJECT:
+                return "failed"
+            if self.sensing_pending():
+                return ""
+        return "succeeded"
+
+    def sensing_pending(self) -> bool:
+        """HOLDING, and the air's verdict on the closing is still to come (for at most
+        ``sensing_wait_s``)."""
+        return (self.state.phase == Phase.HOLDING and self.sensing_enabled and
+                not self._closing_judged and
+                self._last_now - self._phase_start < self.config.sensing_wait_s)
+
+    def object_held(self) -> bool:
+        """Whether the air says an object is between the fingers (HELD or found by the closing,
+        in HOLDING); without sensing, whether the phase is HOLDING."""
+        if self.state.phase != Phase.HOLDING:
+            return False
+        if not self.sensing_enabled:
+            return True
+        return self.state.object_status in HOLDING_STATUSES

@@ -1,0 +1,95 @@
+"""The grasp state machine and the air's verdict on the object, joined (no ROS): which phase
+starts and ends a motion to judge, when a hold's air is trapped, and the verdicts fed back to
+the state machine (:meth:`~softgrip_ros.control.grasp_fsm.GraspStateMachine.sensed`).
+
+The owner calls :meth:`ObjectSensingLink.inputs` and :meth:`ObjectSensingLink.reading` as the
+controller's outputs and the sensors' readings arrive, and :meth:`ObjectSensingLink.after`
+after every command and update of the state machine, all under one lock. A motion's judgement
+costs some 0.3 s of CPU: ``run(work, done)`` runs ``work()`` where the owner likes (a worker
+thread) and must call ``done(result)`` back under the owner's lock; None runs it at once.
+"""
+from __future__ import annotations
+
+import math
+
+from softgrip_ros.control.grasp_fsm import GraspMode, GraspStateMachine, Phase
+from softgrip_ros.estimation.grasp_sensing import (GraspSensing, MotionJob, ObjectStatus,
+                                                   judge_motion)
+from softgrip_ros.model.pneumatics import PlantInputs
+
+# phases in which the fingers move towards a pressure the motion's judgement starts from
+_MOVING = (Phase.OPENING, Phase.CLAMPING)
+
+
+class ObjectSensingLink:
+    """See the module. ``fsm``: the grasp state machine (its ``sensing_enabled`` is set);
+    ``sensing``: the :class:`~softgrip_ros.estimation.grasp_sensing.GraspSensing`."""
+
+    def __init__(self, fsm: GraspStateMachine, sensing: GraspSensing, run=None):
+        self.fsm, self.sensing = fsm, sensing
+        self.run = run or (lambda work, done: done(work()))
+        fsm.sensing_enabled = True
+        self._phase = fsm.state.phase
+        self._trapped = None
+        self._motion = 0  # counts motions: a late judgement of an older one is dropped
+        self._pending = None  # the phase that started the motion being judged
+        self._last = None
+        self.judgements = 0
+
+    def inputs(self, stamp_s: float, inputs: PlantInputs) -> None:
+        self.sensing.inputs(stamp_s, inputs)
+
+    def reading(self, name: str, stamp_s: float, gauge_pa: float) -> None:
+        self.sensing.reading(name, stamp_s, gauge_pa)
+
+    def after(self, now: float, estimate_gauge_pa: float, controller_fault: str = "") -> None:
+        """Follow the state machine's phase (see the module) and give it the verdict now."""
+        fsm = self.fsm
+        phase = fsm.state.phase
+        if phase != self._phase:
+            self._transition(self._phase, phase, now, estimate_gauge_pa)
+            self._phase = phase
+        trapped = fsm.air_trapped_since
+        if trapped != self._trapped:
+            self._trapped = trapped
+            self.sensing.air_trapped(math.nan if trapped is None else trapped)
+        verdict = self.sensing.status(now, controller_fault)
+        key = (verdict.status, verdict.evidence)
+        if key != self._last:
+            self._last = key
+            fsm.sensed(verdict, now)
+
+    def _transition(self, old: Phase, new: Phase, now: float, estimate: float) -> None:
+        fsm, sensing = self.fsm, self.sensing
+        self._motion += 1
+        if new in _MOVING and old != new:
+            request = fsm._request
+            expected = (request.object_diameter_m if request is not None else math.nan)
+            if request is not None and GraspMode(request.mode) == GraspMode.OPEN:
+                expected = math.nan
+            sensing.motion_started(now, estimate, fsm.request.target_gauge_pa, expected)
+            self._pending = new
+        elif old in _MOVING and new in (Phase.ENVELOPED, Phase.HOLDING):
+            job = sensing.settle_motion(now)
+            if job is not None:
+                motion, hold_pa = self._motion, fsm.request.target_gauge_pa
+                self.run(lambda: judge_motion(sensing.model, job),
+                         lambda verdict: self._judged(motion, job, verdict, hold_pa))
+        elif new not in (Phase.ENVELOPED, Phase.HOLDING) or old == Phase.HOLDING:
+            sensing.released(now, "no grasp: " + fsm.state.message)
+
+    def _judged(self, motion: int, job: MotionJob, verdict, hold_pa: float) -> None:
+        """A judgement is back (under the owner's lock)."""
+        self.judgements += 1
+        if motion != self._motion:
+            return  # the grasp moved on meanwhile
+        self.sensing.accept(job, verdict)
+        if not job.opening and verdict.status == ObjectStatus.CONTACT_CLOSING and \
+                self.fsm.state.phase == Phase.HOLDING:
+            self.sensing.holding(verdict.stamp_s, hold_pa)
+            if self._trapped is not None:
+                self.sensing.air_trapped(self._trapped)
+        now = self.fsm._last_now
+        current = self.sensing.status(now)
+        self._last = (current.status, current.evidence)
+        self.fsm.sensed(current, now)
