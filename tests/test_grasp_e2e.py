@@ -396,3 +396,59 @@ def test_a_different_command_supersedes_a_goal_and_a_cancel_vents(suite):
     response = _result(second)
     assert response.status == GoalStatus.STATUS_CANCELED and "venting" in response.result.message
     wait_for(lambda: abs(device.chamber_gauge_pa()) < 1.5e3, timeout=3.0, message="vented")
+
+
+def test_object_sensing_reports_through_the_state_the_action_and_diagnostics(rclpy_context):
+    """object_sensing on, hold_air trap, on the simulated gripper without a world: a pinch's
+    closing is judged (MOVING_NO_CONTACT while it moves); for a 0.1 mm sheet the air cannot
+    tell, so the goal succeeds at HOLDING with object_held false, the status UNKNOWN, its
+    evidence in the grasp-sensing entry of /diagnostics; the hold's air is then trapped."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from softgrip_interfaces.action import Grasp
+    from softgrip_interfaces.msg import GraspCommand, GripperState as S
+    from softgrip_ros.client import serial_action_client
+    from softgrip_ros.nodes.common import close_all
+    from softgrip_ros.nodes.controller import make_nodes
+
+    nodes = make_nodes(rclpy_context, {
+        "pressure_controller": [Parameter("can.channel", value=unique("sensing"))],
+        "grasp_manager": [Parameter("object_sensing", value=True),
+                          Parameter("hold_air", value="trap")]})
+    named = {n.get_name(): n for n in nodes}
+    user = Node("sensing_user", context=rclpy_context)
+    states, diagnostics = [], []
+    user.create_subscription(S, "grasp_state", states.append, 200)
+    user.create_subscription(DiagnosticArray, "/diagnostics", diagnostics.append, 50)
+    client = serial_action_client(user, Grasp, "grasp")
+    try:
+        with spinning(rclpy_context, *nodes, user, threads=2):
+            wait_for(lambda: named["grasp_manager"].sensing is not None, timeout=20.0,
+                     message="the contact model built")
+            assert client.wait_for_server(timeout_sec=5.0)
+            future = client.send_goal_async(Grasp.Goal(command=grasp(
+                GraspCommand.PINCH, object_diameter_m=1e-4, object_mass_kg=0.005,
+                command_id="sheet")))
+            handle = wait_for(lambda: future.done() and future.result(), message="accepted")
+            result_future = handle.get_result_async()
+            result = wait_for(lambda: result_future.done() and result_future.result(),
+                              timeout=10.0, message="result").result
+            assert result.final_phase == S.HOLDING and not result.object_held
+            seen = {s.object_status for s in states}
+            assert S.OBJECT_MOVING_NO_CONTACT in seen
+            assert states[-1].object_status == S.OBJECT_UNKNOWN
+
+            def evidence():
+                for array in diagnostics:
+                    for status in array.status:
+                        if status.name == "softgrip: grasp sensing" and \
+                                "cannot tell" in status.message:
+                            return status
+                return None
+            wait_for(evidence, timeout=5.0, message="the grasp-sensing diagnostics")
+            wait_for(lambda: named["grasp_manager"].fsm.air_trapped_since is not None,
+                     timeout=5.0, message="the hold's air trapped")
+    finally:
+        close_all(nodes)
+        user.destroy_node()

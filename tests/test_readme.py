@@ -178,8 +178,8 @@ def test_the_simulated_device_with_a_world_has_the_world_rows_too(namespaced_con
 @pytest.mark.ros
 @pytest.mark.slow
 def test_the_python_example_grasps_as_written(rclpy_context):
-    """The README's Python example, run as it stands against the composed suite: it prints held:
-    True."""
+    """The README's Python example, run as it stands against the composed suite (object sensing
+    off, the default): it prints held: True, and the air's status UNKNOWN."""
     from rclpy.parameter import Parameter
     from softgrip_ros.nodes.common import close_all
     from softgrip_ros.nodes.controller import make_nodes
@@ -195,14 +195,14 @@ def test_the_python_example_grasps_as_written(rclpy_context):
     finally:
         close_all(nodes)
     assert result.returncode == 0, result.stderr[-2000:]
-    assert "held: True" in result.stdout
+    assert "held: True" in result.stdout and "ObjectStatus.UNKNOWN" in result.stdout
 
 
 def test_the_readme_is_a_guide_of_at_most_250_lines():
     headings = [line[3:] for line in README.splitlines() if line.startswith("## ")]
     assert (headings == [
         "Install", "The demo", "Executables and their interfaces", "Sending a grasp",
-        "On a robot arm", "Real hardware", "Safety", "Further reading"
+        "Is the object held?", "On a robot arm", "Real hardware", "Safety", "Further reading"
     ])
     assert len(README.splitlines()) <= 250
     for link in re.findall(r"\]\(((?:docs/|CHANGELOG|LICENSE)[^)#]*)", README):

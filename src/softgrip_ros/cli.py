@@ -7,7 +7,8 @@
     softgrip open --spacing 0.05 --namespace /g1
 
 Each task prints the phases as they come and ends with the result; the exit status is 0 when
-the task succeeded, 1 when it was refused, failed or timed out, 3 when no gripper answered.
+the task succeeded, 1 when it was refused, failed (a clamp that closed on nothing, too) or
+timed out, 3 when no gripper answered. Each line shows what the air says of the object.
 ``grasp`` ends once the fingers are open around the object (ENVELOPED), unless
 ``--clamp-after S`` clamps S seconds later and waits for HOLDING.
 """
@@ -21,6 +22,8 @@ from softgrip_ros.argtypes import Number
 from softgrip_ros.client import add_namespace_argument
 
 PHASES = ("IDLE", "OPENING", "ENVELOPED", "CLAMPING", "HOLDING", "RELEASING", "FAULT")
+OBJECT_STATUSES = ("unknown", "moving, no contact", "contact opening", "contact closing",
+                   "held", "no object", "lost")
 
 
 # the ranges of the options (softgrip_ros.argtypes): physical sanity, the grasp manager judges
@@ -71,9 +74,13 @@ def parser() -> argparse.ArgumentParser:
 
 def describe(state) -> str:
     phase = PHASES[state.phase] if state.phase < len(PHASES) else str(state.phase)
+    sensed = (OBJECT_STATUSES[state.object_status] if state.object_status < len(OBJECT_STATUSES)
+              else str(state.object_status))
+    if state.object_size_m == state.object_size_m and state.object_size_m > 0.0:  # not NaN
+        sensed += f" ({state.object_size_m * 1e3:.0f} mm)"
     return (f"{phase:9s} {state.estimated_gauge_pressure_pa / 1e3:6.1f} kPa  D2 "
             f"{state.tip_spacing_m * 1e3:5.1f} mm  force {state.clamp_force_n:5.2f} N  "
-            f"{state.message}")
+            f"object: {sensed}  {state.message}")
 
 
 def _overrides(args) -> dict:
@@ -91,8 +98,8 @@ def _follow(client, until, timeout_s: float) -> bool:
     deadline, last = time.monotonic() + timeout_s, None
     while time.monotonic() < deadline:
         state = client.feedback() or client.state()
-        if state is not None and (state.phase, state.message) != last:
-            last = (state.phase, state.message)
+        if state is not None and (state.phase, state.message, state.object_status) != last:
+            last = (state.phase, state.message, state.object_status)
             print(describe(state), flush=True)
         if until is not None and state is not None and until(state):
             return True
@@ -118,7 +125,8 @@ def run(args, client) -> int:
         while args.watch:
             time.sleep(0.05)
             state = client.state()
-            if (state.phase, state.message) != (last.phase, last.message):
+            if (state.phase, state.message, state.object_status) != (
+                    last.phase, last.message, last.object_status):
                 print(describe(state), flush=True)
                 last = state
         return 0

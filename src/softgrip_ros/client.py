@@ -255,6 +255,18 @@ class GripperClient:
         with self._lock:
             return self._state
 
+    def object_status(self):
+        """What the air says of the object now: (ObjectStatus, its size as the fingers felt it
+        in m, NaN when none); (UNKNOWN, NaN) before the first grasp_state."""
+        from softgrip_ros.estimation.grasp_sensing import ObjectStatus
+        state = self.state()
+        if state is None:
+            return ObjectStatus.UNKNOWN, math.nan
+        try:
+            return ObjectStatus(state.object_status), float(state.object_size_m)
+        except ValueError:
+            return ObjectStatus.UNKNOWN, math.nan
+
     def close(self) -> None:
         self._action.destroy()
         self.node.destroy_subscription(self._subscription)

@@ -12,9 +12,13 @@ through the bending model (D2) and the clamp force law (the force); nothing meas
 - **Closing** (below, or inside the rest opening, which needs vacuum): clamp with the pressure
   at which ``max_effort`` (N, per finger; 0 = the configured default) comes out of the clamp
   force law for an object ``position`` wide. Done at HOLDING. ``effort`` is the modelled clamp
-  force. ``reached_goal`` when the modelled D2 is within tolerance of ``position``, else
-  ``stalled``. The model assumes an object ``position`` wide, so while holding it reports D2 at
-  that size: with no encoder, fingers stopped early on a wider object cannot be told apart.
+  force. With object sensing (:mod:`softgrip_ros.control.object_sensing`) the goal waits for
+  the air's verdict on the closing: fingers stopped on an object are ``stalled``, at the size
+  they felt (``reached_goal`` when that is within tolerance of ``position``); fingers that
+  closed on nothing are not, at the modelled D2. When the air cannot tell (or without sensing)
+  the model decides: ``reached_goal`` when the modelled D2 is within tolerance of
+  ``position``, else ``stalled`` (the model assumes an object ``position`` wide, so while
+  holding it reports D2 at that size).
 - A goal that cannot be done is refused at once, with the reason: a NaN or negative position,
   one beyond the widest opening, a negative effort, or one the pressure limits cannot give.
 """
@@ -23,7 +27,9 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from softgrip_ros.control.grasp_fsm import GraspMode, GraspRequest, GraspStateMachine, Phase
+from softgrip_ros.control.grasp_fsm import (HOLDING_STATUSES, GraspMode, GraspRequest,
+                                            GraspStateMachine, Phase)
+from softgrip_ros.estimation.grasp_sensing import ObjectStatus
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,8 +96,16 @@ def gripper_progress(fsm: GraspStateMachine, goal: GripperGoal,
     elif s.phase == Phase.FAULT:
         outcome = "failed"
     elif s.phase == (Phase.HOLDING if goal.closing else Phase.ENVELOPED):
-        outcome = "succeeded"
+        outcome = "" if fsm.sensing_pending() else "succeeded"
     stalled = bool(outcome == "succeeded" and goal.closing and not reached)
+    if outcome == "succeeded" and goal.closing and fsm.sensing_enabled:
+        if s.object_status in HOLDING_STATUSES:
+            if math.isfinite(s.object_size_m):
+                position = s.object_size_m
+            stalled = True
+            reached = abs(position - goal.position_m) <= goal_tolerance_m
+        elif s.object_status == ObjectStatus.NO_OBJECT:
+            stalled = False
     return GripperProgress(outcome, position, s.clamp_force_n, stalled, reached, s.message)
 
 

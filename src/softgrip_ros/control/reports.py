@@ -6,6 +6,7 @@ import dataclasses
 import math
 
 from softgrip_ros.control.grasp_fsm import GraspState, Phase
+from softgrip_ros.estimation.grasp_sensing import ObjectStatus
 from softgrip_ros.control.pressure import (ERROR_FAULTS, ControlOutput, Fault, PressureMode,
                                            fault_names)
 from softgrip_ros.health import Health, Report
@@ -96,4 +97,17 @@ def grasp_report(state: GraspState) -> Report:
         health, state.message, {
             "phase": state.phase.name, "command_id": state.command_id,
             "model_fidelity": state.model_fidelity
+        })
+
+
+def sensing_report(state: GraspState) -> Report:
+    """The air's verdict on the object (the grasp-sensing diagnostics entry): OK, a warning when
+    the object was lost or the fingers closed on nothing; the evidence as its message."""
+    health = (Health.WARN if state.object_status in (ObjectStatus.LOST, ObjectStatus.NO_OBJECT)
+              else Health.OK)
+    return Report(
+        health, f"{state.object_status.name}: {state.object_evidence}", {
+            "object_status": state.object_status.name,
+            "object_size_mm": (f"{state.object_size_m * 1e3:.1f}"
+                               if math.isfinite(state.object_size_m) else "n/a"),
         })

@@ -71,7 +71,8 @@ def make_nodes(context=None, overrides: dict | None = None) -> list:
         grasp_manager = GraspManagerNode(in_process=True, context=context,
                                          parameter_overrides=overrides.get("grasp_manager", []))
         nodes.append(grasp_manager)
-        controller.sensor_listeners.append(estimator.on_sensor_samples)
+        controller.sensor_listeners += [estimator.on_sensor_samples,
+                                        grasp_manager.on_sensor_samples]
         controller.status_listeners += [estimator.on_status, grasp_manager.on_status]
         grasp_manager.scene_listeners.append(kinematics.on_scene)
         grasp_manager.command_listeners.append(controller.on_command)

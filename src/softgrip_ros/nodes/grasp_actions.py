@@ -13,7 +13,7 @@ from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
 from softgrip_interfaces.action import Grasp
-from softgrip_ros.control.grasp_fsm import GraspMode, GraspRequest, Phase
+from softgrip_ros.control.grasp_fsm import GraspMode, GraspRequest
 from softgrip_ros.control.gripper_command import (gripper_progress, present_progress,
                                                   start_gripper_goal)
 from softgrip_ros.nodes import messages
@@ -145,7 +145,7 @@ class GraspActions:
             if outcome == "superseded":
                 return self._grasp_result(
                     False, f"superseded by command {m.fsm.state.command_id!r}")
-            return self._grasp_result(m.fsm.state.phase == Phase.HOLDING, m.fsm.state.message)
+            return self._grasp_result(m.fsm.object_held(), m.fsm.state.message)
 
     def _grasp_result(self, held: bool, message: str) -> Grasp.Result:
         s = self.manager.fsm.state

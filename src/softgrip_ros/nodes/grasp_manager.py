@@ -2,7 +2,9 @@
 
 In: grasp_command (GraspCommand), the actions (softgrip's Grasp on ``grasp``, control_msgs'
 GripperCommand on ``gripper_action`` and ParallelGripperCommand on ``parallel_gripper_action``:
-see nodes.grasp_actions), pressure/estimate, controller/status.
+see nodes.grasp_actions), pressure/estimate, controller/status, and with ``object_sensing``
+pressure/sensor/<name> (the air's verdict on the object: softgrip_ros.control.object_sensing,
+its motions judged on a worker thread).
 Out: pressure/command (on every change, and refreshed every ``command_refresh_s`` so that the
 controller's command timeout never trips during a long hold), grasp_state (GripperState) on
 every change and at ``state_rate_hz``, /diagnostics. The state machine is
@@ -10,6 +12,7 @@ softgrip_ros.control.grasp_fsm; the clamp force law is softgrip_ros.model.force_
 """
 from __future__ import annotations
 
+import concurrent.futures
 import math
 import threading
 
@@ -24,15 +27,20 @@ from softgrip_interfaces.msg import (ControllerStatus, GraspCommand, GraspScene,
                                      PressureCommand)
 from softgrip_ros.control.grasp_fsm import (ControllerFeedback, GraspMode, GraspRequest,
                                             GraspStateMachine, Phase)
-from softgrip_ros.control.reports import grasp_report
+from softgrip_ros.control.object_sensing import ObjectSensingLink
+from softgrip_ros.control.reports import grasp_report, outputs_changed_at, sensing_report
+from softgrip_ros.estimation.grasp_sensing import (Detection, GraspSensing, ObjectStatus,
+                                                   contact_model_for)
+from softgrip_ros.model.pneumatics import PlantInputs, Valve
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.fidelity import FREE, SceneModel
 from softgrip_ros.nodes import messages
 from softgrip_ros.nodes.grasp_actions import GraspActions
-from softgrip_ros.nodes.common import NodeTimers, notify, publish, run_node
+from softgrip_ros.nodes.common import NodeTimers, notify, publish, run_node, stamp_seconds
 from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import GRASP_MANAGER_SPECS as SPECS
-from softgrip_ros.nodes.specs import clamp_force_law, grasp_config
+from softgrip_ros.nodes.specs import clamp_force_law, grasp_config, load_plant, sensing_sensors
+
 
 
 class GraspManagerNode(Node):
@@ -76,6 +84,11 @@ class GraspManagerNode(Node):
                 FluidPressure, "pressure/estimate",
                 lambda msg: self.on_estimate(None, messages.gauge_pa(msg), msg.variance), 10)
             self.create_subscription(ControllerStatus, "controller/status", self.on_status, 10)
+        self.sensing: ObjectSensingLink | None = None
+        self._sensing_inputs = None
+        self._worker = None
+        if v["object_sensing"]:
+            self._start_sensing(in_process)
         self.periodic = NodeTimers(self, in_process)
         self.periodic.every(1.0 / v["state_rate_hz"], self._on_timer)
         self.periodic.every(1.0, self._publish_diagnostics)
@@ -90,7 +103,63 @@ class GraspManagerNode(Node):
             self.submit(GraspRequest(GraspMode.STOP, command_id="shutdown"))
         with self._lock:
             self.closed = True
+        if self._worker is not None:
+            self._worker.shutdown(wait=False, cancel_futures=True)
         self.actions.destroy()
+
+    # ---- object sensing -------------------------------------------------------------------------
+    def _start_sensing(self, in_process: bool) -> None:
+        """The contact model is built on the worker (MuJoCo compiles the fingers' chain: about a
+        second); the sensing joins the state machine once it is ready."""
+        v = self.values
+        plant = load_plant(v)
+        sensors = sensing_sensors(v, plant)
+        self._worker = concurrent.futures.ThreadPoolExecutor(
+            1, thread_name_prefix="grasp_sensing")
+        build = self._worker.submit(contact_model_for, v["gripper_model"], v["fidelity"],
+                                    plant.parameters)
+        build.add_done_callback(lambda done: self._sensing_ready(done, sensors))
+        if not in_process:
+            for name in sensors:
+                self.create_subscription(
+                    FluidPressure, f"pressure/sensor/{name}",
+                    lambda msg, name=name: self.on_sensor_samples(
+                        [(name, messages.gauge_pa(msg), stamp_seconds(msg.header.stamp))]), 100)
+
+    def _sensing_ready(self, build, sensors: dict) -> None:
+        try:
+            model = build.result()
+        except Exception as error:  # noqa: BLE001 (reported, and the grasp goes on without)
+            if not build.cancelled():
+                self.get_logger().error(f"object sensing off: {error}")
+            return
+        with self._lock:
+            if not self.closed:
+                self.sensing = ObjectSensingLink(self.fsm, GraspSensing(model, sensors),
+                                                 self._judge)
+
+    def _judge(self, work, done) -> None:
+        """ObjectSensingLink's runner: ``work`` on the worker, ``done`` back under the lock."""
+        def finish(future):
+            with self._lock:
+                if self.closed or future.cancelled():
+                    return
+                error = future.exception()
+                now = self._now()
+                done(future.result() if error is None else Detection(
+                    ObjectStatus.UNKNOWN, 0.0, f"the motion could not be judged: {error}", now))
+                self._after_change(now)
+        try:
+            self._worker.submit(work).add_done_callback(finish)
+        except RuntimeError:  # shut down
+            pass
+
+    def on_sensor_samples(self, samples: list) -> None:
+        """Readings [(sensor name, gauge Pa, stamp s)] for the object sensing."""
+        with self._lock:
+            if self.sensing is not None and not self.closed:
+                for name, gauge_pa, stamp_s in samples:
+                    self.sensing.reading(name, stamp_s, gauge_pa)
 
     # ---- inputs ---------------------------------------------------------------------------------
     def _now(self) -> float:
@@ -103,7 +172,9 @@ class GraspManagerNode(Node):
         """Apply a command from the topic or the action; '' or the rejection reason."""
         with self._lock:
             now = self._now()
-            reason = self.fsm.command(request, now, self._controller_fault(now))
+            fault = self._controller_fault(now)
+            reason = self.fsm.command(request, now, fault)
+            self._sense(now, fault)
             self._after_change(now)
         if reason:
             self.get_logger().warn(f"grasp command {request.command_id!r} rejected: {reason}")
@@ -125,6 +196,21 @@ class GraspManagerNode(Node):
             if not self.closed:
                 self.feedback.on_status(msg.fault_flags, msg.measured_gauge_pressure_pa,
                                         self._now(), msg.message)
+                if self.sensing is not None and msg.valve_states:
+                    self._take_inputs(msg)
+
+    def _take_inputs(self, msg: ControllerStatus) -> None:
+        key = (msg.regulator_command_gauge_pressure_pa, msg.regulator_enabled,
+               msg.valve_states[0])
+        if key == self._sensing_inputs or not math.isfinite(key[0]):
+            return
+        try:
+            valve = Valve(msg.valve_states[0])
+        except ValueError:
+            return
+        self._sensing_inputs = key
+        stamp = outputs_changed_at(stamp_seconds(msg.header.stamp), msg.output_change_age_s)
+        self.sensing.inputs(stamp, PlantInputs(key[0], bool(key[1]), (valve,)))
 
     def _on_timer(self) -> None:
         with self._lock:
@@ -137,7 +223,12 @@ class GraspManagerNode(Node):
         self.fsm.update(now, gauge, std, fault, controller_blind=bool(fault) and
                         self.feedback.blind(now),
                         controller_safe_state=self.feedback.safe_state(now))
+        self._sense(now, fault)
         self._after_change(now, force_state)
+
+    def _sense(self, now: float, fault: str) -> None:
+        if self.sensing is not None:
+            self.sensing.after(now, self.feedback.pressure(now)[0], fault)
 
     def _after_change(self, now: float, force_state: bool = False) -> None:
         request, (sent, sent_at) = self.fsm.request, self.sent
@@ -179,11 +270,13 @@ class GraspManagerNode(Node):
 
     def _publish_diagnostics(self) -> None:
         with self._lock:
-            report = grasp_report(self.fsm.state)
-        publish(
-            self, self.diagnostics_pub,
-            messages.diagnostics(report, "softgrip: grasp manager", "gripper",
-                                 self.get_clock().now().to_msg()))
+            report, sensed = grasp_report(self.fsm.state), sensing_report(self.fsm.state)
+        stamp = self.get_clock().now().to_msg()
+        array = messages.diagnostics(report, "softgrip: grasp manager", "gripper", stamp)
+        if self.sensing is not None:
+            array.status += messages.diagnostics(sensed, "softgrip: grasp sensing", "gripper",
+                                                 stamp).status
+        publish(self, self.diagnostics_pub, array)
 
 
 def main(args=None) -> int:

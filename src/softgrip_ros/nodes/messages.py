@@ -113,7 +113,8 @@ def gripper_state(state: GraspState, header: Header) -> GripperState:
                         included_angle_rad=s.included_angle_rad, tip_spacing_m=s.tip_spacing_m,
                         root_spacing_m=s.root_spacing_m, clamp_force_n=s.clamp_force_n,
                         model_fidelity=s.model_fidelity,
-                        pressure_in_validated_range=s.in_validated_range, message=s.message)
+                        pressure_in_validated_range=s.in_validated_range, message=s.message,
+                        object_status=int(s.object_status), object_size_m=s.object_size_m)
 
 
 def scene_message(scene: Scene) -> GraspScene:

@@ -4,8 +4,9 @@ each core's configuration: a spec with a ``field`` sets that field of the core's
 from __future__ import annotations
 
 import dataclasses
+import math
 
-from softgrip_ros.control.grasp_fsm import GraspConfig
+from softgrip_ros.control.grasp_fsm import HOLD_AIR, ON_OBJECT_LOST, GraspConfig
 from softgrip_ros.config_paths import config_file
 from softgrip_ros.control.pressure import PressureControlConfig
 from softgrip_ros.estimation.estimator import EstimatorConfig, SensorConfig
@@ -336,6 +337,14 @@ GRASP_FSM_SPECS = [
               "more than this ...", "Pa", 500.0, 50e3, field="hold_error_limit_pa"),
     ParamSpec("hold_error_time", _G.hold_error_time_s, "... for this long: FAULT", "s", 0.01, 10.0,
               field="hold_error_time_s"),
+    ParamSpec("hold_air", _G.hold_air, "HOLDING once settled: trap (valves closed, topped up "
+              "past pressure_tolerance_pa; a lost object shows in the pressure) or regulate "
+              "(the regulated line open; a loss is not sensed)", choices=HOLD_AIR,
+              field="hold_air"),
+    ParamSpec("on_object_lost", _G.on_object_lost, "a loss sensed in HOLDING: hold (report "
+              "it), release, or fault (vent)", choices=ON_OBJECT_LOST, field="on_object_lost"),
+    ParamSpec("sensing_wait", _G.sensing_wait_s, "a HOLDING goal waits this long for the "
+              "closing's sensed verdict", "s", 0.0, 10.0, field="sensing_wait_s"),
 ]
 CLAMP_FORCE_SPECS = [  # the clamp force law itself is the gripper model's table
     ParamSpec("friction_coefficient", _F["friction_coefficient"], "friction when a command gives "
@@ -374,9 +383,34 @@ GRASP_MANAGER_SPECS = [
               "max_effort is 0", "N", 0.01, 20.0),
     ParamSpec("prefix", "", "put before the tip_spacing joint name of ParallelGripperCommand, "
               "as the URDF's prefix", allow_empty=True),
+    ParamSpec("object_sensing", False, "judge the object from the air (object_status; "
+              "docs/grasp_sensing.md; with hold_air trap for losses); false: object_held means "
+              "the phase reached HOLDING"),
+    ParamSpec("sensors.names", ["chamber_a", "chamber_b"], "sensors the object sensing reads: "
+              "topics pressure/sensor/<name>, their noise from the plant file"),
+    ParamSpec("sensors.rates_hz", [500.0, 200.0], "each sensor's reading rate, as the device "
+              "sends (what a loss's step must clear)", "Hz"),
+    plant_file_spec("the air's flows the object sensing simulates, and each sensor's noise"),
     *GRASP_FSM_SPECS,
     *CLAMP_FORCE_SPECS,
 ]
+
+
+def sensing_sensors(values: dict, plant: plant_file.PlantDescription) -> dict:
+    """{name: SensorNoise} of the sensors the object sensing reads (``sensors.names``,
+    ``sensors.rates_hz``, the plant file's noise); ValueError names a bad one."""
+    from softgrip_ros.estimation.grasp_sensing import SensorNoise
+
+    names, rates = values["sensors.names"], values["sensors.rates_hz"]
+    if not names or len(names) != len(rates):
+        raise ValueError(f"sensors.names and sensors.rates_hz need one entry per sensor; got "
+                         f"{len(names)} and {len(rates)}")
+    for name, rate in zip(names, rates):
+        if not (math.isfinite(rate) and 0.0 < rate <= 10e3):
+            raise ValueError(f"sensors.rates_hz: {name} at {rate} Hz; each must lie in "
+                             "(0, 10000] Hz")
+    return {name: SensorNoise(max(plant.sensor(name).noise_std_pa, 1.0), float(rate))
+            for name, rate in zip(names, rates)}
 
 
 def grasp_config(values: dict) -> GraspConfig:
