@@ -19,15 +19,16 @@ simulated time, in the suite), ``free_bending_max_err_mm``, ``planners``,
 --quick: two grasps (the demo's 20 mm rubber cylinder, an overweight cylinder), no margins, no
 planners. Writes its section of docs/benchmarks.md and its charts unless --json or --quick.
 
-**Grasp sensing** (offline, the world with the pressure controller and the plant, no ROS;
-``--sensing-only`` runs just this part): each object of the grid (and nothing, opened as for
-5, 20 and 40 mm objects, and a pinch on nothing) closed on at -30 kPa with seeded sensor noise,
-the closing's verdict against the world. Keys: ``detection_accuracy`` (object against no object
-correct, UNKNOWN counted wrong), ``sensing_confusion`` (truth -> verdict -> count),
-``sensing_unknown`` and ``sensing_wrong`` (verdicts the air could not give, and given
-wrong), ``size_err_mm_p95`` (objects of 20 mm and more), ``sensing_fit_cpu_s`` (median per fit);
-``loss_detected_rate``, ``loss_latency_ms_p95``, ``false_lost`` and ``faults_read_as_lost`` are
-null: no loss detector yet.
+**Grasp sensing** (offline, softgrip_ros.devtools.sensing_bench: the grasp state machine with
+its sensing, the controller and the estimator around the plant and the world, no ROS;
+``--sensing-only`` runs just this part): the closing's verdict on every object of the grid and
+on nothing; objects pulled out, too heavy for their clamp, shaken out; 50 fault-free holds of
+10 s; every single fault during a hold. Keys: ``detection_accuracy`` (object against no object
+correct, UNKNOWN counted wrong), ``sensing_unknown``, ``sensing_wrong``,
+``sensing_confusion``, ``size_err_mm_p95`` (objects of 20 mm and more),
+``loss_detected_rate``, ``loss_detected_within_200ms_rate``, ``loss_latency_ms_p95`` (from
+the object moving 5 mm to LOST), ``false_lost`` (fault-free holds), ``faults_read_as_lost``,
+``small_bias_read_as_lost``.
 Reproduce: source scripts/env.sh; python scripts/bench_grasp.py
 """
 import os
@@ -249,18 +250,55 @@ def write_docs(figures, seconds) -> None:
                    markdown(figures, "python scripts/bench_grasp.py", seconds))
 
 
-SENSING_SEEDS = 5
+SENSING_SEEDS = 3
+LONG_HOLDS = 50
+LONG_HOLD_S = 10.0
+SENSING_FAULTS = ("bias_plus_20kPa", "bias_minus_20kPa", "chamber_a_stuck_present",
+                  "chamber_b_stuck_present", "chamber_a_stuck_high", "chamber_b_stuck_low",
+                  "dropout_chamber_a", "noise_x10", "valve_stuck_open", "regulator_overshoot")
 
 
-def sensing_cases(quick: bool) -> list:
-    """(case or None, opened_for) of the sensing run."""
-    objects = [gb.GraspCase(shape, size, 0.02, 0.8) for shape in ("cylinder", "sphere")
-               for size in gb.FULL_SIZES_M[:5]]
-    objects += [gb.GraspCase("box", 0.03, 0.02, 0.8), gb.GraspCase("sheet", 1e-4, 0.005, 0.8)]
-    empty = [(None, gb.GraspCase("cylinder", size, 0.02, 0.8)) for size in (0.005, 0.02, 0.04)]
+def sensing_trials(quick: bool) -> dict:
+    """The sensing run's trials by kind: "closing" (object or nothing), "drop" (the object
+    made to leave), "long_hold" (10 s fault-free), "fault" (a single fault during a hold),
+    "small_bias" (a common-mode bias the size of a loss's step)."""
+    from softgrip_ros.devtools.sensing_bench import Trial
+
+    case = gb.GraspCase
+    c20, c40 = case("cylinder", 0.02, 0.02, 0.8), case("cylinder", 0.04, 0.02, 0.5)
     if quick:
-        return [(gb.GraspCase("cylinder", 0.02, 0.02, 0.8), None), empty[1]]
-    return [(case, None) for case in objects] + empty + [(None, None)]
+        return {"closing": [Trial(c20), Trial(None, opened_for=c20)],
+                "drop": [Trial(c40, moves=("lift", "shake", "hold"), hold_s=5.0)],
+                "long_hold": [], "fault": [Trial(c20, fault="bias_plus_20kPa", hold_s=1.5)],
+                "small_bias": []}
+    objects = [case(shape, size, 0.02, 0.8) for shape in ("cylinder", "sphere")
+               for size in gb.FULL_SIZES_M[:5]]
+    objects += [case("box", 0.03, 0.02, 0.8), case("sheet", 1e-4, 0.005, 0.8)]
+    closing = [Trial(c, seed=seed) for c in objects for seed in range(SENSING_SEEDS)]
+    closing += [Trial(None, opened_for=case("cylinder", size, 0.02, 0.8), seed=seed)
+                for size in (0.005, 0.02, 0.04, 0.06) for seed in range(SENSING_SEEDS)]
+    closing += [Trial(None, seed=seed) for seed in range(SENSING_SEEDS)]
+    drop = []
+    for seed in range(SENSING_SEEDS):
+        for held in (c20, c40, case("box", 0.03, 0.02, 0.8)):
+            drop.append(Trial(held, pull_n_per_s=5.0, pull_max_n=10.0, hold_s=5.0, seed=seed,
+                              label=f"{held.object_class} pulled out"))
+        for held in (case("cylinder", 0.02, 0.2, 0.8), case("cylinder", 0.04, 0.2, 0.8)):
+            drop.append(Trial(held, clamp_pa=-5e3, moves=("lift", "hold"), hold_s=4.0,
+                              seed=seed, label=f"{held.object_class} 200 g on a -5 kPa clamp"))
+        for held in (c40, case("sphere", 0.04, 0.02, 0.5)):
+            drop.append(Trial(held, moves=("lift", "shake", "hold"), hold_s=5.0, seed=seed,
+                              label=f"{held.object_class} shaken"))
+    held = [c20, c40, case("sphere", 0.04, 0.02, 0.8), case("box", 0.03, 0.02, 0.8),
+            case("cylinder", 0.01, 0.02, 0.8)]
+    long_hold = [Trial(held[k % len(held)], moves=("lift",), hold_s=LONG_HOLD_S, seed=100 + k)
+                 for k in range(LONG_HOLDS)]
+    fault = [Trial(h, fault=name, hold_s=2.0, label=f"{h.object_class}, {name}")
+             for name in SENSING_FAULTS for h in (c20, c40)]
+    small_bias = [Trial(h, fault="bias_plus_1kPa", hold_s=2.0,
+                        label=f"{h.object_class}, +1 kPa on both sensors") for h in (c20, c40)]
+    return {"closing": closing, "drop": drop, "long_hold": long_hold, "fault": fault,
+            "small_bias": small_bias}
 
 
 def run_sensing(quick: bool) -> dict:
@@ -270,35 +308,57 @@ def run_sensing(quick: bool) -> dict:
 
     model = contact_model_for()
     placement = gb.Placement()
-    trials = []
-    plan = [(case, opened, seed) for case, opened in sensing_cases(quick)
-            for seed in range(1 if quick else SENSING_SEEDS)]
-    for done, (case, opened, seed) in enumerate(plan, 1):
-        trial = sb.closing_trial(model, case, seed=seed, opened_for=opened, placement=placement)
-        trials.append(trial)
-        progress(done, len(plan), f"sensing: {trial.label}: {trial.detection.status.name}")
+    kinds = sensing_trials(quick)
+    plan = [(kind, trial) for kind, trials in kinds.items() for trial in trials]
+    results = {kind: [] for kind in kinds}
+    for done, (kind, trial) in enumerate(plan, 1):
+        result = sb.run_trial(model, trial, placement)
+        results[kind].append(result)
+        progress(done, len(plan), f"sensing {kind}: {trial.name}: "
+                 f"{result.closing_status.name} -> {result.final_status.name}")
+    closing = results["closing"]
     confusion = {}
-    for trial in trials:
-        truth = "object" if trial.object_present else "nothing"
-        row = confusion.setdefault(f"{truth}: {trial.label}", {})
-        row[trial.detection.status.name] = row.get(trial.detection.status.name, 0) + 1
-    size_errors = [abs(t.detection.object_size_m - t.true_size_m) * 1e3 for t in trials
-                   if t.object_present and t.true_size_m >= 0.02 and
-                   math.isfinite(t.detection.object_size_m)]
-    size_bias = [(t.detection.object_size_m - t.true_size_m) * 1e3 for t in trials
-                 if t.object_present and math.isfinite(t.detection.object_size_m)]
-    decided = [t for t in trials if t.detection.status != ObjectStatus.UNKNOWN]
+    for r in closing:
+        truth = "object" if r.object_present else "nothing"
+        row = confusion.setdefault(f"{truth}: {r.trial.name}", {})
+        row[r.closing_status.name] = row.get(r.closing_status.name, 0) + 1
+    decided = [r for r in closing if r.closing_status != ObjectStatus.UNKNOWN]
+    sized = [r for r in closing if r.object_present and math.isfinite(r.closing_size_m)]
+    size_errors = [abs(r.closing_size_m - r.true_size_m) * 1e3 for r in sized
+                   if r.true_size_m >= 0.02]
+    dropped = [r for r in results["drop"] if math.isfinite(r.loss_time_s)]
+    latencies = [(r.lost_report_s - r.loss_time_s) * 1e3 for r in dropped
+                 if math.isfinite(r.lost_report_s)]
+    in_time = [x for x in latencies if x <= 200.0]
+    holds = results["long_hold"] + results["fault"]
     return {
-        "detection_accuracy": sum(sb.correct(t) for t in trials) / len(trials),
-        "sensing_trials": len(trials),
-        "sensing_unknown": len(trials) - len(decided),
-        "sensing_wrong": sum(not sb.correct(t) for t in decided),
+        "detection_accuracy": sum(r.closing_correct for r in closing) / len(closing),
+        "sensing_trials": len(closing),
+        "sensing_unknown": len(closing) - len(decided),
+        "sensing_wrong": sum(not r.closing_correct for r in decided),
         "sensing_confusion": confusion,
-        "size_err_mm_p95": (float(_percentile(size_errors, 95)) if size_errors else math.nan),
-        "size_bias_mm_median": (statistics.median(size_bias) if size_bias else math.nan),
-        "sensing_fit_cpu_s": statistics.median(t.fit_cpu_s for t in trials),
-        "loss_detected_rate": None, "loss_latency_ms_p95": None, "false_lost": None,
-        "faults_read_as_lost": None,
+        "size_err_mm_p95": float(_percentile(size_errors, 95)) if size_errors else math.nan,
+        "size_bias_mm_median": (statistics.median((r.closing_size_m - r.true_size_m) * 1e3
+                                                  for r in sized) if sized else math.nan),
+        "sensing_fit_cpu_s": statistics.median(r.judge_cpu_s for r in closing),
+        "drops": len(dropped),
+        "drop_trials_without_drop": len(results["drop"]) - len(dropped),
+        "loss_detected_rate": len(latencies) / len(dropped) if dropped else math.nan,
+        "loss_detected_within_200ms_rate": len(in_time) / len(dropped) if dropped else math.nan,
+        "loss_latency_ms_p95": float(_percentile(latencies, 95)) if latencies else math.nan,
+        "loss_latency_ms_median": statistics.median(latencies) if latencies else math.nan,
+        "drop_rows": [{"trial": r.trial.name, "loss_s": r.loss_time_s,
+                       "lost_reported_s": r.lost_report_s} for r in results["drop"]],
+        "false_lost": sum(r.false_lost for r in results["long_hold"]),
+        "long_holds": len(results["long_hold"]),
+        "long_holds_judged_held": sum(r.closing_status == ObjectStatus.HELD
+                                      for r in results["long_hold"]),
+        "faults_read_as_lost": sum(r.false_lost for r in results["fault"]),
+        "fault_rows": [{"trial": r.trial.name, "final": r.final_status.name,
+                        "message": r.message} for r in results["fault"]],
+        "small_bias_read_as_lost": sum(r.false_lost for r in results["small_bias"]),
+        "small_bias_trials": len(results["small_bias"]),
+        "holds_without_a_loss_sensed": sum(1 for r in holds if "not sensed" in r.evidence),
     }
 
 
@@ -307,35 +367,63 @@ def _percentile(values, q: float) -> float:
     return float(np.percentile(np.asarray(values, dtype=float), q))
 
 
+def _figure(value, fmt: str) -> str:
+    return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) else \
+        format(value, fmt)
+
+
 def sensing_markdown(figures: dict, command: str, seconds: float) -> str:
+    f = figures
     lines = [
         "## Grasp sensing in the physics world (bench_grasp, sensing)",
         "",
-        f"`{command}` ({seconds:.0f} s; {machine_line()}). Offline: the pressure controller, the "
-        "plant and the world, no ROS; each object closed on at -30 kPa from the grasp's opening "
-        f"(a pinch from 0 Pa), {SENSING_SEEDS} noise seeds each, the closing's verdict "
-        "(`estimation/grasp_sensing.py`) against the world's. See "
+        f"`{command}` ({seconds:.0f} s; {machine_line()}). Offline: the grasp state machine, its "
+        "sensing, the pressure controller and the estimator closed around the plant and the "
+        "world, no ROS; each grasp planned by the force law (20 g, as commanded), judged against "
+        f"the world's truth, {SENSING_SEEDS} noise seeds per case. See "
         "[grasp sensing](grasp_sensing.md).",
         "",
         "| figure | result | target |",
         "|---|---|---|",
         f"| object against no object correct (UNKNOWN counted wrong) | "
-        f"{figures['detection_accuracy']:.3f} of {figures['sensing_trials']} | 0.98 |",
-        f"| verdicts UNKNOWN / wrong | {figures['sensing_unknown']} / "
-        f"{figures['sensing_wrong']} | |",
-        f"| size error p95, objects of 20 mm and more | {figures['size_err_mm_p95']:.1f} mm | "
-        "5 mm |",
-        f"| size bias, median (felt minus true) | {figures['size_bias_mm_median']:+.1f} mm | |",
-        f"| CPU per closing's fit, median | {figures['sensing_fit_cpu_s']:.2f} s | |",
-        "| loss detection, false LOST, faults read as LOST | not measured: no loss detector yet | "
-        ">= 0.95 within 200 ms; 0; 0 |",
+        f"{f['detection_accuracy']:.3f} of {f['sensing_trials']} | 0.98 |",
+        f"| closings UNKNOWN / wrong | {f['sensing_unknown']} / {f['sensing_wrong']} | |",
+        f"| size error p95, objects of 20 mm and more | {_figure(f['size_err_mm_p95'], '.1f')} mm"
+        " | 5 mm |",
+        f"| size bias, median (felt minus true) | {_figure(f['size_bias_mm_median'], '+.1f')} mm"
+        " | |",
+        f"| losses detected | {_figure(f['loss_detected_rate'], '.2f')} of {f['drops']} drops "
+        f"({f['drop_trials_without_drop']} trials kept the object) | 0.95 |",
+        f"| ... within 200 ms of the object moving 5 mm | "
+        f"{_figure(f['loss_detected_within_200ms_rate'], '.2f')}; latency median "
+        f"{_figure(f['loss_latency_ms_median'], '.0f')} ms, p95 "
+        f"{_figure(f['loss_latency_ms_p95'], '.0f')} ms | 0.95 within 200 ms |",
+        f"| false LOST over {f['long_holds']} fault-free holds of {LONG_HOLD_S:g} s | "
+        f"{f['false_lost']} ({f['long_holds_judged_held']} judged HELD) | 0 |",
+        f"| single faults during a hold read as LOST | {f['faults_read_as_lost']} of "
+        f"{len(f['fault_rows'])} | 0 |",
+        f"| a +1 kPa bias on both sensors read as LOST | {f['small_bias_read_as_lost']} of "
+        f"{f['small_bias_trials']} | (the air cannot tell) |",
+        f"| CPU per motion's judgement, median | {f['sensing_fit_cpu_s']:.2f} s | |",
         "",
-        "| truth: case | verdicts |",
+        "| truth: case | closing verdicts |",
         "|---|---|",
     ]
-    for case, row in figures["sensing_confusion"].items():
+    for case, row in f["sensing_confusion"].items():
         verdicts = ", ".join(f"{name} {count}" for name, count in sorted(row.items()))
         lines.append(f"| {case} | {verdicts} |")
+    lines += ["", "| drop | left the hand | LOST reported | latency, each (ms) |",
+              "|---|---|---|---|"]
+    kinds = {}
+    for row in f["drop_rows"]:
+        kinds.setdefault(row["trial"], []).append(row)
+    for trial, rows in kinds.items():
+        left = [r for r in rows if r["loss_s"] is not None and math.isfinite(r["loss_s"])]
+        found = [r for r in left if r["lost_reported_s"] is not None and
+                 math.isfinite(r["lost_reported_s"])]
+        latencies = ", ".join(f"{(r['lost_reported_s'] - r['loss_s']) * 1e3:.0f}" for r in found)
+        lines.append(f"| {trial} | {len(left)} of {len(rows)} | {len(found)} | "
+                     f"{latencies or '-'} |")
     return "\n".join(lines)
 
 
@@ -349,10 +437,20 @@ def main() -> int:
                         help="only the offline grasp-sensing run (no suite)")
     args = parser.parse_args()
     if args.sensing_only:
+        command = "python scripts/bench_grasp.py --sensing-only"
+        if args.from_json:
+            import json
+            try:
+                figures = json.loads(pathlib.Path(args.from_json).read_text())
+                update_section("grasp-sensing", sensing_markdown(figures, command,
+                                                                 figures["seconds"]))
+            except (OSError, ValueError, KeyError) as error:
+                print(f"bench_grasp: {args.from_json}: {error}", file=sys.stderr)
+                return 2
+            return 0
         started = time.monotonic()
         figures = run_sensing(args.quick)
-        seconds = time.monotonic() - started
-        command = "python scripts/bench_grasp.py --sensing-only"
+        seconds = figures["seconds"] = time.monotonic() - started
         if args.json:
             print(strict_json(figures))
         else:
