@@ -268,8 +268,8 @@ def sensing_trials(quick: bool) -> dict:
     c20, c40 = case("cylinder", 0.02, 0.02, 0.8), case("cylinder", 0.04, 0.02, 0.5)
     if quick:
         return {"closing": [Trial(c20), Trial(None, opened_for=c20)],
-                "drop": [Trial(c40, moves=("lift", "shake", "hold"), hold_s=5.0)],
-                "long_hold": [], "fault": [Trial(c20, fault="bias_plus_20kPa", hold_s=1.5)],
+                "drop": [Trial(c40, moves=("lift", "shake", "hold"), hold_s=2.0)],
+                "long_hold": [], "fault": [Trial(c20, fault="bias_plus_20kPa", hold_s=1.0)],
                 "small_bias": []}
     objects = [case(shape, size, 0.02, 0.8) for shape in ("cylinder", "sphere")
                for size in gb.FULL_SIZES_M[:5]]

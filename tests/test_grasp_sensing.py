@@ -171,20 +171,13 @@ def test_the_loss_config_refuses_nonsense():
 
 
 @pytest.mark.slow
-def test_in_the_world_a_shaken_out_cylinder_is_lost_and_a_quiet_hold_is_held(model):
-    """The product's state machine and sensing around the world (never read by them): a 40 mm
-    cylinder shaken out of its planned (light) clamp reads LOST within 200 ms of leaving; a 20 mm
-    one clamped at -30 kPa (a closing deep enough to judge) and held still reads HELD
-    throughout, with no LOST."""
+def test_in_the_world_a_quiet_hold_is_held_with_its_air_trapped(model):
+    """The product's state machine and sensing around the world (never read by them): a 20 mm
+    cylinder clamped at -30 kPa (a closing deep enough to judge) and held still reads HELD
+    throughout, with no LOST. (A loss is judged by bench_grasp's quick test.)"""
     from softgrip_ros.devtools import sensing_bench as sb
     from softgrip_ros.devtools.grasp_bench import GraspCase
-    shaken = sb.run_trial(model, sb.Trial(GraspCase("cylinder", 0.04, 0.02, 0.5),
-                                          moves=("lift", "shake", "hold"), hold_s=5.0))
-    assert shaken.closing_status == gs.ObjectStatus.HELD
-    assert math.isfinite(shaken.loss_time_s), "the world kept the object"
-    assert shaken.final_status == gs.ObjectStatus.LOST
-    assert 0.0 <= shaken.lost_report_s - shaken.loss_time_s < 0.2
     held = sb.run_trial(model, sb.Trial(GraspCase("cylinder", 0.02, 0.02, 0.8), moves=("lift",),
-                                        clamp_pa=-30e3, hold_s=3.0, seed=1))
+                                        clamp_pa=-30e3, hold_s=1.5, seed=1))
     assert held.final_status == gs.ObjectStatus.HELD and held.false_lost == 0
     assert math.isnan(held.loss_time_s)

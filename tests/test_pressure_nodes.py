@@ -73,9 +73,12 @@ def test_commands_over_dds_move_the_gripper_and_topics_report_it(nodes):
     wait_for(commanded_and_reached, timeout=10.0, period=0.5, message="20 kPa", detail=last_status)
     time.sleep(0.3)
     assert abs(device.device.chamber_gauge_pa() - 20e3) < 500.0
-    status = statuses[-1]
-    assert (status.mode == ControllerStatus.MODE_REGULATE and
-            status.setpoint_gauge_pressure_pa == 20e3)
+    # a loaded host may hold the loop up past the valves' lifetime: that lapse is reported as a
+    # status of its own (the valves the device held, mode HOLD), and the next one regulates again
+    status = wait_for(lambda: next((s for s in reversed(statuses[-5:])
+                                    if s.mode == ControllerStatus.MODE_REGULATE), None),
+                      timeout=2.0, message="a regulating status", detail=last_status)
+    assert status.setpoint_gauge_pressure_pa == 20e3
     assert (status.frames_rx > 100 and status.frames_bad == 0 and
             status.last_sensor_frame_age_s < 0.05)
 
