@@ -443,3 +443,24 @@ def test_a_volume_offset_keeps_the_air_and_moves_the_pressure(gauge_pa, offset_m
     # a step with the offset conserves the air through a closed valve
     held = plant.step(moved, PlantInputs(valves=(Valve.CLOSED,)), 1e-3)
     assert held.chamber_pa[0] == moved.chamber_pa[0]
+
+
+def test_the_array_orifice_slope_is_the_scalar_plants_and_the_flows_derivative():
+    """orifice_flow_and_slope (the grasp sensing's vectorised step) against the plant's scalar
+    flow_and_slopes (R T m_dot) and a central difference, choked, subsonic, in and out."""
+    from softgrip_ros.model.pneumatics import orifice_flow_and_slope
+    plant = PneumaticPlant()
+    par = plant.parameters
+    c, b, t = par.supply_conductance, par.supply_critical_ratio, par.temperature_k
+    chambers = np.array([40e3, 90e3, 120e3, 160e3, 240e3])
+    source = 150e3
+    flow, slope = orifice_flow_and_slope(source, chambers, c, b, t)
+    rt = par.gas_constant_times_temperature
+    for chamber, f, d in zip(chambers, flow, slope):
+        scalar = plant.flow_and_slopes(float(chamber), source, c, b)
+        assert rt * f == pytest.approx(scalar[0], rel=1e-12)
+        assert rt * d == pytest.approx(scalar[1], rel=1e-9)
+        h = 1.0
+        numeric = (orifice_mass_flow(source, chamber + h, c, b, t) -
+                   orifice_mass_flow(source, chamber - h, c, b, t)) / (2 * h)
+        assert d == pytest.approx(numeric, rel=1e-4, abs=1e-15)

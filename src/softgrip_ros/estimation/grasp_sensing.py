@@ -42,8 +42,9 @@ import numpy as np
 
 from softgrip_ros.checks import require_positive
 from softgrip_ros.model.geometry import CHAMBER_COUNT
-from softgrip_ros.model.pneumatics import (P_ATM_PA, RHO0_KG_PER_M3, T0_K, PlantInputs,
-                                           PneumaticParameters, PneumaticPlant, Valve)
+from softgrip_ros.model.pneumatics import (P_ATM_PA, PlantInputs, PlantState,
+                                           PneumaticParameters, PneumaticPlant, Valve,
+                                           orifice_flow_and_slope)
 
 # the fit's simulation step (s): its linearly implicit Euler is within 30 Pa of the plant's truth
 # integrator over a clamp (tests/test_grasp_sensing.py)
@@ -256,20 +257,6 @@ class ContactFit:
         return float(np.interp(contact_pa, self.grid_pa, self.costs))
 
 
-def _flow(gain: float, source_pa: float, chamber_pa: np.ndarray, critical_ratio: float):
-    """R T m_dot into the chambers (J/s) and its slope by the chamber pressure, vectorised."""
-    inflow = source_pa >= chamber_pa
-    upstream = np.where(inflow, source_pa, chamber_pa)
-    downstream = np.where(inflow, chamber_pa, source_pa)
-    ratio = downstream / upstream
-    s = np.clip((ratio - critical_ratio) / (1.0 - critical_ratio), 0.0, 1.0)
-    phi = np.sqrt(np.maximum(1.0 - s * s, 1e-12))
-    dphi = np.where(ratio > critical_ratio, -s / (phi * (1.0 - critical_ratio)), 0.0)
-    flow = np.where(inflow, gain * upstream * phi, -gain * upstream * phi)
-    slope = np.where(inflow, gain * dphi, -gain * (phi - ratio * dphi))
-    return flow, slope
-
-
 def simulate_hypotheses(record: AirRecord, model: ContactModel, contacts_pa: np.ndarray,
                         until_s: float, step_s: float = FIT_STEP_S,
                         block_steps=None) -> tuple:
@@ -320,22 +307,11 @@ def _simulate(record: AirRecord, model: ContactModel, contacts: np.ndarray, step
     never)."""
     plant = PneumaticPlant(model.plant)
     par = model.plant
-    gain = (RHO0_KG_PER_M3 * math.sqrt(T0_K / par.temperature_k) *
-            par.gas_constant_times_temperature)
-    omega = model.finger_mode_rad_s
-    follow = 1.0 - math.exp(-0.5 * omega * step_s)
+    rt = par.gas_constant_times_temperature
+    follow = 1.0 - math.exp(-0.5 * model.finger_mode_rad_s * step_s)
     p = np.full(contacts.shape, P_ATM_PA + record.start_gauge_pa)
     offset = np.zeros(contacts.shape)
-
-    def volume(p_abs):
-        gauge = p_abs - P_ATM_PA
-        compliance = np.where(gauge >= 0.0, par.chamber_compliance_m3_per_pa,
-                              par.vacuum_compliance_m3_per_pa)
-        v = par.chamber_volume_m3 + compliance * gauge + offset
-        return np.maximum(v, par.min_chamber_volume_m3), np.where(
-            v > par.min_chamber_volume_m3, compliance, 0.0)
-
-    v, _ = volume(p)
+    v, _ = plant.volume_and_swelling(p, offset)
     pv = p * v
     regulator = record.start_gauge_pa
     inputs_list = record.inputs
@@ -356,14 +332,16 @@ def _simulate(record: AirRecord, model: ContactModel, contacts: np.ndarray, step
         valve = Valve(inputs.valves[0])
         source_pa, conductance = plant.source(valve, regulator, inputs.regulator_enabled)
         if conductance > 0.0:
-            flow, slope = _flow(gain * conductance, source_pa, p, par.path(valve)[1])
-            v, dv = volume(p)
-            pv = pv + step_s * flow / (1.0 - step_s * slope / (v + p * dv))
+            flow, slope = orifice_flow_and_slope(source_pa, p, conductance, par.path(valve)[1],
+                                                 par.temperature_k)
+            v, dv = plant.volume_and_swelling(p, offset)
+            # p V rises by R T m_dot: linearly implicit in the chamber's pressure
+            pv = pv + step_s * rt * flow / (1.0 - step_s * rt * slope / (v + p * dv))
         gauge = p - P_ATM_PA
         target = np.where(blocked_at <= k, held_at_contact - model.bending_volume_m3(gauge), 0.0)
         offset = offset + follow * (target - offset)
         for _ in range(2):  # Newton on p (V(p) + offset) = pv
-            v, dv = volume(p)
+            v, dv = plant.volume_and_swelling(p, offset)
             p = np.maximum(p - (p * v - pv) / (v + p * dv), 1e3)
         out[k] = p - P_ATM_PA
     return times, out
@@ -525,16 +503,12 @@ def loss_step_pa(model: ContactModel, hold_gauge_pa: float, contact_pa: float) -
     """How far the trapped air's pressure moves (Pa, signed) when an object that stopped the
     fingers at ``contact_pa`` leaves a hold at ``hold_gauge_pa`` with the valves closed: the
     chambers' volume drops by :meth:`ContactModel.loss_volume_m3` at a fixed mass of air."""
-    par = model.plant
     before = model.held_back_m3(hold_gauge_pa, contact_pa)
     after = model.held_back_m3(hold_gauge_pa, model.meet_pressure_pa)
-    plant = PneumaticPlant(par)
-    target = plant.air_terms(P_ATM_PA + hold_gauge_pa, float(before))[0]
-    p = P_ATM_PA + hold_gauge_pa
-    for _ in range(30):  # Newton on p V(p) = const, the fingers now meeting each other
-        pv, capacitance, _ = plant.air_terms(p, float(after))
-        p -= (pv - target) / capacitance
-    return p - P_ATM_PA - hold_gauge_pa
+    plant = PneumaticPlant(model.plant)
+    held = PlantState(0.0, np.array([P_ATM_PA + hold_gauge_pa]), np.array([float(before)]))
+    return float(plant.with_volume_offset(held, [float(after)]).chamber_pa[0] -
+                 P_ATM_PA - hold_gauge_pa)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -158,16 +158,31 @@ def orifice_mass_flow(p_from_pa, p_to_pa, conductance: float, critical_ratio: fl
                       temperature_k: float):
     """Signed ISO 6358 mass flow (kg/s) from the ``p_from`` side to the ``p_to`` side; arrays
     allowed."""
+    result = orifice_flow_and_slope(p_from_pa, p_to_pa, conductance, critical_ratio,
+                                    temperature_k)[0]
+    return float(result) if result.ndim == 0 else result
+
+
+def orifice_flow_and_slope(p_from_pa, p_to_pa, conductance: float, critical_ratio: float,
+                           temperature_k: float) -> tuple:
+    """:func:`orifice_mass_flow` (kg/s, arrays) and its derivative by ``p_to`` (kg/(s Pa)), the
+    chamber's side: what an implicit step of a chamber needs. At r -> 1 the subsonic branch's
+    slope is infinite; it is capped, as in :meth:`PneumaticPlant.flow_and_slopes`."""
     p_from = np.asarray(p_from_pa, dtype=float)
     p_to = np.asarray(p_to_pa, dtype=float)
+    inflow = p_from >= p_to
     upstream = np.maximum(p_from, p_to)
     downstream = np.minimum(p_from, p_to)
     ratio = downstream / upstream
     subsonic = np.clip((ratio - critical_ratio) / (1.0 - critical_ratio), 0.0, 1.0)
-    flow = conductance * RHO0_KG_PER_M3 * upstream * math.sqrt(
-        T0_K / temperature_k) * np.sqrt(1.0 - subsonic**2)
-    result = np.where(p_from >= p_to, flow, -flow)
-    return float(result) if result.ndim == 0 else result
+    phi = np.sqrt(np.maximum(1.0 - subsonic**2, 0.0))
+    dphi = np.where(ratio > critical_ratio,
+                    -subsonic / (np.maximum(phi, 1e-9) * (1.0 - critical_ratio)), 0.0)
+    gain = conductance * RHO0_KG_PER_M3 * math.sqrt(T0_K / temperature_k)
+    flow = np.where(inflow, gain * upstream * phi, -gain * upstream * phi)
+    # d/dp_to: inflow, p_to is downstream (d ratio = 1 / upstream); outflow, it is upstream
+    slope = np.where(inflow, gain * dphi, -gain * (phi - ratio * dphi))
+    return flow, slope
 
 
 @dataclasses.dataclass
@@ -216,19 +231,24 @@ class PneumaticPlant:
         return np.where(np.asarray(chamber_pa) >= P_ATM_PA, par.chamber_compliance_m3_per_pa,
                         par.vacuum_compliance_m3_per_pa)
 
-    def volume_m3(self, chamber_pa):
+    def volume_and_swelling(self, chamber_pa, volume_offset_m3=0.0) -> tuple:
+        """(V, dV/dp) at an absolute chamber pressure (arrays allowed): V(p) plus
+        ``volume_offset_m3``, held at the floor, where it no longer swells. :meth:`air_terms` is
+        the same law for one scalar, on the filters' hot path."""
         par = self.parameters
-        return np.maximum(
-            par.chamber_volume_m3 + self._compliance(chamber_pa) *
-            (np.asarray(chamber_pa) - P_ATM_PA), par.min_chamber_volume_m3)
+        compliance = self._compliance(chamber_pa)
+        volume = (par.chamber_volume_m3 + compliance * (np.asarray(chamber_pa) - P_ATM_PA) +
+                  volume_offset_m3)
+        return (np.maximum(volume, par.min_chamber_volume_m3),
+                np.where(volume > par.min_chamber_volume_m3, compliance, 0.0))
+
+    def volume_m3(self, chamber_pa):
+        return self.volume_and_swelling(chamber_pa)[0]
 
     def capacitance(self, chamber_pa):
         """V + p dV/dp (m^3): the chamber's isothermal capacitance times R T."""
-        par = self.parameters
-        swelling = np.where(
-            self.volume_m3(chamber_pa) > par.min_chamber_volume_m3,
-            self._compliance(chamber_pa), 0.0)
-        return self.volume_m3(chamber_pa) + np.asarray(chamber_pa) * swelling
+        volume, swelling = self.volume_and_swelling(chamber_pa)
+        return volume + np.asarray(chamber_pa) * swelling
 
     def source(self, valve: Valve, regulator_gauge_pa: float,
                sources_live: bool = True) -> tuple[float, float]:
