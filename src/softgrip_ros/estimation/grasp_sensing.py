@@ -194,17 +194,12 @@ def contact_model_for(gripper_model: str = "type_II", bending: str = "l0",
     geometry, calibration = gripper_models.resolve(gripper_model)
     kinematics = GripperKinematics(geometry, calibration, model=bending)
     finger = PseudoRigidFinger(geometry, calibration, bending=bending)
-    import mujoco
-
     bare = GripperWorld(scene_from_document({"name": "bare", "arm": {"start_m": [0, 0, 0.3]}}),
                         finger)
-    full = np.zeros((bare.model.nv, bare.model.nv))
-    mujoco.mj_fullM(bare.model, bare.data, full)
-    dofs = bare._hinge_dof[0]
     tip_chamber_m = (CHAMBER_COUNT - 0.5) * geometry.segment_length_m
     levers = np.array([max(tip_chamber_m - arc.start_m, 0.0) for arc in finger.sub_arcs])
-    dynamics = FingerDynamics(full[np.ix_(dofs, dofs)], finger.hinge_stiffness_nm_per_rad,
-                              bare.model.dof_damping[dofs], finger.hinge_angles, levers)
+    dynamics = FingerDynamics(bare.hinge_mass_matrix(), finger.hinge_stiffness_nm_per_rad,
+                              bare.hinge_damping(), finger.hinge_angles, levers)
     return ContactModel(plant or PneumaticParameters(), FE_BENDING_VOLUME_SHARE,
                         float(finger.contact_pressure_pa),
                         lambda gauge_pa: float(kinematics.pose(gauge_pa).tip_spacing_m),

@@ -472,13 +472,9 @@ class GripperWorld:
         """Damp every hinge by its stiffness times 2 zeta / omega_1, omega_1 the first mode of a
         straight finger (the chain's mass matrix against the hinges' stiffness), so that mode has
         the damping ratio zeta and the stiffer ones more. Returns omega_1 (rad/s)."""
-        mujoco, model = self._mujoco, self.model
-        mujoco.mj_forward(model, self.data)
-        mass = np.zeros((model.nv, model.nv))
-        mujoco.mj_fullM(model, self.data, mass)
-        dofs = self._hinge_dof[LEFT]
+        model = self.model
         stiffness = self.finger.hinge_stiffness_nm_per_rad
-        inertia = mass[np.ix_(dofs, dofs)]
+        inertia = self.hinge_mass_matrix()
         # K v = w^2 M v for the symmetric pair, via M^-1/2 K M^-1/2
         values, vectors = np.linalg.eigh(inertia)
         root_inverse = vectors @ np.diag(values ** -0.5) @ vectors.T
@@ -487,6 +483,20 @@ class GripperWorld:
         for side in (LEFT, RIGHT):
             model.dof_damping[self._hinge_dof[side]] = stiffness * 2.0 * damping_ratio / omega_1
         return omega_1
+
+    def hinge_mass_matrix(self) -> np.ndarray:
+        """(hinge_count, hinge_count): one finger's chain mass matrix over its hinges (kg m^2),
+        in the present pose (the chain's; both fingers are alike)."""
+        mujoco, model = self._mujoco, self.model
+        mujoco.mj_forward(model, self.data)
+        mass = np.zeros((model.nv, model.nv))
+        mujoco.mj_fullM(model, self.data, mass)
+        dofs = self._hinge_dof[LEFT]
+        return mass[np.ix_(dofs, dofs)]
+
+    def hinge_damping(self) -> np.ndarray:
+        """(hinge_count,): one finger's hinge damping (N m s/rad), as :meth:`_damp` set it."""
+        return self.model.dof_damping[self._hinge_dof[LEFT]].copy()
 
     # ---- drive ---------------------------------------------------------------------------------
     def _drive_table(self) -> np.ndarray:
