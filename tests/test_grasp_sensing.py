@@ -181,3 +181,27 @@ def test_in_the_world_a_quiet_hold_is_held_with_its_air_trapped(model):
                                         clamp_pa=-30e3, hold_s=1.5, seed=1))
     assert held.final_status == gs.ObjectStatus.HELD and held.false_lost == 0
     assert math.isnan(held.loss_time_s)
+
+
+def test_a_judgement_that_raises_leaves_the_status_unknown_and_says_why(model):
+    """ObjectSensingLink through a pinch to HOLDING, its runner failing: the verdict is UNKNOWN
+    with the error in its evidence, and the HOLDING goal is not held up for it."""
+    from softgrip_ros.control.grasp_fsm import (GraspMode, GraspRequest, GraspStateMachine,
+                                                Phase)
+    from softgrip_ros.control.object_sensing import ObjectSensingLink
+    from softgrip_ros.devtools.sensing_bench import sensor_noise
+    from softgrip_ros.model.calibration import build_kinematics
+
+    fsm = GraspStateMachine(build_kinematics("l0"))
+    link = ObjectSensingLink(fsm, gs.GraspSensing(model, sensor_noise()),
+                             run=lambda work, done: done(RuntimeError("no CPU left")))
+    fsm.command(GraspRequest(GraspMode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.005), 0.0)
+    link.after(0.0, 0.0)
+    target = fsm.request.target_gauge_pa
+    for k in range(1, 40):
+        fsm.update(0.01 * k, target)
+        link.after(0.01 * k, target)
+    assert fsm.state.phase == Phase.HOLDING
+    assert fsm.state.object_status == gs.ObjectStatus.UNKNOWN
+    assert "no CPU left" in fsm.state.object_evidence
+    assert fsm.outcome(fsm.task, GraspMode.PINCH) == "succeeded" and not fsm.object_held()

@@ -324,6 +324,16 @@ class GraspStateMachine:
         self._closing_judged = False
         self._last_now = 0.0  # the latest time update() or command() was given
 
+    @property
+    def grasp(self) -> GraspRequest | None:
+        """The command whose grasp runs (None when none does)."""
+        return self._request
+
+    @property
+    def now_s(self) -> float:
+        """The latest time :meth:`update` or :meth:`command` was given (s)."""
+        return self._last_now
+
     # ---- commands -----------------------------------------------------------------------------
     def command(self, request: GraspRequest, now: float, controller_fault: str = "") -> str:
         """Accept ``request`` ('' returned) or reject it (the reason returned); nothing moves on a

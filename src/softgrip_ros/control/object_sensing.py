@@ -2,20 +2,21 @@
 starts and ends a motion to judge, when a hold's air is trapped, and the verdicts fed back to
 the state machine (:meth:`~softgrip_ros.control.grasp_fsm.GraspStateMachine.sensed`).
 
-The owner calls :meth:`ObjectSensingLink.inputs` and :meth:`ObjectSensingLink.reading` as the
-controller's outputs and the sensors' readings arrive, and :meth:`ObjectSensingLink.after`
-after every command and update of the state machine, all under one lock. A motion's judgement
-costs some 0.3 s of CPU: ``run(work, done)`` runs ``work()`` where the owner likes (a worker
-thread) and must call ``done(result)`` back under the owner's lock; None runs it at once.
+The owner calls :meth:`ObjectSensingLink.controller_outputs` and
+:meth:`ObjectSensingLink.reading` as the controller's outputs and the sensors' readings arrive,
+and :meth:`ObjectSensingLink.after` after every command and update of the state machine, all
+under one lock. A motion's judgement costs some 0.2 s of CPU: ``run(work, done)`` runs
+``work()`` where the owner likes (a worker thread) and must call ``done(result)`` back under the
+owner's lock, ``result`` the verdict or the exception ``work`` raised; None runs it at once.
 """
 from __future__ import annotations
 
 import math
 
 from softgrip_ros.control.grasp_fsm import GraspMode, GraspStateMachine, Phase
-from softgrip_ros.estimation.grasp_sensing import (GraspSensing, MotionJob, ObjectStatus,
-                                                   judge_motion)
-from softgrip_ros.model.pneumatics import PlantInputs
+from softgrip_ros.estimation.grasp_sensing import (Detection, GraspSensing, MotionJob,
+                                                   ObjectStatus, judge_motion)
+from softgrip_ros.model.pneumatics import PlantInputs, Valve
 
 # phases in which the fingers move towards a pressure the motion's judgement starts from
 _MOVING = (Phase.OPENING, Phase.CLAMPING)
@@ -32,12 +33,24 @@ class ObjectSensingLink:
         self._phase = fsm.state.phase
         self._trapped = None
         self._motion = 0  # counts motions: a late judgement of an older one is dropped
-        self._pending = None  # the phase that started the motion being judged
         self._last = None
-        self.judgements = 0
+        self._outputs = None
 
-    def inputs(self, stamp_s: float, inputs: PlantInputs) -> None:
-        self.sensing.inputs(stamp_s, inputs)
+    def controller_outputs(self, stamp_s: float, regulator_command_gauge_pa: float,
+                           regulator_enabled: bool, valve: int) -> None:
+        """The controller's outputs in force from ``stamp_s`` (s): its regulator command (Pa
+        gauge), enable and channel 0's valve (a Valve value); repeats, a NaN command or an unknown
+        valve change nothing."""
+        key = (regulator_command_gauge_pa, bool(regulator_enabled), valve)
+        if key == self._outputs or not math.isfinite(regulator_command_gauge_pa):
+            return
+        try:
+            valve_state = Valve(valve)
+        except ValueError:
+            return
+        self._outputs = key
+        self.sensing.inputs(stamp_s, PlantInputs(regulator_command_gauge_pa,
+                                                 bool(regulator_enabled), (valve_state,)))
 
     def reading(self, name: str, stamp_s: float, gauge_pa: float) -> None:
         self.sensing.reading(name, stamp_s, gauge_pa)
@@ -63,12 +76,10 @@ class ObjectSensingLink:
         fsm, sensing = self.fsm, self.sensing
         self._motion += 1
         if new in _MOVING and old != new:
-            request = fsm._request
-            expected = (request.object_diameter_m if request is not None else math.nan)
-            if request is not None and GraspMode(request.mode) == GraspMode.OPEN:
-                expected = math.nan
+            grasp = fsm.grasp
+            expected = (grasp.object_diameter_m if grasp is not None and
+                        GraspMode(grasp.mode) != GraspMode.OPEN else math.nan)
             sensing.motion_started(now, estimate, fsm.request.target_gauge_pa, expected)
-            self._pending = new
         elif old in _MOVING and new in (Phase.ENVELOPED, Phase.HOLDING):
             job = sensing.settle_motion(now)
             if job is not None:
@@ -79,17 +90,19 @@ class ObjectSensingLink:
             sensing.released(now, "no grasp: " + fsm.state.message)
 
     def _judged(self, motion: int, job: MotionJob, verdict, hold_pa: float) -> None:
-        """A judgement is back (under the owner's lock)."""
-        self.judgements += 1
+        """A judgement is back (under the owner's lock): the verdict, or what the work raised."""
         if motion != self._motion:
             return  # the grasp moved on meanwhile
+        if isinstance(verdict, BaseException):
+            verdict = Detection(ObjectStatus.UNKNOWN, 0.0,
+                                f"the motion could not be judged: {verdict}", job.stamp_s)
         self.sensing.accept(job, verdict)
         if not job.opening and verdict.status == ObjectStatus.CONTACT_CLOSING and \
                 self.fsm.state.phase == Phase.HOLDING:
             self.sensing.holding(verdict.stamp_s, hold_pa)
             if self._trapped is not None:
                 self.sensing.air_trapped(self._trapped)
-        now = self.fsm._last_now
+        now = self.fsm.now_s
         current = self.sensing.status(now)
         self._last = (current.status, current.evidence)
         self.fsm.sensed(current, now)

@@ -269,9 +269,8 @@ def run_trial(model: ContactModel, trial: Trial, placement: Placement | None = N
             key = (out.regulator_setpoint_gauge_pa, out.regulator_enabled, out.valves)
             if key != sent_inputs:
                 sent_inputs = key
-                told = PlantInputs(out.regulator_setpoint_gauge_pa, out.regulator_enabled,
-                                   out.valves)
-                link.inputs(now, told)
+                link.controller_outputs(now, out.regulator_setpoint_gauge_pa,
+                                        out.regulator_enabled, int(out.valves[0]))
                 estimator.set_inputs(out.regulator_setpoint_gauge_pa, out.regulator_enabled,
                                      int(out.valves[0]), now)
         if i % FSM_PERIOD_STEPS == 0:

@@ -29,9 +29,7 @@ from softgrip_ros.control.grasp_fsm import (ControllerFeedback, GraspMode, Grasp
                                             GraspStateMachine, Phase)
 from softgrip_ros.control.object_sensing import ObjectSensingLink
 from softgrip_ros.control.reports import grasp_report, outputs_changed_at, sensing_report
-from softgrip_ros.estimation.grasp_sensing import (Detection, GraspSensing, ObjectStatus,
-                                                   contact_model_for)
-from softgrip_ros.model.pneumatics import PlantInputs, Valve
+from softgrip_ros.estimation.grasp_sensing import GraspSensing, contact_model_for
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.fidelity import FREE, SceneModel
 from softgrip_ros.nodes import messages
@@ -85,10 +83,12 @@ class GraspManagerNode(Node):
                 lambda msg: self.on_estimate(None, messages.gauge_pa(msg), msg.variance), 10)
             self.create_subscription(ControllerStatus, "controller/status", self.on_status, 10)
         self.sensing: ObjectSensingLink | None = None
-        self._sensing_inputs = None
         self._worker = None
+        # checked whether or not the sensing runs: a bad value is refused at start-up
+        plant = load_plant(v)
+        sensors = sensing_sensors(v, plant)
         if v["object_sensing"]:
-            self._start_sensing(in_process)
+            self._start_sensing(in_process, sensors, plant)
         self.periodic = NodeTimers(self, in_process)
         self.periodic.every(1.0 / v["state_rate_hz"], self._on_timer)
         self.periodic.every(1.0, self._publish_diagnostics)
@@ -108,12 +108,10 @@ class GraspManagerNode(Node):
         self.actions.destroy()
 
     # ---- object sensing -------------------------------------------------------------------------
-    def _start_sensing(self, in_process: bool) -> None:
+    def _start_sensing(self, in_process: bool, sensors: dict, plant) -> None:
         """The contact model is built on the worker (MuJoCo compiles the fingers' chain: about a
         second); the sensing joins the state machine once it is ready."""
         v = self.values
-        plant = load_plant(v)
-        sensors = sensing_sensors(v, plant)
         self._worker = concurrent.futures.ThreadPoolExecutor(
             1, thread_name_prefix="grasp_sensing")
         build = self._worker.submit(contact_model_for, v["gripper_model"], v["fidelity"],
@@ -144,11 +142,8 @@ class GraspManagerNode(Node):
             with self._lock:
                 if self.closed or future.cancelled():
                     return
-                error = future.exception()
-                now = self._now()
-                done(future.result() if error is None else Detection(
-                    ObjectStatus.UNKNOWN, 0.0, f"the motion could not be judged: {error}", now))
-                self._after_change(now)
+                done(future.exception() or future.result())
+                self._after_change(self._now())
         try:
             self._worker.submit(work).add_done_callback(finish)
         except RuntimeError:  # shut down
@@ -197,20 +192,11 @@ class GraspManagerNode(Node):
                 self.feedback.on_status(msg.fault_flags, msg.measured_gauge_pressure_pa,
                                         self._now(), msg.message)
                 if self.sensing is not None and msg.valve_states:
-                    self._take_inputs(msg)
-
-    def _take_inputs(self, msg: ControllerStatus) -> None:
-        key = (msg.regulator_command_gauge_pressure_pa, msg.regulator_enabled,
-               msg.valve_states[0])
-        if key == self._sensing_inputs or not math.isfinite(key[0]):
-            return
-        try:
-            valve = Valve(msg.valve_states[0])
-        except ValueError:
-            return
-        self._sensing_inputs = key
-        stamp = outputs_changed_at(stamp_seconds(msg.header.stamp), msg.output_change_age_s)
-        self.sensing.inputs(stamp, PlantInputs(key[0], bool(key[1]), (valve,)))
+                    self.sensing.controller_outputs(
+                        outputs_changed_at(stamp_seconds(msg.header.stamp),
+                                           msg.output_change_age_s),
+                        msg.regulator_command_gauge_pressure_pa, msg.regulator_enabled,
+                        msg.valve_states[0])
 
     def _on_timer(self) -> None:
         with self._lock:
