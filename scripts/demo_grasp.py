@@ -39,9 +39,6 @@ PHASES = {
     getattr(GripperState, n): n
     for n in ("IDLE", "OPENING", "ENVELOPED", "CLAMPING", "HOLDING", "RELEASING", "FAULT")
 }
-OBJECT = {getattr(GripperState, f"OBJECT_{n}"): n.lower().replace("_", " ")
-          for n in ("UNKNOWN", "MOVING_NO_CONTACT", "CONTACT_OPENING", "CONTACT_CLOSING", "HELD",
-                    "NO_OBJECT", "LOST")}
 COLOURS = {
     "OPENING": "#cfe8ff", "ENVELOPED": "#e0f5d0", "CLAMPING": "#ffe3c2", "HOLDING": "#ffd0d0",
     "RELEASING": "#eadcff", "FAULT": "#ff8080"
@@ -234,10 +231,6 @@ def main(argv=None) -> int:
                     f"{'':10}holding at {s.estimated_gauge_pressure_pa / 1e3:.1f} +- "
                     f"{s.estimated_gauge_pressure_std_pa / 1e3:.2f} kPa, clamp force "
                     f"{s.clamp_force_n:.2f} N per finger (the clamp force law)")
-            sensed = states[-1]
-            size = (f", felt {sensed.object_size_m * 1e3:.0f} mm"
-                    if sensed.object_size_m == sensed.object_size_m else "")  # not NaN
-            print(f"{'':10}the air after the lift: object {OBJECT[sensed.object_status]}{size}")
             truth = world.truth
             print(f"{'':10}the world after a 0.2 m lift at 1 g: object "
                   f"{'held' if truth.object_in_hand else 'NOT held'} (left "
