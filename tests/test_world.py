@@ -235,3 +235,16 @@ def test_the_bending_share_of_the_chambers_volume_is_the_fes():
     finger = PseudoRigidFinger(*gripper_models.resolve("type_II"))
     share = bending_volume_share(finger, load_fe_reference())
     assert share == pytest.approx(FE_BENDING_VOLUME_SHARE, abs=0.005)
+
+
+def test_pushing_the_object_needs_one_and_a_finite_force():
+    pytest.importorskip("mujoco")
+    from softgrip_ros.model import gripper_models
+    from softgrip_ros.model.world.fingers import PseudoRigidFinger
+    from softgrip_ros.model.world.scene import scene_from_document
+    from softgrip_ros.model.world.world import GripperWorld
+    finger = PseudoRigidFinger(*gripper_models.resolve("type_II"))
+    empty = GripperWorld(scene_from_document({"name": "empty", "arm": {"start_m": [0, 0, 0.3]}}),
+                         finger)
+    with pytest.raises(ValueError, match="no object"):
+        empty.push_object((0.0, 0.0, -1.0))

@@ -227,13 +227,13 @@ def run_trial(model: ContactModel, trial: Trial, placement: Placement | None = N
                 if math.isnan(pull_start):
                     pull_start = now
                 force = min(trial.pull_max_n, trial.pull_n_per_s * (now - pull_start))
-                world.data.xfrc_applied[world._object_body][2] = -force
+                world.push_object((0.0, 0.0, -force))
             if trial.fault and not fault and now - hold_start >= trial.fault_after_s:
                 fault = dict(FAULTS[trial.fault])
             if present and hold_reference is None and now - hold_start >= SETTLE_S:
-                hold_reference = _object_in_hand(world)
+                hold_reference = world.object_in_hand_m()
             if present and math.isnan(loss_time) and i % 5 == 0:
-                moved = (np.linalg.norm(_object_in_hand(world) - hold_reference)
+                moved = (np.linalg.norm(world.object_in_hand_m() - hold_reference)
                          if hold_reference is not None else 0.0)
                 dropped = world.truth().state.name == "DROPPED"
                 dropped_since = (now if dropped and math.isnan(dropped_since) else
@@ -296,6 +296,3 @@ def run_trial(model: ContactModel, trial: Trial, placement: Placement | None = N
                        false_lost, judge_cpu[0], fsm.state.object_evidence, fsm.state.message)
 
 
-def _object_in_hand(world) -> np.ndarray:
-    """The object's position relative to the middle of the two tip chambers' faces (m)."""
-    return world._object_in_base()

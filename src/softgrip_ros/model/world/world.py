@@ -642,7 +642,17 @@ class GripperWorld:
         forces, _ = self.contact_forces()
         return bool(np.all(forces > TOUCH_FORCE_N))
 
-    def _object_in_base(self) -> np.ndarray:
+    def push_object(self, force_n) -> None:
+        """An external force (3,) N on the object's centre, world frame, from now until changed
+        (a benchmark pulling the object out of the hand). ValueError without an object."""
+        if self._object_body < 0:
+            raise ValueError(f"scene {self.scene.name!r} has no object to push")
+        force = np.asarray(force_n, dtype=float)
+        if force.shape != (3,) or not np.all(np.isfinite(force)):
+            raise ValueError(f"force_n must be 3 finite components, got {force_n!r}")
+        self.data.xfrc_applied[self._object_body][:3] = force
+
+    def object_in_hand_m(self) -> np.ndarray:
         """The object's position relative to the hand: the middle between the two tip chambers'
         faces, which carry it (a drift of the object from there is slip; the fingers flexing
         under its weight is not)."""
@@ -661,10 +671,10 @@ class GripperWorld:
             self._dropped, self._was_held = True, False
         if held and self._slip_reference is None and self.arm.carrying:
             # slip counts from the first move that carries the object
-            self._slip_reference = self._object_in_base()
+            self._slip_reference = self.object_in_hand_m()
             self._slip_distance = 0.0
         if held and self._slip_reference is not None:
-            drift = float(np.linalg.norm(self._object_in_base() - self._slip_reference))
+            drift = float(np.linalg.norm(self.object_in_hand_m() - self._slip_reference))
             self._slip_distance = max(self._slip_distance, drift)
         if not held and not self._dropped:
             self._slip_reference = None
