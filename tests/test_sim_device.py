@@ -388,8 +388,8 @@ def test_a_stall_of_the_device_thread_leaves_no_gap_in_the_readings(bench, monke
     monkeypatch.setattr(device, "_wall_time", lambda when: when)
     truth = []
     advance = device._advance
-    monkeypatch.setattr(device, "_advance", lambda dt, now, integrate: (
-        advance(dt, now, integrate), truth.append((now, device.chamber_gauge_pa()))))
+    monkeypatch.setattr(device, "_advance", lambda dt, now: (
+        advance(dt, now), truth.append((now, device.chamber_gauge_pa()))))
     command(device, codec, Valve.SUPPLY, setpoint_pa=40e3, lifetime_s=0.25)
     tick_for(device, clock, 0.01)
     while peer_bus.recv(0.0) is not None:
@@ -432,22 +432,15 @@ def test_the_truth_does_not_depend_on_how_the_ticks_fall(bench, period_s):
                                                       abs=30.0)
 
 
-def test_a_stalls_catch_up_costs_one_plant_step_per_span(bench, monkeypatch):
-    """A tick takes its 1 ms span in one extrapolated step (three backward-Euler solves: 1 ms and
-    twice 0.5 ms); catching up a stall that way cost 15 plant steps per 5 ms span (25 when it
-    sub-stepped at 0.2 ms), all under the device's lock. Beyond CATCH_UP_S the catch-up takes
-    one step per span: a 0.2 s stall costs 40 steps (41 with the clock's rounding), and the
-    chamber still fills over the whole stall."""
+def test_a_stalls_catch_up_follows_the_law_too(bench):
+    """A stall of 60 ms caught up in one tick lands where the law puts the chamber, as 1 ms ticks
+    do (one backward-Euler step per 5 ms span put a fill hundreds of Pa ahead: the grasp sensing
+    read that as a finger held back)."""
     device, clock, _, codec = bench
-    steps = []
-    real_step = device.plant.step
-    monkeypatch.setattr(device.plant, "step",
-                        lambda *args: steps.append(args[2]) or real_step(*args))
     command(device, codec, Valve.SUPPLY, setpoint_pa=40e3, lifetime_s=0.25)
-    tick_for(device, clock, 1e-3)
-    assert sorted(steps) == pytest.approx([5e-4, 5e-4, 1e-3])
-    steps.clear()
-    before = device.chamber_gauge_pa()
-    tick_for(device, clock, 0.2, period_s=0.2)
-    assert 40 <= len(steps) <= 41 and max(steps) == pytest.approx(MAX_PLANT_STEP_S)
-    assert device.chamber_gauge_pa() > before + 20e3
+    tick_for(device, clock, 0.06, period_s=0.06)
+    plant = PneumaticPlant()
+    reference = plant.advance(plant.initial_state(), PlantInputs(40e3, True, (Valve.SUPPLY,)),
+                              0.06, max_step_s=1e-5)
+    assert device.chamber_gauge_pa() == pytest.approx(reference.chamber_pa[0] - P_ATM_PA,
+                                                      abs=30.0)

@@ -44,7 +44,7 @@ def run(simulated, program=PROGRAM, step_s=1e-3):
         simulated._valves_open_until = np.inf
         for _ in range(round(seconds / step_s)):
             simulated._last_valve_command = now
-            simulated._advance(step_s, now + step_s, simulated.plant.advance)
+            simulated._advance(step_s, now + step_s)
             now += step_s
             simulated._last_tick = now
             trace.append(simulated._state.chamber_pa[0] - P_ATM_PA)

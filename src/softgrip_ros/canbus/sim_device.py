@@ -147,13 +147,10 @@ SEND_LAG_S = 0.0002
 # a device keeps real time through a stall of its host thread up to this long (beyond it, a
 # suspended process say, the plant resumes from where it stopped) ...
 MAX_STALL_S = 1.0
-# ... in spans no longer than this, each sub-stepped by PneumaticPlant.advance: one backward-Euler
-# step per tick put a fill 76 Pa (1 ms ticks) to 332 Pa (5 ms, a loaded host) ahead of the law, so
-# the truth moved with the host's load, and a live identification fitted that
+# ... in spans no longer than this, each sub-stepped by PneumaticPlant.advance, a stall's catch-up
+# too: one backward-Euler step per span put a fill 76 Pa (1 ms) to 332 Pa (5 ms) ahead of the law,
+# so the truth moved with the host's load (an identification and the grasp sensing fitted that)
 MAX_PLANT_STEP_S = 0.005
-# ... except when catching up more than this: one step per span, as the accuracy of a stall's
-# catch-up matters little and its cost (25 plant steps per span, under the lock) delays the frames
-CATCH_UP_S = 0.02
 # a sensor samples on its own period in the plant's time, however the thread that simulates it is
 # held up, and its frame carries the sampling instant, as a device with its own processor does:
 # read when its tick came and stamped when it went out, a reading held up between the two by this
@@ -365,12 +362,11 @@ class SimulatedDevice:
 
     def _advance_to(self, when: float) -> None:
         """The plant from the last tick's time to ``when``, in spans of at most MAX_PLANT_STEP_S,
-        each sub-stepped (one step each when catching up more than CATCH_UP_S); after each span,
-        the sensors due by its end read (see :meth:`_sample_due`)."""
-        integrate = self.plant.step if when - self._last_tick > CATCH_UP_S else self.plant.advance
+        each sub-stepped (:meth:`PneumaticPlant.advance`); after each span, the sensors due by
+        its end read (see :meth:`_sample_due`)."""
         while when > self._last_tick:
             step_end = min(when, self._last_tick + MAX_PLANT_STEP_S)
-            self._advance(step_end - self._last_tick, step_end, integrate)
+            self._advance(step_end - self._last_tick, step_end)
             self._last_tick = step_end
             self._sample_due(step_end, oldest=when - BACKFILL_S)
 
@@ -390,7 +386,8 @@ class SimulatedDevice:
             if now >= oldest:
                 self._send_sensor(sensor, now)
 
-    def _advance(self, dt: float, now: float, integrate) -> None:
+    def _advance(self, dt: float, now: float) -> None:
+        integrate = self.plant.advance
         with self._lock:
             inputs = self._inputs
             if now - self._last_valve_command > self.config.command_watchdog_s:
