@@ -194,7 +194,7 @@ def test_a_judgement_that_raises_leaves_the_status_unknown_and_says_why(model):
 
     fsm = GraspStateMachine(build_kinematics("l0"))
     link = ObjectSensingLink(fsm, gs.GraspSensing(model, sensor_noise()),
-                             run=lambda work, done: done(RuntimeError("no CPU left")))
+                             run=lambda job, done: done(RuntimeError("no CPU left")))
     fsm.command(GraspRequest(GraspMode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.005), 0.0)
     link.after(0.0, 0.0)
     target = fsm.request.target_gauge_pa
@@ -205,3 +205,23 @@ def test_a_judgement_that_raises_leaves_the_status_unknown_and_says_why(model):
     assert fsm.state.object_status == gs.ObjectStatus.UNKNOWN
     assert "no CPU left" in fsm.state.object_evidence
     assert fsm.outcome(fsm.task, GraspMode.PINCH) == "succeeded" and not fsm.object_held()
+
+
+def test_the_judge_process_gives_the_verdict_of_an_in_process_judgement(model):
+    """MotionJudgeProcess judges in a child of its own (another PID, which builds its own
+    model), with the verdict judge_motion gives here; closed, it refuses more work."""
+    import os
+    from softgrip_ros.runtime.motion_judge import MotionJudgeProcess
+    job = gs.MotionJob(synthetic(model, 9e3), False, model.tip_spacing_m(9e3), -30e3, 0.4)
+    here = gs.judge_motion(model, job)
+    judge = MotionJudgeProcess("type_II", "l0", model.plant, nice_increment=0)
+    try:
+        apart = judge.submit(job).result(timeout=60.0)
+        child = judge._worker.submit(os.getpid).result(timeout=10.0)
+    finally:
+        judge.close()
+    assert child != os.getpid()
+    assert (apart.status, apart.evidence) == (here.status, here.evidence)
+    assert apart.object_size_m == pytest.approx(here.object_size_m, abs=1e-9)
+    with pytest.raises(RuntimeError):
+        judge.submit(job)

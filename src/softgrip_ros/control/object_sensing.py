@@ -5,9 +5,12 @@ the state machine (:meth:`~softgrip_ros.control.grasp_fsm.GraspStateMachine.sens
 The owner calls :meth:`ObjectSensingLink.controller_outputs` and
 :meth:`ObjectSensingLink.reading` as the controller's outputs and the sensors' readings arrive,
 and :meth:`ObjectSensingLink.after` after every command and update of the state machine, all
-under one lock. A motion's judgement costs some 0.2 s of CPU: ``run(work, done)`` runs
-``work()`` where the owner likes (a worker thread) and must call ``done(result)`` back under the
-owner's lock, ``result`` the verdict or the exception ``work`` raised; None runs it at once.
+under one lock. A motion's judgement costs some 0.2 s of CPU: ``run(job, done)`` judges the
+:class:`~softgrip_ros.estimation.grasp_sensing.MotionJob` ``job`` where the owner likes
+(:func:`~softgrip_ros.estimation.grasp_sensing.judge_motion` with the sensing's model, in a child
+process: in a thread it holds the GIL the control path needs) and must call ``done(result)``
+back under the owner's lock, ``result`` the verdict or the exception raised; None judges it at
+once.
 """
 from __future__ import annotations
 
@@ -28,7 +31,7 @@ class ObjectSensingLink:
 
     def __init__(self, fsm: GraspStateMachine, sensing: GraspSensing, run=None):
         self.fsm, self.sensing = fsm, sensing
-        self.run = run or (lambda work, done: done(work()))
+        self.run = run or (lambda job, done: done(judge_motion(sensing.model, job)))
         fsm.sensing_enabled = True
         self._phase = fsm.state.phase
         self._trapped = None
@@ -84,7 +87,7 @@ class ObjectSensingLink:
             job = sensing.settle_motion(now)
             if job is not None:
                 motion, hold_pa = self._motion, fsm.request.target_gauge_pa
-                self.run(lambda: judge_motion(sensing.model, job),
+                self.run(job,
                          lambda verdict: self._judged(motion, job, verdict, hold_pa))
         elif new not in (Phase.ENVELOPED, Phase.HOLDING) or old == Phase.HOLDING:
             sensing.released(now, "no grasp: " + fsm.state.message)

@@ -27,7 +27,7 @@ from softgrip_ros.control.pressure import PressureControlConfig, PressureControl
 from softgrip_ros.devtools.grasp_bench import GraspCase, Placement
 from softgrip_ros.estimation.estimator import PressureEstimator
 from softgrip_ros.estimation.grasp_sensing import (ContactModel, GraspSensing, ObjectStatus,
-                                                   SensorNoise)
+                                                   SensorNoise, judge_motion)
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 
 STEP_S = 1.0e-3
@@ -157,9 +157,9 @@ def run_trial(model: ContactModel, trial: Trial, placement: Placement | None = N
     sensing = GraspSensing(model, sensor_noise())
     judge_cpu = [0.0]
 
-    def run(work, done):
+    def run(job, done):
         started = time.process_time()
-        result = work()
+        result = judge_motion(model, job)
         judge_cpu[0] += time.process_time() - started
         done(result)
 

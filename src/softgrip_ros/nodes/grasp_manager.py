@@ -38,6 +38,7 @@ from softgrip_ros.nodes.common import NodeTimers, notify, publish, run_node, sta
 from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import GRASP_MANAGER_SPECS as SPECS
 from softgrip_ros.nodes.specs import clamp_force_law, grasp_config, load_plant, sensing_sensors
+from softgrip_ros.runtime.motion_judge import MotionJudgeProcess
 
 
 
@@ -83,7 +84,7 @@ class GraspManagerNode(Node):
                 lambda msg: self.on_estimate(None, messages.gauge_pa(msg), msg.variance), 10)
             self.create_subscription(ControllerStatus, "controller/status", self.on_status, 10)
         self.sensing: ObjectSensingLink | None = None
-        self._worker = None
+        self._worker = self._judge_process = None
         # checked whether or not the sensing runs: a bad value is refused at start-up
         plant = load_plant(v)
         sensors = sensing_sensors(v, plant)
@@ -105,13 +106,18 @@ class GraspManagerNode(Node):
             self.closed = True
         if self._worker is not None:
             self._worker.shutdown(wait=False, cancel_futures=True)
+        if self._judge_process is not None:
+            self._judge_process.close()
         self.actions.destroy()
 
     # ---- object sensing -------------------------------------------------------------------------
     def _start_sensing(self, in_process: bool, sensors: dict, plant) -> None:
         """The contact model is built on the worker (MuJoCo compiles the fingers' chain: about a
-        second); the sensing joins the state machine once it is ready."""
+        second); the sensing joins the state machine once it is ready. The motions are judged in
+        a child process (MotionJudgeProcess), which builds a model of its own."""
         v = self.values
+        self._judge_process = MotionJudgeProcess(v["gripper_model"], v["fidelity"],
+                                                 plant.parameters)
         self._worker = concurrent.futures.ThreadPoolExecutor(
             1, thread_name_prefix="grasp_sensing")
         build = self._worker.submit(contact_model_for, v["gripper_model"], v["fidelity"],
@@ -136,8 +142,9 @@ class GraspManagerNode(Node):
                 self.sensing = ObjectSensingLink(self.fsm, GraspSensing(model, sensors),
                                                  self._judge)
 
-    def _judge(self, work, done) -> None:
-        """ObjectSensingLink's runner: ``work`` on the worker, ``done`` back under the lock."""
+    def _judge(self, job, done) -> None:
+        """ObjectSensingLink's runner: ``job`` judged in the child, ``done`` back under the
+        lock."""
         def finish(future):
             with self._lock:
                 if self.closed or future.cancelled():
@@ -145,7 +152,7 @@ class GraspManagerNode(Node):
                 done(future.exception() or future.result())
                 self._after_change(self._now())
         try:
-            self._worker.submit(work).add_done_callback(finish)
+            self._judge_process.submit(job).add_done_callback(finish)
         except RuntimeError:  # shut down
             pass
 

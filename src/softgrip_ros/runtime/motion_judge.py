@@ -1,0 +1,39 @@
+"""The grasp sensing's motion judgements in a child process of its own (nothing heavy imported
+at the top: see :mod:`softgrip_ros.runtime.worker_process`)."""
+from __future__ import annotations
+
+from concurrent.futures import Future
+
+from softgrip_ros.runtime.worker_process import WORKER_NICE_INCREMENT, WorkerProcess, worker_state
+
+
+class MotionJudgeProcess:
+    """:func:`~softgrip_ros.estimation.grasp_sensing.judge_motion` in a child (a
+    :class:`WorkerProcess`) that builds its own contact model with
+    :func:`~softgrip_ros.estimation.grasp_sensing.contact_model_for` (``gripper_model``,
+    ``bending``, ``plant_parameters``). A judgement is some 0.2 s of CPU in numpy and Python: in
+    a thread of the composed controller it starved the in-process simulated device and the
+    control loop (sensor timeouts during grasps). :meth:`close` it when done."""
+
+    def __init__(self, gripper_model: str, bending: str, plant_parameters,
+                 nice_increment: int = WORKER_NICE_INCREMENT):
+        self._worker = WorkerProcess(_setup_judge, (gripper_model, bending, plant_parameters),
+                                     nice_increment, "softgrip-sensing")
+
+    def submit(self, job) -> Future:
+        """The verdict on the MotionJob ``job`` (a Detection), as a future; the model's build or
+        the judgement's error through the future."""
+        return self._worker.submit(_judge_in_worker, job)
+
+    def close(self) -> None:
+        self._worker.close()
+
+
+def _setup_judge(gripper_model: str, bending: str, plant_parameters):
+    from softgrip_ros.estimation.grasp_sensing import contact_model_for
+    return contact_model_for(gripper_model, bending, plant_parameters)
+
+
+def _judge_in_worker(job):
+    from softgrip_ros.estimation.grasp_sensing import judge_motion
+    return judge_motion(worker_state(), job)
