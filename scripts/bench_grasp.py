@@ -28,9 +28,13 @@ correct, UNKNOWN counted wrong), ``sensing_unknown``, ``sensing_wrong``,
 ``sensing_confusion``, ``size_err_mm_p95`` (objects of 20 mm and more),
 ``loss_detected_rate``, ``loss_detected_within_200ms_rate``, ``loss_latency_ms_p95`` (from
 the object moving 5 mm to LOST), ``false_lost`` (fault-free holds), ``faults_read_as_lost``,
-``small_bias_read_as_lost``.
+``small_bias_read_as_lost``. Then closings through the suite (the controller with the sensing
+on, the simulated device and its world in a process of their own): cylinders of 20 and 40 mm,
+nothing, a pinch on nothing, 3 runs each (--quick: one empty hand); keys ``suite_*``
+(``suite_detection_accuracy``, ``suite_sensing_wrong``, ``suite_sensing_confusion``, ...).
 Reproduce: source scripts/env.sh; python scripts/bench_grasp.py
 """
+import contextlib
 import os
 import sys
 import tempfile
@@ -57,17 +61,33 @@ def progress(done: int, total: int, text: str) -> None:
     print(f"[{done}/{total}] {text}", file=sys.stderr, flush=True)
 
 
+@contextlib.contextmanager
+def ready_rig(first_scene, directory, gripper_model: str, parameters: tuple = (),
+              device_apart: bool = False):
+    """A SuiteRig, ready (every node known); its controller's log printed when the body
+    raises; closed after."""
+    rig = gb.SuiteRig(first_scene, f"bench_grasp-{uuid.uuid4().hex[:6]}",
+                      pathlib.Path(directory) / "controller.log", gripper_model, parameters,
+                      device_apart)
+    try:
+        rig.wait_ready()
+        time.sleep(1.0)  # the graph of every node known
+        yield rig
+    except BaseException:
+        print(f"[bench_grasp] the end of the controller's log:\n{rig.log_tail()}",
+              file=sys.stderr)
+        raise
+    finally:
+        rig.close()
+
+
 def run_suite(cases, placement, law, args, product_readers: list) -> tuple[list, float]:
     """Every case through the suite; the records and the world's CPU share (%).
     ``product_readers`` gets the product's subscriptions to the ground truth (none expected)."""
     records = []
     with tempfile.TemporaryDirectory() as directory:
         scenes = [gb.write_scene(placement.scene(case), directory) for case in cases]
-        rig = gb.SuiteRig(scenes[0], f"bench_grasp-{uuid.uuid4().hex[:6]}",
-                          pathlib.Path(directory) / "controller.log", args.gripper_model)
-        try:
-            rig.wait_ready()
-            time.sleep(1.0)  # the graph of every node known
+        with ready_rig(scenes[0], directory, args.gripper_model) as rig:
             product_readers.extend(rig.product_sim_subscribers())
             cpu0, time0 = rig.world_load()
             cpu_total = sim_total = 0.0
@@ -82,12 +102,6 @@ def run_suite(cases, placement, law, args, product_readers: list) -> tuple[list,
                 progress(index, len(cases), f"{case.object_class}, {case.mass_kg * 1e3:g} g, "
                          f"mu {case.friction:g}: {record.outcome.value} "
                          f"(slip {record.slip_distance_m * 1e3:.1f} mm) {record.message[:60]}")
-        except BaseException:
-            print(f"[bench_grasp] the end of the controller's log:\n{rig.log_tail()}",
-                  file=sys.stderr)
-            raise
-        finally:
-            rig.close()
     return records, 100.0 * cpu_total / sim_total if sim_total else math.nan
 
 
@@ -362,6 +376,63 @@ def run_sensing(quick: bool) -> dict:
     }
 
 
+SUITE_SENSING_REPEATS = 3
+SENSING_PARAMETERS = ("object_sensing:=true", "hold_air:=trap")
+
+
+def suite_sensing_cases(quick: bool) -> list:
+    """(case, object in the scene) of the closings run through the suite."""
+    case = gb.GraspCase
+    c20, c40 = case("cylinder", 0.02, 0.02, 0.8), case("cylinder", 0.04, 0.02, 0.5)
+    if quick:
+        return [(c40, False)]
+    pinch = case("sheet", 1e-4, 0.005, 0.8)
+    one = [(c20, True), (c40, True), (c20, False), (c40, False), (pinch, False)]
+    return one * SUITE_SENSING_REPEATS
+
+
+def run_sensing_suite(quick: bool, gripper_model: str, device_apart: bool = False) -> dict:
+    """Closings through the composed controller with the sensing on (see the module): the
+    verdict each task ended with against the world. ``device_apart``: see SuiteRig."""
+    cases = suite_sensing_cases(quick)
+    placement = gb.Placement(gripper_model)
+    closings = []
+    with tempfile.TemporaryDirectory() as directory:
+        scenes = []
+        for index, (case, present) in enumerate(cases):
+            document = placement.scene(case)
+            document["name"] += f" #{index}"
+            if not present:
+                document.pop("object")
+            scenes.append(gb.write_scene(document, directory))
+        with ready_rig(scenes[0], directory, gripper_model, SENSING_PARAMETERS,
+                       device_apart) as rig:
+            for index, ((case, present), scene) in enumerate(zip(cases, scenes), start=1):
+                closing = rig.sense_closing(case, scene)
+                closings.append(closing)
+                what = case.object_class if present else f"nothing, as for {case.object_class}"
+                progress(index, len(cases), f"sensing through the suite: {what}: "
+                         f"{closing.status.name} {closing.evidence[:70]}")
+    confusion = {}
+    for closing in closings:
+        name = (f"object: {closing.case.object_class}" if closing.object_present else
+                f"nothing: as for {closing.case.object_class}")
+        row = confusion.setdefault(name, {})
+        row[closing.status.name] = row.get(closing.status.name, 0) + 1
+    decided = [c for c in closings if c.status.name != "UNKNOWN"]
+    sized = [abs(c.size_m - c.case.size_m) * 1e3 for c in closings
+             if c.object_present and math.isfinite(c.size_m) and c.case.size_m >= 0.02]
+    return {"suite_detection_accuracy": sum(c.correct for c in closings) / len(closings),
+            "suite_sensing_trials": len(closings),
+            "suite_sensing_unknown": len(closings) - len(decided),
+            "suite_sensing_wrong": sum(not c.correct for c in decided),
+            "suite_sensing_confusion": confusion,
+            "suite_size_err_mm_p95": float(_percentile(sized, 95)) if sized else math.nan,
+            "suite_sensing_rows": [{"case": c.case.object_class, "object": c.object_present,
+                                    "status": c.status.name, "size_m": c.size_m,
+                                    "evidence": c.evidence} for c in closings]}
+
+
 def _percentile(values, q: float) -> float:
     import numpy as np
     return float(np.percentile(np.asarray(values, dtype=float), q))
@@ -412,6 +483,23 @@ def sensing_markdown(figures: dict, command: str, seconds: float) -> str:
     for case, row in f["sensing_confusion"].items():
         verdicts = ", ".join(f"{name} {count}" for name, count in sorted(row.items()))
         lines.append(f"| {case} | {verdicts} |")
+    if "suite_sensing_confusion" in f:
+        lines += ["", f"Through the suite: the `controller` executable with `object_sensing` and "
+                  "`hold_air: trap`, the simulated device and its world in a `sim_device` "
+                  "process of their own on a softgrip_ipc bus (as a real device has its own "
+                  f"processor), {SUITE_SENSING_REPEATS} runs per case, the verdict each task "
+                  "ended with against the world's truth:", "",
+                  "| figure | result | target |", "|---|---|---|",
+                  f"| object against no object correct (UNKNOWN counted wrong) | "
+                  f"{f['suite_detection_accuracy']:.3f} of {f['suite_sensing_trials']} | 0.98 |",
+                  f"| closings UNKNOWN / wrong | {f['suite_sensing_unknown']} / "
+                  f"{f['suite_sensing_wrong']} | |",
+                  f"| size error p95, objects of 20 mm and more | "
+                  f"{_figure(f['suite_size_err_mm_p95'], '.1f')} mm | 5 mm |", "",
+                  "| truth: case | closing verdicts |", "|---|---|"]
+        for case, row in f["suite_sensing_confusion"].items():
+            verdicts = ", ".join(f"{name} {count}" for name, count in sorted(row.items()))
+            lines.append(f"| {case} | {verdicts} |")
     lines += ["", "| drop | left the hand | LOST reported | latency, each (ms) |",
               "|---|---|---|---|"]
     kinds = {}
@@ -450,6 +538,7 @@ def main() -> int:
             return 0
         started = time.monotonic()
         figures = run_sensing(args.quick)
+        figures.update(run_sensing_suite(args.quick, args.gripper_model, device_apart=True))
         seconds = figures["seconds"] = time.monotonic() - started
         if args.json:
             print(strict_json(figures))

@@ -451,9 +451,10 @@ def test_bench_identify_names_a_truth_whose_live_run_fails_and_runs_the_others(m
 def test_bench_grasp_sensing_quick_json_judges_the_closing_against_the_world():
     """The offline sensing run, quick: its keys; no closing judged wrong (the 20 mm cylinder
     held; the empty hand HELD never); the 40 mm cylinder shaken out of its clamp read LOST, a
-    +20 kPa bias during a hold not."""
+    +20 kPa bias during a hold not. Through the suite (the controller with the sensing on, the
+    device apart), an empty hand is not judged held."""
     pytest.importorskip("mujoco")
-    result = run("scripts/bench_grasp.py", "--sensing-only", "--quick", "--json", timeout=300)
+    result = run("scripts/bench_grasp.py", "--sensing-only", "--quick", "--json", timeout=400)
     assert result.returncode == 0, result.stderr[-3000:]
     figures = strict_loads(result.stdout)
     assert figures["sensing_trials"] == 2 and figures["sensing_wrong"] == 0
@@ -461,3 +462,5 @@ def test_bench_grasp_sensing_quick_json_judges_the_closing_against_the_world():
     assert figures["drops"] == 1 and figures["loss_detected_rate"] == 1.0
     assert 0.0 <= figures["loss_latency_ms_p95"] < 200.0
     assert figures["faults_read_as_lost"] == 0 and figures["false_lost"] == 0
+    assert figures["suite_sensing_trials"] == 1 and figures["suite_sensing_wrong"] == 0
+    assert list(figures["suite_sensing_confusion"]) == ["nothing: as for cylinder 40 mm"]

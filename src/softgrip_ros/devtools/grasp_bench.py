@@ -98,6 +98,26 @@ class GraspRecord:
                 "hold_margin_kg": self.hold_margin_kg, "message": self.message}
 
 
+@dataclasses.dataclass
+class SensedClosing:
+    """A closing judged through the suite: the status the task ended with (an ObjectStatus),
+    the felt size (m, NaN: none), whether the world had the object in the hand then, and the
+    evidence (or why the closing failed)."""
+
+    case: GraspCase
+    status: object
+    size_m: float
+    object_present: bool
+    evidence: str
+
+    @property
+    def correct(self) -> bool:
+        from softgrip_ros.estimation.grasp_sensing import ObjectStatus
+        if self.object_present:
+            return self.status in (ObjectStatus.CONTACT_CLOSING, ObjectStatus.HELD)
+        return self.status == ObjectStatus.NO_OBJECT
+
+
 FULL_SIZES_M = (0.005, 0.01, 0.02, 0.04, 0.06, 0.08)
 FULL_MASSES_KG = (0.02, 0.05, 0.1, 0.2)
 FULL_FRICTIONS = (0.3, 0.5, 0.8)
@@ -179,7 +199,12 @@ class SuiteRig:
     client: the product's GripperClient, and the ground truth's subscriptions and services."""
 
     def __init__(self, first_scene: pathlib.Path, channel: str, log_path: pathlib.Path,
-                 gripper_model: str = "type_II"):
+                 gripper_model: str = "type_II", parameters: tuple = (),
+                 device_apart: bool = False):
+        """``parameters``: more ``name:=value`` settings of the controller's nodes;
+        ``device_apart``: the simulated device and its world in a ``sim_device`` process of their
+        own, on a softgrip_ipc bus (as a real device has its own processor), not in the
+        controller's."""
         import rclpy
         from rclpy.node import Node
 
@@ -189,9 +214,16 @@ class SuiteRig:
         from softgrip_ros.devtools.processes import installed_executable
 
         self.log = open(log_path, "w+")  # the caller's directory: it goes when that does
+        world = ("-p", f"world.scene:={first_scene}")
+        bus = ("-p", f"can.channel:={channel}") + (
+            ("-p", "can.interface:=softgrip_ipc") if device_apart else ())
+        self.device_process = subprocess.Popen(
+            [installed_executable("sim_device"), "--ros-args", *bus, *world],
+            stdout=self.log, stderr=subprocess.STDOUT, text=True) if device_apart else None
         self.process = subprocess.Popen(
-            [installed_executable("controller"), "--ros-args", "-p", f"can.channel:={channel}",
-             "-p", f"world.scene:={first_scene}", "-p", f"gripper_model:={gripper_model}"],
+            [installed_executable("controller"), "--ros-args", *bus,
+             *(() if device_apart else world), "-p", f"gripper_model:={gripper_model}",
+             *(word for setting in parameters for word in ("-p", setting))],
             stdout=self.log, stderr=subprocess.STDOUT, text=True)
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
@@ -244,6 +276,8 @@ class SuiteRig:
         finally:
             rclpy.try_shutdown(context=self.context)
             stop_process(self.process)
+            if self.device_process is not None:
+                stop_process(self.device_process)
             self.log.close()
 
     @staticmethod
@@ -289,6 +323,17 @@ class SuiteRig:
     def arm_idle(self) -> bool:
         return self.truth is not None and self.truth.arm_move == ""
 
+    def _close_around(self, case: GraspCase) -> None:
+        """After an ENVELOP_CLAMP: ENVELOPED, the arm's approach, then CLAMP (a PINCH: nothing);
+        TimeoutError when the gripper does not follow."""
+        S = self.GripperState
+        if case.mode != "PINCH":
+            if not self._wait(lambda: self.phase() == S.ENVELOPED, 8.0):
+                raise TimeoutError(f"no ENVELOPED (phase {self.phase()})")
+            self.play_through("approach")
+            if not self.client.clamp():
+                raise TimeoutError("CLAMP refused")
+
     def run(self, case: GraspCase, scene_path: pathlib.Path, rated_mass_kg: float) -> GraspRecord:
         """One grasp (see the module docstring); the gripper is vented and IDLE afterwards."""
         S = self.GripperState
@@ -316,12 +361,7 @@ class SuiteRig:
             record.cycle_s = time.monotonic() - started
             return record
         try:
-            if case.mode != "PINCH":
-                if not self._wait(lambda: self.phase() == S.ENVELOPED, 8.0):
-                    raise TimeoutError(f"no ENVELOPED (phase {self.phase()})")
-                self.play_through("approach")
-                if not self.client.clamp():
-                    raise TimeoutError("CLAMP refused")
+            self._close_around(case)
             if not self._wait(lambda: self.phase() in (S.HOLDING, S.FAULT), 8.0) or \
                     self.phase() != S.HOLDING:
                 raise TimeoutError(f"no HOLDING (phase {self.phase()}: "
@@ -354,6 +394,40 @@ class SuiteRig:
             self._wait(lambda: self.phase() == S.IDLE, 5.0)
             time.sleep(0.3)  # vented: the next world starts from rest
         return record
+
+    def sense_closing(self, case: GraspCase, scene_path: pathlib.Path) -> SensedClosing:
+        """One closing with the grasp manager's object sensing on (see :class:`SuiteRig`'s
+        ``parameters``): ``case``'s grasp in the scene at ``scene_path`` (which may hold no
+        object), the verdict the task ended with against the world's truth; the gripper is vented
+        and IDLE afterwards."""
+        from softgrip_ros.estimation.grasp_sensing import ObjectStatus
+        S = self.GripperState
+        self.load(scene_path)
+        command_id = f"sense-{uuid.uuid4().hex[:8]}"
+        sent = (self.client.pinch(case.size_m, case.mass_kg, command_id=command_id)
+                if case.mode == "PINCH" else
+                self.client.envelop_clamp(case.size_m, case.mass_kg, command_id=command_id,
+                                          friction_coefficient=case.friction))
+        closing = SensedClosing(case, ObjectStatus.UNKNOWN, math.nan, False, "")
+        try:
+            if not sent:
+                raise RuntimeError("the grasp was not accepted")
+            self._close_around(case)
+            if not self._wait(self.client.is_task_complete, 12.0):
+                raise TimeoutError(f"the task did not end (phase {self.phase()})")
+            status, size = self.client.object_status()
+            truth = self.truth
+            closing = SensedClosing(case, status, size, bool(truth.object_in_hand),
+                                    self.client.state().message)
+        except (TimeoutError, RuntimeError) as error:
+            closing.evidence = f"failed: {error}"
+        finally:
+            self.client.release()
+            self._wait(lambda: self.phase() == S.IDLE, 8.0)
+            self.client.stop()
+            self._wait(lambda: self.phase() == S.IDLE, 5.0)
+            time.sleep(0.3)
+        return closing
 
     def product_sim_subscribers(self) -> list:
         """The subscriptions to the ground-truth topics of any node but this benchmark's: none
