@@ -137,8 +137,8 @@ def test_l2_in_a_process_of_its_own_gives_the_same_solution():
     solver = RodSolverProcess("type_II", nice_increment=7)
     try:
         apart = SceneModel("auto", 1e-3, rod_solver=solver).evaluate(-10e3, CLAMP_40MM)
-        in_child = solver._executor.submit(os.getenv, "OPENBLAS_NUM_THREADS").result()
-        nice_in_child = solver._executor.submit(os.nice, 0).result()
+        in_child = solver._worker.submit(os.getenv, "OPENBLAS_NUM_THREADS").result()
+        nice_in_child = solver._worker.submit(os.nice, 0).result()
     finally:
         solver.close()
     assert in_child == (before["OPENBLAS_NUM_THREADS"] or "1")
@@ -158,9 +158,9 @@ def test_closing_the_solver_process_ends_a_running_solve_at_once():
     import time
     from concurrent.futures.process import BrokenProcessPool
     solver = RodSolverProcess("type_II", nice_increment=0)
-    pid = solver._executor.submit(os.getpid).result(timeout=30.0)
-    assert [child.pid for child in solver._children] == [pid]
-    running = solver._executor.submit(time.sleep, 60.0)
+    pid = solver._worker.submit(os.getpid).result(timeout=30.0)
+    assert [child.pid for child in solver._worker._children] == [pid]
+    running = solver._worker.submit(time.sleep, 60.0)
     time.sleep(0.2)
     solver.close()
     # had close waited, the sleep would have ended normally

@@ -110,7 +110,7 @@ def test_a_ctrl_c_while_the_kinematics_is_built_closes_its_l2_child_and_threads(
     real_solver = module.LatestSolveThread
 
     def solver(model, **kwargs):
-        children.extend(model._rod_solver._children)
+        children.extend(model._rod_solver._worker._children)
         return real_solver(model, **kwargs)
 
     def interrupted(*args, **kwargs):

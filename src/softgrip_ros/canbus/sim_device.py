@@ -148,8 +148,8 @@ SEND_LAG_S = 0.0002
 # suspended process say, the plant resumes from where it stopped) ...
 MAX_STALL_S = 1.0
 # ... in spans no longer than this, each sub-stepped by PneumaticPlant.advance, a stall's catch-up
-# too: one backward-Euler step per span put a fill 76 Pa (1 ms) to 332 Pa (5 ms) ahead of the law,
-# so the truth moved with the host's load (an identification and the grasp sensing fitted that)
+# too: one backward-Euler step per span strays from the law, so the truth would move with the
+# host's load (and an identification or the grasp sensing would fit that)
 MAX_PLANT_STEP_S = 0.005
 # a sensor samples on its own period in the plant's time, however the thread that simulates it is
 # held up, and its frame carries the sampling instant, as a device with its own processor does:
@@ -387,7 +387,6 @@ class SimulatedDevice:
                 self._send_sensor(sensor, now)
 
     def _advance(self, dt: float, now: float) -> None:
-        integrate = self.plant.advance
         with self._lock:
             inputs = self._inputs
             if now - self._last_valve_command > self.config.command_watchdog_s:
@@ -404,12 +403,12 @@ class SimulatedDevice:
             expires = open_for < dt and not stuck and not self._faults["ignore_valve_lifetime"]
             if expires and any(v in SOURCE_VALVES for v in inputs.valves):
                 if open_for > 0.0:
-                    self._state = integrate(self._state, inputs, open_for)
+                    self._state = self.plant.advance(self._state, inputs, open_for)
                     dt -= open_for
                 valves = tuple(Valve.CLOSED if v in SOURCE_VALVES else v for v in inputs.valves)
                 inputs = dataclasses.replace(inputs, valves=valves)
                 self._inputs = dataclasses.replace(self._inputs, valves=valves)
-            self._state = integrate(self._state, inputs, dt)
+            self._state = self.plant.advance(self._state, inputs, dt)
             if stuck:
                 # what the valves really do
                 self._inputs = dataclasses.replace(self._inputs, valves=inputs.valves)

@@ -5,7 +5,7 @@ the state machine (:meth:`~softgrip_ros.control.grasp_fsm.GraspStateMachine.sens
 The owner calls :meth:`ObjectSensingLink.controller_outputs` and
 :meth:`ObjectSensingLink.reading` as the controller's outputs and the sensors' readings arrive,
 and :meth:`ObjectSensingLink.after` after every command and update of the state machine, all
-under one lock. A motion's judgement costs some 0.2 s of CPU: ``run(job, done)`` judges the
+under one lock. A motion's judgement is CPU-heavy: ``run(job, done)`` judges the
 :class:`~softgrip_ros.estimation.grasp_sensing.MotionJob` ``job`` where the owner likes
 (:func:`~softgrip_ros.estimation.grasp_sensing.judge_motion` with the sensing's model, in a child
 process: in a thread it holds the GIL the control path needs) and must call ``done(result)``

@@ -684,7 +684,7 @@ class GraspSensing:
       :meth:`air_trapped` through a hold, :meth:`released` when the grasp ends.
 
     :meth:`status` is the verdict now; UNKNOWN while the controller reports a fault (the safety
-    monitor names it). Not thread-safe; :meth:`motion_settled` costs some 0.2 s of CPU (owners
+    monitor names it). Not thread-safe; :meth:`motion_settled` is CPU-heavy (owners
     with a latency budget run it on a worker)."""
 
     def __init__(self, model: ContactModel, sensors: dict, loss: LossConfig | None = None):

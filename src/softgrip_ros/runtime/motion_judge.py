@@ -11,9 +11,9 @@ class MotionJudgeProcess:
     """:func:`~softgrip_ros.estimation.grasp_sensing.judge_motion` in a child (a
     :class:`WorkerProcess`) that builds its own contact model with
     :func:`~softgrip_ros.estimation.grasp_sensing.contact_model_for` (``gripper_model``,
-    ``bending``, ``plant_parameters``). A judgement is some 0.2 s of CPU in numpy and Python: in
-    a thread of the composed controller it starved the in-process simulated device and the
-    control loop (sensor timeouts during grasps). :meth:`close` it when done."""
+    ``bending``, ``plant_parameters``). A judgement is CPU-heavy numpy and Python: in a thread of
+    the composed controller it would hold the GIL the control loop and an in-process simulated
+    device need. :meth:`close` it when done."""
 
     def __init__(self, gripper_model: str, bending: str, plant_parameters,
                  nice_increment: int = WORKER_NICE_INCREMENT):

@@ -17,9 +17,8 @@ SOLVER_PROCESS_NICE_INCREMENT = WORKER_NICE_INCREMENT
 class RodSolverProcess:
     """L2 solves in a child process of their own (:class:`WorkerProcess`). A solve is
     milliseconds of pure-Python CPU; in a thread of the composed controller it holds the GIL that
-    the 500 Hz pressure loop and the CAN threads need, and they stall behind it (the demo's clamp
-    overshot past the vacuum limit in 3 of 14 runs that way, 0 of 14 before L2 ran there). Call
-    it as SceneModel's ``rod_solver``; :meth:`close` it when done. ``nice_increment``: see
+    the 500 Hz pressure loop and the CAN threads need, and they stall behind it. Call it as
+    SceneModel's ``rod_solver``; :meth:`close` it when done. ``nice_increment``: see
     WorkerProcess (ValueError outside 0..19).
 
     continuation_steps: the load steps of each solve (SceneModel's ROD_CONTINUATION_STEPS)."""
@@ -28,7 +27,6 @@ class RodSolverProcess:
                  nice_increment: int = SOLVER_PROCESS_NICE_INCREMENT, continuation_steps: int = 4):
         self._worker = WorkerProcess(_setup_rod, (gripper_model, continuation_steps),
                                      nice_increment, "softgrip-l2")
-        self._executor, self._children = self._worker._executor, self._worker._children
 
     def __call__(self, pressure_pa: float, obstacle, from_pressure_pa: float):
         return self._worker.submit(_solve_in_rod_worker, pressure_pa, obstacle,

@@ -19,13 +19,12 @@ import threading
 import time
 from concurrent.futures import Future, ProcessPoolExecutor
 
-# The workers' matrices are small: OpenBLAS's worker threads gain nothing on them and spin between
-# calls, which in the controller's L2 child took 40 % of a core during grasps (solves 26 -> 8.5 ms
-# of CPU each with one thread; bench_e2e). A setting of the user's own is kept.
+# The workers' matrices are small: OpenBLAS's worker threads gain nothing on them and spin
+# between calls (see docs/benchmarks.md). A setting of the user's own is kept.
 WORKER_PROCESS_ENVIRONMENT = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
 # At the default nice value the scheduler shares a core evenly between the worker and the pressure
 # loop, the CAN reception and the estimator, which wait behind it. Raised by 10, the child yields
-# to them (bench_e2e: the sensor-to-pose p99 lower in each of 4 comparisons, by 0.05-0.7 ms).
+# to them.
 WORKER_NICE_INCREMENT = 10
 PARENT_POLL_S = 0.2  # a child checks this often that its parent lives
 
@@ -80,8 +79,8 @@ class WorkerProcess:
                     # start the child now (its imports take about a second), not at first use
                     self._executor.submit(os.getpid)
                 # the child as a Process, which close ends by its PID: its first result comes
-                # only after its imports, which a loaded host and the nice value stretch past a
-                # stop's timeout (CI: a SIGTERM 8 s after start-up waited for them)
+                # only after its imports, which a loaded host and the nice value can stretch past
+                # a stop's timeout
                 self._children = list(getattr(self._executor, "_processes", {}).values())
             except RuntimeError:  # the interpreter is exiting (Ctrl-C): no child
                 pass
