@@ -331,11 +331,9 @@ def run_sensing(quick: bool) -> dict:
         progress(done, len(plan), f"sensing {kind}: {trial.name}: "
                  f"{result.closing_status.name} -> {result.final_status.name}")
     closing = results["closing"]
-    confusion = {}
-    for r in closing:
-        truth = "object" if r.object_present else "nothing"
-        row = confusion.setdefault(f"{truth}: {r.trial.name}", {})
-        row[r.closing_status.name] = row.get(r.closing_status.name, 0) + 1
+    confusion = confusion_matrix(
+        (f"{'object' if r.object_present else 'nothing'}: {r.trial.name}", r.closing_status)
+        for r in closing)
     decided = [r for r in closing if r.closing_status != ObjectStatus.UNKNOWN]
     sized = [r for r in closing if r.object_present and math.isfinite(r.closing_size_m)]
     size_errors = [abs(r.closing_size_m - r.true_size_m) * 1e3 for r in sized
@@ -391,9 +389,10 @@ def suite_sensing_cases(quick: bool) -> list:
     return one * SUITE_SENSING_REPEATS
 
 
-def run_sensing_suite(quick: bool, gripper_model: str, device_apart: bool = False) -> dict:
-    """Closings through the composed controller with the sensing on (see the module): the
-    verdict each task ended with against the world. ``device_apart``: see SuiteRig."""
+def run_sensing_suite(quick: bool, gripper_model: str) -> dict:
+    """Closings through the controller with the sensing on, the device in a process of its own
+    (see the module): the verdict each task ended with against the world."""
+    from softgrip_ros.estimation.grasp_sensing import ObjectStatus
     cases = suite_sensing_cases(quick)
     placement = gb.Placement(gripper_model)
     closings = []
@@ -406,20 +405,17 @@ def run_sensing_suite(quick: bool, gripper_model: str, device_apart: bool = Fals
                 document.pop("object")
             scenes.append(gb.write_scene(document, directory))
         with ready_rig(scenes[0], directory, gripper_model, SENSING_PARAMETERS,
-                       device_apart) as rig:
+                       device_apart=True) as rig:
             for index, ((case, present), scene) in enumerate(zip(cases, scenes), start=1):
                 closing = rig.sense_closing(case, scene)
                 closings.append(closing)
                 what = case.object_class if present else f"nothing, as for {case.object_class}"
                 progress(index, len(cases), f"sensing through the suite: {what}: "
                          f"{closing.status.name} {closing.evidence[:70]}")
-    confusion = {}
-    for closing in closings:
-        name = (f"object: {closing.case.object_class}" if closing.object_present else
-                f"nothing: as for {closing.case.object_class}")
-        row = confusion.setdefault(name, {})
-        row[closing.status.name] = row.get(closing.status.name, 0) + 1
-    decided = [c for c in closings if c.status.name != "UNKNOWN"]
+    confusion = confusion_matrix(
+        (f"object: {c.case.object_class}" if c.object_present else
+         f"nothing: as for {c.case.object_class}", c.status) for c in closings)
+    decided = [c for c in closings if c.status != ObjectStatus.UNKNOWN]
     sized = [abs(c.size_m - c.case.size_m) * 1e3 for c in closings
              if c.object_present and math.isfinite(c.size_m) and c.case.size_m >= 0.02]
     return {"suite_detection_accuracy": sum(c.correct for c in closings) / len(closings),
@@ -431,6 +427,21 @@ def run_sensing_suite(quick: bool, gripper_model: str, device_apart: bool = Fals
             "suite_sensing_rows": [{"case": c.case.object_class, "object": c.object_present,
                                     "status": c.status.name, "size_m": c.size_m,
                                     "evidence": c.evidence} for c in closings]}
+
+
+def confusion_matrix(pairs) -> dict:
+    """{row: {status name: count}} from (row, ObjectStatus) pairs, rows in first-seen order."""
+    confusion = {}
+    for row, status in pairs:
+        counts = confusion.setdefault(row, {})
+        counts[status.name] = counts.get(status.name, 0) + 1
+    return confusion
+
+
+def verdict_rows(confusion: dict) -> list:
+    """A confusion matrix as markdown table rows: | row | STATUS count, ... |."""
+    return [f"| {row} | " + ", ".join(f"{name} {count}" for name, count in sorted(counts.items()))
+            + " |" for row, counts in confusion.items()]
 
 
 def _percentile(values, q: float) -> float:
@@ -480,9 +491,7 @@ def sensing_markdown(figures: dict, command: str, seconds: float) -> str:
         "| truth: case | closing verdicts |",
         "|---|---|",
     ]
-    for case, row in f["sensing_confusion"].items():
-        verdicts = ", ".join(f"{name} {count}" for name, count in sorted(row.items()))
-        lines.append(f"| {case} | {verdicts} |")
+    lines += verdict_rows(f["sensing_confusion"])
     if "suite_sensing_confusion" in f:
         lines += ["", f"Through the suite: the `controller` executable with `object_sensing` and "
                   "`hold_air: trap`, the simulated device and its world in a `sim_device` "
@@ -497,9 +506,7 @@ def sensing_markdown(figures: dict, command: str, seconds: float) -> str:
                   f"| size error p95, objects of 20 mm and more | "
                   f"{_figure(f['suite_size_err_mm_p95'], '.1f')} mm | 5 mm |", "",
                   "| truth: case | closing verdicts |", "|---|---|"]
-        for case, row in f["suite_sensing_confusion"].items():
-            verdicts = ", ".join(f"{name} {count}" for name, count in sorted(row.items()))
-            lines.append(f"| {case} | {verdicts} |")
+        lines += verdict_rows(f["suite_sensing_confusion"])
     lines += ["", "| drop | left the hand | LOST reported | latency, each (ms) |",
               "|---|---|---|---|"]
     kinds = {}
@@ -538,7 +545,7 @@ def main() -> int:
             return 0
         started = time.monotonic()
         figures = run_sensing(args.quick)
-        figures.update(run_sensing_suite(args.quick, args.gripper_model, device_apart=True))
+        figures.update(run_sensing_suite(args.quick, args.gripper_model))
         seconds = figures["seconds"] = time.monotonic() - started
         if args.json:
             print(strict_json(figures))

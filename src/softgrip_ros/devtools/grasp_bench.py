@@ -31,6 +31,7 @@ import uuid
 import numpy as np
 import yaml
 
+from softgrip_ros.estimation.grasp_sensing import ObjectStatus
 from softgrip_ros.model.force_law import (ENVELOP_MARGIN_M, PRESSURE_TOLERANCE_PA, ObjectKind,
                                           ROD_ELEMENTS)
 
@@ -98,6 +99,14 @@ class GraspRecord:
                 "hold_margin_kg": self.hold_margin_kg, "message": self.message}
 
 
+def verdict_correct(status: ObjectStatus, object_present: bool) -> bool:
+    """Whether a closing's verdict agrees with the world: an object found (CONTACT_CLOSING or
+    HELD) when one is in the hand, NO_OBJECT when none is; UNKNOWN is never correct."""
+    if object_present:
+        return status in (ObjectStatus.CONTACT_CLOSING, ObjectStatus.HELD)
+    return status == ObjectStatus.NO_OBJECT
+
+
 @dataclasses.dataclass
 class SensedClosing:
     """A closing judged through the suite: the status the task ended with (an ObjectStatus),
@@ -105,17 +114,14 @@ class SensedClosing:
     evidence (or why the closing failed)."""
 
     case: GraspCase
-    status: object
+    status: ObjectStatus
     size_m: float
     object_present: bool
     evidence: str
 
     @property
     def correct(self) -> bool:
-        from softgrip_ros.estimation.grasp_sensing import ObjectStatus
-        if self.object_present:
-            return self.status in (ObjectStatus.CONTACT_CLOSING, ObjectStatus.HELD)
-        return self.status == ObjectStatus.NO_OBJECT
+        return verdict_correct(self.status, self.object_present)
 
 
 FULL_SIZES_M = (0.005, 0.01, 0.02, 0.04, 0.06, 0.08)
@@ -400,7 +406,6 @@ class SuiteRig:
         ``parameters``): ``case``'s grasp in the scene at ``scene_path`` (which may hold no
         object), the verdict the task ended with against the world's truth; the gripper is vented
         and IDLE afterwards."""
-        from softgrip_ros.estimation.grasp_sensing import ObjectStatus
         S = self.GripperState
         self.load(scene_path)
         command_id = f"sense-{uuid.uuid4().hex[:8]}"

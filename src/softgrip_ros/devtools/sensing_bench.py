@@ -24,7 +24,7 @@ from softgrip_ros.control.grasp_fsm import (GraspConfig, GraspMode, GraspRequest
                                             GraspStateMachine, Phase, fault_text)
 from softgrip_ros.control.object_sensing import ObjectSensingLink
 from softgrip_ros.control.pressure import PressureControlConfig, PressureController
-from softgrip_ros.devtools.grasp_bench import GraspCase, Placement
+from softgrip_ros.devtools.grasp_bench import GraspCase, Placement, verdict_correct
 from softgrip_ros.estimation.estimator import PressureEstimator
 from softgrip_ros.estimation.grasp_sensing import (ContactModel, GraspSensing, ObjectStatus,
                                                    SensorNoise, judge_motion)
@@ -112,10 +112,8 @@ class TrialResult:
 
     @property
     def closing_correct(self) -> bool:
-        """The closing's verdict agrees with the world (UNKNOWN is not correct)."""
-        if self.object_present:
-            return self.closing_status in (ObjectStatus.CONTACT_CLOSING, ObjectStatus.HELD)
-        return self.closing_status == ObjectStatus.NO_OBJECT
+        """The closing's verdict agrees with the world (see verdict_correct)."""
+        return verdict_correct(self.closing_status, self.object_present)
 
 
 def sensor_noise() -> dict:
