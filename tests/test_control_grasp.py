@@ -386,6 +386,18 @@ def test_a_settled_hold_traps_its_air_and_tops_it_up_when_it_drifts(kinematics):
     assert regulated.fsm.request.source in (Source.SUPPLY, Source.VACUUM)
 
 
+def test_without_sensing_a_grasp_that_reaches_holding_does_not_claim_the_object(kinematics):
+    """object_held is the air's verdict: with the sensing off, nothing says an object is there,
+    so a grasp succeeds at HOLDING with object_held false."""
+    loop = GraspLoop(kinematics, GraspConfig(auto_clamp_delay_s=0.0))
+    loop.command(GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.04,
+                              object_mass_kg=0.02, command_id="g"))
+    task = loop.fsm.task
+    loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
+    assert loop.fsm.outcome(task, GraspMode.ENVELOP_CLAMP) == "succeeded"
+    assert not loop.fsm.object_held()
+
+
 @pytest.mark.parametrize("on_lost", ["hold", "release", "fault"])
 def test_the_sensed_verdicts_end_the_goal_and_act_on_a_loss(kinematics, on_lost):
     """With sensing on, a HOLDING goal waits for the closing's verdict; NO_OBJECT fails it

@@ -283,7 +283,8 @@ def test_the_client_drives_a_full_envelop_clamp_release(suite):
              message="ENVELOPED")
     assert client.clamp()
     wait_for(client.is_task_complete, message="the clamp task's end")
-    assert client.result().object_held and client.status() == GoalStatus.STATUS_SUCCEEDED
+    assert client.status() == GoalStatus.STATUS_SUCCEEDED
+    assert client.result().final_phase == S.HOLDING and not client.result().object_held
     assert client.release()
     wait_for(client.is_task_complete, message="released")
     assert client.state().phase == S.IDLE and client.result().final_phase == S.IDLE
@@ -304,7 +305,8 @@ def test_the_softgrip_command_drives_a_full_grasp_on_the_installed_controller(tm
     try:
         grasped = run("grasp", "--diameter", "0.04", "--mass", "0.02", "--clamp-after", "0.2")
         assert grasped.returncode == 0, grasped.stdout + grasped.stderr
-        assert "HOLDING" in grasped.stdout and "object held: True" in grasped.stdout
+        # object sensing off: the air says nothing of the object
+        assert "HOLDING" in grasped.stdout and "object held: unknown" in grasped.stdout
         state = run("state")
         assert state.returncode == 0 and state.stdout.startswith("HOLDING")
         released = run("release")

@@ -179,7 +179,8 @@ def test_the_simulated_device_with_a_world_has_the_world_rows_too(namespaced_con
 @pytest.mark.slow
 def test_the_python_example_grasps_as_written(rclpy_context):
     """The README's Python example, run as it stands against the composed suite (object sensing
-    off, the default): it prints held: True, and the air's status UNKNOWN."""
+    off, the default): the grasp ends in HOLDING, and nothing says the object is held: held
+    False, the air's status UNKNOWN."""
     from rclpy.parameter import Parameter
     from softgrip_ros.nodes.common import close_all
     from softgrip_ros.nodes.controller import make_nodes
@@ -195,7 +196,7 @@ def test_the_python_example_grasps_as_written(rclpy_context):
     finally:
         close_all(nodes)
     assert result.returncode == 0, result.stderr[-2000:]
-    assert "held: True" in result.stdout and "ObjectStatus.UNKNOWN" in result.stdout
+    assert "phase: 4 held: False" in result.stdout and "ObjectStatus.UNKNOWN" in result.stdout
 
 
 def test_the_readme_is_a_guide_of_at_most_250_lines():

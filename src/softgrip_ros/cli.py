@@ -8,7 +8,8 @@
 
 Each task prints the phases as they come and ends with the result; the exit status is 0 when
 the task succeeded, 1 when it was refused, failed (a clamp that closed on nothing, too) or
-timed out, 3 when no gripper answered. Each line shows what the air says of the object.
+timed out, 3 when no gripper answered. Each line shows what the air says of the object, and
+the result whether it is held: yes, no, or unknown (without object sensing, always unknown).
 ``grasp`` ends once the fingers are open around the object (ENVELOPED), unless
 ``--clamp-after S`` clamps S seconds later and waits for HOLDING.
 """
@@ -109,8 +110,11 @@ def _follow(client, until, timeout_s: float) -> bool:
                 print("refused: the grasp manager did not accept the goal", file=sys.stderr)
                 return False
             phase = PHASES[result.final_phase] if result.final_phase < len(PHASES) else "?"
+            # object_held false is "not sensed held": the status tells unknown from no
+            held = "yes" if result.object_held else (
+                "unknown" if last is None or last[2] == 0 else "no")  # 0: OBJECT_UNKNOWN
             print(f"result: {phase}, {result.final_gauge_pressure_pa / 1e3:.1f} kPa: "
-                  f"{result.message}; object held: {result.object_held}")
+                  f"{result.message}; object held: {held}")
             return until is None and client.status() == GoalStatus.STATUS_SUCCEEDED
         time.sleep(0.02)
     print(f"timed out after {timeout_s:g} s", file=sys.stderr)

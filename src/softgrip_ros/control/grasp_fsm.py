@@ -882,9 +882,6 @@ class GraspStateMachine:
 
     def object_held(self) -> bool:
         """Whether the air says an object is between the fingers (HELD or found by the closing,
-        in HOLDING); without sensing, whether the phase is HOLDING."""
-        if self.state.phase != Phase.HOLDING:
-            return False
-        if not self.sensing_enabled:
-            return True
-        return self.state.object_status in HOLDING_STATUSES
+        in HOLDING). Without sensing nothing says so: False, whatever the phase."""
+        return (self.sensing_enabled and self.state.phase == Phase.HOLDING and
+                self.state.object_status in HOLDING_STATUSES)

@@ -384,8 +384,8 @@ GRASP_MANAGER_SPECS = [
     ParamSpec("prefix", "", "put before the tip_spacing joint name of ParallelGripperCommand, "
               "as the URDF's prefix", allow_empty=True),
     ParamSpec("object_sensing", False, "judge the object from the air (object_status; "
-              "docs/grasp_sensing.md; with hold_air trap for losses); false: object_held means "
-              "the phase reached HOLDING"),
+              "docs/grasp_sensing.md; with hold_air trap for losses); false: object_held is "
+              "always false"),
     ParamSpec("sensors.names", ["chamber_a", "chamber_b"], "sensors the object sensing reads: "
               "topics pressure/sensor/<name>, their noise from the plant file"),
     ParamSpec("sensors.rates_hz", [500.0, 200.0], "each sensor's reading rate, as the device "
