@@ -209,12 +209,16 @@ def test_a_judgement_that_raises_leaves_the_status_unknown_and_says_why(model):
 
 def test_the_judge_process_gives_the_verdict_of_an_in_process_judgement(model):
     """MotionJudgeProcess judges in a child of its own (another PID, which builds its own
-    model), with the verdict judge_motion gives here; closed, it refuses more work."""
+    model, with the plant file's identified share), with the verdict judge_motion gives here;
+    closed, it refuses more work."""
+    import dataclasses
     import os
     from softgrip_ros.runtime.motion_judge import MotionJudgeProcess
     job = gs.MotionJob(synthetic(model, 9e3), False, model.tip_spacing_m(9e3), -30e3, 0.4)
-    here = gs.judge_motion(model, job)
-    judge = MotionJudgeProcess("type_II", "l0", model.plant, nice_increment=0)
+    identified = dataclasses.replace(model, bending_volume_share=0.16, share_identified=True)
+    here = gs.judge_motion(identified, job)
+    assert "identified on this gripper" in here.evidence
+    judge = MotionJudgeProcess("type_II", "l0", model.plant, 0.16, nice_increment=0)
     try:
         apart = judge.submit(job).result(timeout=60.0)
         child = judge._worker.submit(os.getpid).result(timeout=10.0)

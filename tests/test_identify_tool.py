@@ -164,3 +164,48 @@ def test_a_sensor_dropout_stops_a_live_run_which_vents_restores_and_writes_nothi
         codes = [stop_process(p, timeout_s=15.0) for p in (controller, device)]
         logs.close()
     assert codes == [0, 0], (tmp_path / "processes.log").read_text()[-3000:]
+
+
+@pytest.mark.slow
+def test_the_known_object_step_learns_the_share_on_the_worlds_fingers(tmp_path):
+    """The installed controller, and the device with its physics world apart; the tool opens,
+    clamps twice on nothing, asks for the object, which the arm brings between the fingers,
+    clamps three times on it, and writes a plant file whose contact share is pinned (an
+    interval narrower than 0.1) and under which the world's 30 mm cylinder is felt within the
+    5 mm the sensing is asked for; the report and the figure beside it."""
+    from softgrip_ros.devtools.grasp_bench import GraspCase, Placement, SuiteRig, write_scene
+    from softgrip_ros.tools import identify_contact
+    scene = write_scene(Placement().scene(GraspCase("cylinder", 0.03, 0.02, 0.8)), tmp_path)
+    rig = SuiteRig(scene, unique("contact"), tmp_path / "rig.log", device_apart=True)
+    told = []
+    try:
+        rig.wait_ready()
+        run = subprocess.Popen([installed_executable("softgrip_identify"), "--known-object-m",
+                                "0.03", "--output", str(tmp_path / "out"), "--timeout", "30"],
+                               stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+        try:
+            for line in run.stdout:
+                told.append(line)
+                if identify_contact.PLACE_PROMPT in line:
+                    break
+            assert sum("on nothing" in line for line in told) == 2, told
+            rig.play_through("approach")
+            run.stdin.write("\n")
+            run.stdin.flush()
+            out, err = run.communicate(timeout=300)
+        finally:
+            stop_process(run, timeout_s=10.0)
+    finally:
+        rig.close()
+    assert run.returncode == 0, "".join(told) + out + err
+    written = plant_file.load(tmp_path / "out" / "plant.yaml")
+    detail = written.details["contact.bending_volume_share"]
+    low, high = detail["ci95"]
+    assert detail["source"] == "identified" and detail["known_object_m"] == 0.03
+    assert low <= written.bending_volume_share <= high and high - low < 0.1, detail
+    report = (tmp_path / "out" / identify_contact.REPORT).read_text()
+    felt = report.split("identified share (mm) | ", 1)[1].split(" |", 1)[0]
+    assert all(abs(float(size) - 30.0) < 5.0 for size in felt.split(", ")), report
+    assert (tmp_path / "out" / identify_contact.FIGURE).stat().st_size > 10_000
+    assert (tmp_path / "out" / "recording" / "metadata.yaml").is_file()

@@ -136,7 +136,8 @@ class ContactModel:
     ``tip_spacing_m``: D2 (m) of a gauge pressure (Pa), the kinematics' free bending, and
     ``pressure_for_tip_spacing``: its inverse (Pa of m); ``dynamics``: how the fingers' shape
     lags a changing pressure; ``finger_mode_rad_s``: their first mode (rad/s), with whose
-    2 / omega_1 the held-back volume follows."""
+    2 / omega_1 the held-back volume follows; ``share_identified``: the share was measured on
+    this gripper (softgrip_identify's known-object step), not the model's prediction."""
 
     plant: PneumaticParameters
     bending_volume_share: float
@@ -145,6 +146,7 @@ class ContactModel:
     pressure_for_tip_spacing: object
     dynamics: FingerDynamics
     finger_mode_rad_s: float
+    share_identified: bool = False
 
     def __post_init__(self):
         if not 0.0 < self.bending_volume_share < 1.0:
@@ -180,11 +182,14 @@ class ContactModel:
 
 
 def contact_model_for(gripper_model: str = "type_II", bending: str = "l0",
-                      plant: PneumaticParameters | None = None) -> ContactModel:
-    """The built-in model's :class:`ContactModel`: the FE's bending share, the fingers' meeting
-    pressure, D2 of the kinematics and the fingers' first mode of the pseudo-rigid chain (their
-    masses against their hinges' stiffness; MuJoCo computes the chain's mass matrix). ``plant``:
-    the default plant's when None. RuntimeError when MuJoCo is missing."""
+                      plant: PneumaticParameters | None = None,
+                      bending_volume_share: float | None = None) -> ContactModel:
+    """The built-in model's :class:`ContactModel`: the bending share (``bending_volume_share``,
+    identified on this gripper, or None: the FE's prediction), the fingers' meeting pressure, D2
+    of the kinematics and the fingers' first mode of the pseudo-rigid chain (their masses against
+    their hinges' stiffness; MuJoCo computes the chain's mass matrix). ``plant``: the default
+    plant's when None. RuntimeError when MuJoCo is missing; ValueError for a share outside
+    (0, 1)."""
     from softgrip_ros.model import gripper_models
     from softgrip_ros.model.kinematics import GripperKinematics
     from softgrip_ros.model.world.fingers import FE_BENDING_VOLUME_SHARE, PseudoRigidFinger
@@ -200,10 +205,13 @@ def contact_model_for(gripper_model: str = "type_II", bending: str = "l0",
     levers = np.array([max(tip_chamber_m - arc.start_m, 0.0) for arc in finger.sub_arcs])
     dynamics = FingerDynamics(bare.hinge_mass_matrix(), finger.hinge_stiffness_nm_per_rad,
                               bare.hinge_damping(), finger.hinge_angles, levers)
-    return ContactModel(plant or PneumaticParameters(), FE_BENDING_VOLUME_SHARE,
+    identified = bending_volume_share is not None
+    return ContactModel(plant or PneumaticParameters(),
+                        bending_volume_share if identified else FE_BENDING_VOLUME_SHARE,
                         float(finger.contact_pressure_pa),
                         lambda gauge_pa: float(kinematics.pose(gauge_pa).tip_spacing_m),
-                        kinematics.pressure_for_tip_spacing, dynamics, bare.first_mode_rad_s)
+                        kinematics.pressure_for_tip_spacing, dynamics, bare.first_mode_rad_s,
+                        identified)
 
 
 # ---- what the fit reads ------------------------------------------------------------------------
@@ -297,9 +305,9 @@ def contact_steps(record: AirRecord, model: ContactModel, contacts_pa: np.ndarra
 
 
 def _simulate(record: AirRecord, model: ContactModel, contacts: np.ndarray, steps: int,
-              step_s: float, block_steps) -> tuple:
+              step_s: float, block_steps, share_scale=None) -> tuple:
     """simulate_hypotheses' air: hypothesis k blocked from step ``block_steps[k]`` (None:
-    never)."""
+    never), with the model's bending share times ``share_scale[k]`` (None: 1)."""
     plant = PneumaticPlant(model.plant)
     par = model.plant
     rt = par.gas_constant_times_temperature
@@ -319,6 +327,7 @@ def _simulate(record: AirRecord, model: ContactModel, contacts: np.ndarray, step
     blocked_at = (np.full(contacts.shape, steps) if block_steps is None
                   else np.asarray(block_steps))
     held_at_contact = model.bending_volume_m3(np.where(np.isfinite(contacts), contacts, 0.0))
+    scale = 1.0 if share_scale is None else np.asarray(share_scale, dtype=float)
     for k, now in enumerate(times):
         while index < len(inputs_list) and inputs_list[index][0] < now:
             inputs = inputs_list[index][1]
@@ -333,7 +342,8 @@ def _simulate(record: AirRecord, model: ContactModel, contacts: np.ndarray, step
             # p V rises by R T m_dot: linearly implicit in the chamber's pressure
             pv = pv + step_s * rt * flow / (1.0 - step_s * rt * slope / (v + p * dv))
         gauge = p - P_ATM_PA
-        target = np.where(blocked_at <= k, held_at_contact - model.bending_volume_m3(gauge), 0.0)
+        target = np.where(blocked_at <= k,
+                          scale * (held_at_contact - model.bending_volume_m3(gauge)), 0.0)
         offset = offset + follow * (target - offset)
         for _ in range(2):  # Newton on p (V(p) + offset) = pv
             v, dv = plant.volume_and_swelling(p, offset)
@@ -386,22 +396,8 @@ def fit_contact(record: AirRecord, model: ContactModel, until_s: float,
     no readings or the range is empty."""
     if not high_pa > low_pa:
         raise ValueError(f"need low_pa < high_pa, got {low_pa} and {high_pa}")
-    steps = max(1, int(math.ceil((until_s - record.start_s) / FIT_STEP_S)))
-    free = free_trace(record, model, steps, FIT_STEP_S, opening)
-    times = record.start_s + FIT_STEP_S * np.arange(1, steps + 1)
-    shift = readings_lead_s(record, times, free, until_s)
-    samples = [(t - shift, v, sd) for t, v, sd in record.samples
-               if record.start_s < t - shift <= until_s]
-    if len(samples) < 3:
-        raise ValueError("the record holds fewer than 3 readings to fit")
-    stamps = np.array([s[0] for s in samples])
-    values = np.array([s[1] for s in samples])
-    weights = 1.0 / np.array([s[2] for s in samples]) ** 2
     grid = np.linspace(low_pa, high_pa, hypotheses)
-    blocks = contact_steps(record, model, grid, steps, FIT_STEP_S, opening, free)
-    times, traces = simulate_hypotheses(record, model, grid, until_s, block_steps=blocks)
-    predicted = np.stack([np.interp(stamps, times, traces[:, j]) for j in range(grid.size)])
-    cost = ((predicted - values[None, :]) ** 2 * weights[None, :]).sum(axis=1)
+    cost, blocks, steps, samples = _chi_square(record, model, until_s, grid, opening)
     best = int(np.argmin(cost))
     spacing = grid[1] - grid[0]
     contact, curvature = grid[best], math.nan
@@ -428,8 +424,41 @@ def fit_contact(record: AirRecord, model: ContactModel, until_s: float,
     contact_time = (record.start_s + (block + 1) * FIT_STEP_S) if block < steps else math.nan
     size = model.tip_spacing_m(contact) if contact > meet else 0.0
     return ContactFit(float(contact), float(std), contact_time, float(max(size, 0.0)), float(z),
-                      float(cost[best]) / max(len(samples) - 1, 1), len(samples),
+                      float(cost[best]) / max(samples - 1, 1), samples,
                       tuple(float(g) for g in grid), tuple(float(c) for c in cost))
+
+
+def share_chi_square(record: AirRecord, model: ContactModel, until_s: float,
+                     contact_pa: float, shares) -> np.ndarray:
+    """The chi-square of ``record``'s closing readings up to ``until_s`` with the fingers stopped
+    at ``contact_pa`` (Pa gauge), under each bending share of ``shares`` ((K,), dimensionless),
+    weighed as :func:`fit_contact` weighs them; ValueError when the record holds fewer than 3
+    readings."""
+    shares = np.atleast_1d(np.asarray(shares, dtype=float))
+    return _chi_square(record, model, until_s, np.full(shares.shape, float(contact_pa)), False,
+                       shares / model.bending_volume_share)[0]
+
+
+def _chi_square(record: AirRecord, model: ContactModel, until_s: float, contacts: np.ndarray,
+                opening: bool, share_scale=None) -> tuple:
+    """(chi-square per hypothesis, the step each stops the fingers, the steps simulated, the
+    readings counted)."""
+    steps = max(1, int(math.ceil((until_s - record.start_s) / FIT_STEP_S)))
+    free = free_trace(record, model, steps, FIT_STEP_S, opening)
+    times = record.start_s + FIT_STEP_S * np.arange(1, steps + 1)
+    shift = readings_lead_s(record, times, free, until_s)
+    samples = [(t - shift, v, sd) for t, v, sd in record.samples
+               if record.start_s < t - shift <= until_s]
+    if len(samples) < 3:
+        raise ValueError("the record holds fewer than 3 readings to fit")
+    stamps = np.array([s[0] for s in samples])
+    values = np.array([s[1] for s in samples])
+    weights = 1.0 / np.array([s[2] for s in samples]) ** 2
+    blocks = contact_steps(record, model, contacts, steps, FIT_STEP_S, opening, free)
+    times, traces = _simulate(record, model, contacts, steps, FIT_STEP_S, blocks, share_scale)
+    predicted = np.stack([np.interp(stamps, times, traces[:, j]) for j in range(contacts.size)])
+    cost = ((predicted - values[None, :]) ** 2 * weights[None, :]).sum(axis=1)
+    return cost, blocks, steps, len(samples)
 
 
 # how many standard errors above the fingers' meeting the contact must lie to be an object, and
@@ -461,7 +490,7 @@ def judge_closing(fit: ContactFit, model: ContactModel, stamp_s: float,
         if not math.isfinite(log_ratio):
             return Detection(ObjectStatus.UNKNOWN, 0.0, "the closing's range does not span "
                              "the object and the fingers' meeting", stamp_s)
-        odds = f"odds {math.exp(min(abs(log_ratio), 700.0)):.3g} to 1"
+        odds = f"odds {math.exp(min(abs(log_ratio), 700.0)):.3g} to 1{_provenance(model)}"
         if log_ratio >= DECIDING_LOG_RATIO:
             return Detection(
                 ObjectStatus.CONTACT_CLOSING, 1.0 - math.exp(-log_ratio),
@@ -487,6 +516,13 @@ def judge_closing(fit: ContactFit, model: ContactModel, stamp_s: float,
         ObjectStatus.UNKNOWN, 0.0,
         f"no object expected, and no contact clear of the fingers' meeting "
         f"({fit.z:.1f} standard errors)", stamp_s, math.nan, fit.contact_pa, fit.contact_time_s)
+
+
+def _provenance(model: ContactModel) -> str:
+    """What the verdict's contact model rests on, for its evidence."""
+    if model.share_identified:
+        return " (contact identified on this gripper)"
+    return " (the contact model's prediction: not identified on this gripper)"
 
 
 def _normal_cdf(x: float) -> float:
@@ -821,12 +857,18 @@ def judge_motion(model: ContactModel, job: MotionJob) -> Detection:
         if job.opening:
             fit = fit_contact(record, model, stamp, start, end, opening=True)
             return _judge_opening(fit, stamp)
-        low = min(end, model.meet_pressure_pa) - 1e3
-        fit = fit_contact(record, model, stamp, low, max(start, low + 1e3))
+        fit = fit_contact(record, model, stamp, *closing_range_pa(model, job))
         return judge_closing(fit, model, stamp, job.expected_size_m)
     except ValueError as error:
         return Detection(ObjectStatus.UNKNOWN, 0.0, f"the motion cannot be judged: {error}",
                          stamp)
+
+
+def closing_range_pa(model: ContactModel, job: MotionJob) -> tuple:
+    """The contact pressures (Pa gauge) a closing's fit spans: from below its end or the
+    fingers' meeting, up to its start."""
+    low = min(job.end_gauge_pa, model.meet_pressure_pa) - 1e3
+    return low, max(job.record.start_gauge_pa, low + 1e3)
 
 
 def _judge_opening(fit: ContactFit, stamp_s: float) -> Detection:

@@ -11,6 +11,8 @@ or inherited), and an identified one its 95 % confidence interval::
                            source: identified, ci95: [0.97e-9, 1.03e-9]}
     sensors:
       chamber_a: {noise_std_pa: {value: 300.0, unit: Pa, ...}, bias_pa: {value: 0.0, ...}}
+    contact:      # optional: softgrip_identify --known-object-m
+      bending_volume_share: {value: 0.2, unit: '1', range: [0.01, 0.95], source: identified, ...}
 
 The units and ranges here are the authority: a file whose unit differs, or whose value lies
 outside the range, is refused with the parameter named.
@@ -50,6 +52,11 @@ PARAMETERS = {
     "regulator_time_constant_s": ("s", 1e-4, 10.0, "the regulator's first-order lag"),
     "regulator_rate_limit_pa_per_s": ("Pa/s", 1e3, 1e9, "the regulator's slew limit"),
 }
+# the fingers' contact, learnt on an object of known size; absent: the model's prediction
+CONTACT_FIELDS = {
+    "bending_volume_share": ("1", 0.01, 0.95, "the share of the chambers' dV/dp that the "
+                             "fingers' bending makes (an object that stops them keeps it)"),
+}
 SENSOR_FIELDS = {
     "noise_std_pa": ("Pa", 0.0, 1e5, "1-sigma noise of the reading"),
     "bias_pa": ("Pa", -1e5, 1e5, "the reading less the true gauge pressure, on average"),
@@ -66,12 +73,15 @@ class SensorModel:
 class PlantDescription:
     """``parameters`` (the pneumatics), ``sensors`` {name: SensorModel}, ``provenance`` (a dict:
     source, date, by, note...), ``details`` {name: {source, ci95, ...}} per value (the keys
-    beside value, unit and range in the file; sensor values as ``<sensor>.<field>``)."""
+    beside value, unit and range in the file; sensor values as ``<sensor>.<field>``, contact
+    values as ``contact.<field>``), ``bending_volume_share`` (dimensionless; None: not identified,
+    the grasp sensing uses its model's prediction)."""
 
     parameters: PneumaticParameters
     sensors: dict
     provenance: dict = dataclasses.field(default_factory=dict)
     details: dict = dataclasses.field(default_factory=dict)
+    bending_volume_share: float | None = None
 
     def sensor(self, name: str) -> SensorModel:
         if name not in self.sensors:
@@ -113,12 +123,14 @@ def parse(document: dict, where: str = "plant file") -> PlantDescription:
         raise ValueError(f"{where}: expected a mapping at the top")
     if document.get("format") != FORMAT:
         raise ValueError(f"{where}: format must be {FORMAT!r}, got {document.get('format')!r}")
-    unknown = set(document) - {"format", "provenance", "parameters", "sensors"}
+    unknown = set(document) - {"format", "provenance", "parameters", "sensors", "contact"}
     if unknown:
         raise ValueError(f"{where}: unknown sections {sorted(unknown)}")
     entries = document.get("parameters") or {}
+    contact = document.get("contact") or {}
     for section, value in (("parameters", entries), ("sensors", document.get("sensors") or {}),
-                           ("provenance", document.get("provenance") or {})):
+                           ("provenance", document.get("provenance") or {}),
+                           ("contact", contact)):
         if not isinstance(value, dict):
             raise ValueError(f"{where}: {section} must be a mapping, got {value!r}")
     missing = sorted(set(PARAMETERS) - set(entries))
@@ -137,13 +149,22 @@ def parse(document: dict, where: str = "plant file") -> PlantDescription:
             read[field], details[f"{sensor}.{field}"] = _value(
                 f"{where}: sensors.{sensor}.{field}", fields[field], spec)
         sensors[str(sensor)] = SensorModel(**read)
+    unknown = sorted(set(contact) - set(CONTACT_FIELDS))
+    if unknown:
+        raise ValueError(f"{where}: contact: unknown {unknown}")
+    share = None
+    if "bending_volume_share" in contact:
+        share, details["contact.bending_volume_share"] = _value(
+            f"{where}: contact.bending_volume_share", contact["bending_volume_share"],
+            CONTACT_FIELDS["bending_volume_share"])
     try:
         parameters = PneumaticParameters(**values)
     except ValueError as error:
         raise ValueError(f"{where}: {error}") from None
     if parameters.min_chamber_volume_m3 >= parameters.chamber_volume_m3:
         raise ValueError(f"{where}: min_chamber_volume_m3 must be below chamber_volume_m3")
-    return PlantDescription(parameters, sensors, dict(document.get("provenance") or {}), details)
+    return PlantDescription(parameters, sensors, dict(document.get("provenance") or {}), details,
+                            share)
 
 
 def load(path) -> PlantDescription:
@@ -166,7 +187,12 @@ def _entry(value: float, spec, detail: dict) -> dict:
 def document(description: PlantDescription) -> dict:
     """The YAML document of ``description`` (round-trips through :func:`parse`)."""
     details = description.details
-    return {
+    contact = {}
+    if description.bending_volume_share is not None:
+        contact["bending_volume_share"] = _entry(
+            description.bending_volume_share, CONTACT_FIELDS["bending_volume_share"],
+            details.get("contact.bending_volume_share", {}))
+    result = {
         "format": FORMAT,
         "provenance": dict(description.provenance),
         "parameters": {
@@ -180,6 +206,9 @@ def document(description: PlantDescription) -> dict:
             } for sensor, model in description.sensors.items()
         },
     }
+    if contact:
+        result["contact"] = contact
+    return result
 
 
 def save(description: PlantDescription, path, header: str = "") -> pathlib.Path:
@@ -202,6 +231,12 @@ def save(description: PlantDescription, path, header: str = "") -> pathlib.Path:
             flow = yaml.safe_dump(entry, default_flow_style=True, width=1000,
                                   sort_keys=False).strip()
             lines.append(f"    {field}: {flow}")
+    if "contact" in doc:
+        lines.append("contact:")
+        for name, entry in doc["contact"].items():
+            flow = yaml.safe_dump(entry, default_flow_style=True, width=1000,
+                                  sort_keys=False).strip()
+            lines.append(f"  {name}: {flow}")
     text = "\n".join(lines) + "\n"
     parse(yaml.safe_load(text), str(path))  # what is written reads back
     return write_text_atomically(path, text)

@@ -117,11 +117,11 @@ class GraspManagerNode(Node):
         a child process (MotionJudgeProcess), which builds a model of its own."""
         v = self.values
         self._judge_process = MotionJudgeProcess(v["gripper_model"], v["fidelity"],
-                                                 plant.parameters)
+                                                 plant.parameters, plant.bending_volume_share)
         self._worker = concurrent.futures.ThreadPoolExecutor(
             1, thread_name_prefix="grasp_sensing")
         build = self._worker.submit(contact_model_for, v["gripper_model"], v["fidelity"],
-                                    plant.parameters)
+                                    plant.parameters, plant.bending_volume_share)
         build.add_done_callback(lambda done: self._sensing_ready(done, sensors))
         if not in_process:
             for name in sensors:

@@ -11,14 +11,17 @@ class MotionJudgeProcess:
     """:func:`~softgrip_ros.estimation.grasp_sensing.judge_motion` in a child (a
     :class:`WorkerProcess`) that builds its own contact model with
     :func:`~softgrip_ros.estimation.grasp_sensing.contact_model_for` (``gripper_model``,
-    ``bending``, ``plant_parameters``). A judgement is CPU-heavy numpy and Python: in a thread of
-    the composed controller it would hold the GIL the control loop and an in-process simulated
-    device need. :meth:`close` it when done."""
+    ``bending``, ``plant_parameters``, ``bending_volume_share``: the plant file's, or None).
+    A judgement is CPU-heavy numpy and Python: in a thread of the composed controller it would
+    hold the GIL the control loop and an in-process simulated device need. :meth:`close` it when
+    done."""
 
     def __init__(self, gripper_model: str, bending: str, plant_parameters,
+                 bending_volume_share: float | None = None,
                  nice_increment: int = WORKER_NICE_INCREMENT):
-        self._worker = WorkerProcess(_setup_judge, (gripper_model, bending, plant_parameters),
-                                     nice_increment, "softgrip-sensing")
+        self._worker = WorkerProcess(
+            _setup_judge, (gripper_model, bending, plant_parameters, bending_volume_share),
+            nice_increment, "softgrip-sensing")
 
     def submit(self, job) -> Future:
         """The verdict on the MotionJob ``job`` (a Detection), as a future; the model's build or
@@ -29,9 +32,10 @@ class MotionJudgeProcess:
         self._worker.close()
 
 
-def _setup_judge(gripper_model: str, bending: str, plant_parameters):
+def _setup_judge(gripper_model: str, bending: str, plant_parameters,
+                 bending_volume_share: float | None):
     from softgrip_ros.estimation.grasp_sensing import contact_model_for
-    return contact_model_for(gripper_model, bending, plant_parameters)
+    return contact_model_for(gripper_model, bending, plant_parameters, bending_volume_share)
 
 
 def _judge_in_worker(job):

@@ -19,6 +19,12 @@ with the nodes' plant_file parameter), identification.md (the report), identific
 Pressure data cannot tell the chamber's volume from the conductances (the report says why):
 give the volume you measured with --volume-m3, or the base file's is kept and said to be.
 
+With --known-object-m D, the known-object step instead (softgrip_ros.tools.identify_contact):
+clamps on nothing, then on a rigid object D m wide that you place between the fingers when asked
+(press Enter), learn how much air the fingers' bending takes, so that the grasp sensing judges
+with your gripper's figure; it writes the base plant file with its contact section, contact.md
+and contact.png. Run it after the pneumatics' identification, with that file as --base.
+
 Exit status: 0 written; 1 stopped, refused or not fittable; 2 bad arguments; 3 no controller.
 """
 from __future__ import annotations
@@ -41,7 +47,7 @@ from softgrip_ros.control.reports import outputs_changed_at
 from softgrip_ros.estimation import identification
 from softgrip_ros.model import plant_file
 from softgrip_ros.model.pneumatics import P_ATM_PA, Valve
-from softgrip_ros.tools import bag
+from softgrip_ros.tools import bag, identify_contact
 from softgrip_ros.tools.identification_report import write
 
 INFO_TOPIC = "/softgrip_identify/info"
@@ -96,6 +102,12 @@ def parser() -> argparse.ArgumentParser:
                      "they had not settled; inf for no limit")
     top.add_argument("--timeout", type=Number(0.0, 3600.0, "s", low_open=True), default=15.0,
                      help="seconds to wait for the controller's services")
+    top.add_argument("--known-object-m", type=Number(0.002, 0.2, "m"), metavar="D",
+                     help="the known-object step: a rigid object D m wide (a cylinder's "
+                     "diameter), placed between the fingers when asked")
+    top.add_argument("--gripper-model", default="type_II",
+                     help="the fingers' model for the known-object step (the grasp manager's "
+                     "gripper_model; default %(default)s)")
     return top
 
 
@@ -104,6 +116,12 @@ def _check(args, error) -> None:
         error(f"--from-log {args.from_log}: no rosbag2 log there (no metadata.yaml)")
     if args.output is not None and (args.output / "plant.yaml").exists():
         error(f"{args.output / 'plant.yaml'} exists: choose another --output")
+    if args.known_object_m is not None and args.from_log is None:
+        from softgrip_ros.model import gripper_models
+        try:
+            gripper_models.resolve(args.gripper_model)
+        except ValueError as problem:
+            error(f"--gripper-model: {problem}")
 
 
 # ---- live ---------------------------------------------------------------------------------------
@@ -257,14 +275,34 @@ def run_live(args, progress) -> tuple[pathlib.Path, dict]:
             sensors = list(values["sensors.names"])
             base_path = args.base or values["plant_file"] or _installed_plant()
             base = plant_file.load(base_path)
-            steps, held_out = identification.excitation(
-                LIMIT_USE * values["max_gauge_pressure_pa"],
-                LIMIT_USE * values["min_gauge_pressure_pa"], seed=args.seed, quick=args.quick)
+            high = LIMIT_USE * values["max_gauge_pressure_pa"]
+            low = LIMIT_USE * values["min_gauge_pressure_pa"]
+            if args.known_object_m is not None:
+                from softgrip_ros.estimation.grasp_sensing import contact_model_for
+                progress(f"the fingers' model ({args.gripper_model})")
+                model = contact_model_for(args.gripper_model, "l0", base.parameters)
+                try:
+                    contact_plan = identify_contact.plan(model, args.known_object_m, high, low)
+                except ValueError as problem:
+                    raise Stopped(str(problem)) from None
+            else:
+                steps, held_out = identification.excitation(high, low, seed=args.seed,
+                                                            quick=args.quick)
             live.subscribe(sensors)
             progress(f"controller {live.controller}: identification mode (it vents first)")
             try:
                 live.set_identification(True)
-                info = _excite(live, steps, held_out, sensors, progress)
+                _wait_flowing(live, sensors)
+                if args.known_object_m is None:
+                    info = _excite(live, steps, held_out, sensors, progress)
+                else:
+                    closings = identify_contact.run(live, contact_plan, sensors, progress,
+                                                    identify_contact.wait_for_enter)
+                    info = {"format": "softgrip_identify/1", "contact": {
+                        "known_object_m": args.known_object_m,
+                        "gripper_model": args.gripper_model,
+                        "open_pa": contact_plan.open_pa, "clamp_pa": contact_plan.clamp_pa,
+                        "closings": [[kind, sent] for kind, sent in closings]}}
             finally:
                 live.send("VENT", 0.0)
                 progress("restoring the controller: identification mode off")
@@ -277,12 +315,30 @@ def run_live(args, progress) -> tuple[pathlib.Path, dict]:
         rclpy.try_shutdown(context=context)
 
 
-def _excite(live: Live, steps: list, held_out: float, sensors: list, progress) -> dict:
+def hold_for(live: Live, sensors: list, source: str, target_pa: float, duration_s: float) -> None:
+    """Keep ``source`` at ``target_pa`` for ``duration_s``, sending it again every REFRESH_S
+    (a VACUUM once there stays closed); Stopped when :meth:`Live.problem` says so."""
+    end, refreshed = time.monotonic() + duration_s, time.monotonic()
+    while time.monotonic() < end:
+        reason = live.problem(sensors)
+        if reason:
+            raise Stopped(reason)
+        if time.monotonic() - refreshed >= REFRESH_S and source != "VACUUM":
+            live.send(source, target_pa)
+            refreshed = time.monotonic()
+        time.sleep(0.005)
+
+
+def _wait_flowing(live: Live, sensors: list) -> None:
+    """Until the readings flow and a status has been seen; Stopped after 5 s."""
     deadline = time.monotonic() + 5.0
-    while live.problem(sensors):  # readings flowing, a status seen
+    while live.problem(sensors):
         if time.monotonic() > deadline:
             raise Stopped(f"before the excitation: {live.problem(sensors)}")
         time.sleep(0.02)
+
+
+def _excite(live: Live, steps: list, held_out: float, sensors: list, progress) -> dict:
     with live.lock:
         live.recording = True
     started = live.node.get_clock().now().nanoseconds * 1e-9
@@ -294,15 +350,7 @@ def _excite(live: Live, steps: list, held_out: float, sensors: list, progress) -
         progress(f"[{index + 1}/{len(steps)}] {elapsed:5.1f}/{total:.0f} s  {step.source:6s} "
                  f"{step.target_pa / 1e3:+6.1f} kPa for {step.duration_s:.2f} s")
         live.send(step.source, step.target_pa)
-        end, refreshed = time.monotonic() + step.duration_s, time.monotonic()
-        while time.monotonic() < end:
-            reason = live.problem(sensors)
-            if reason:
-                raise Stopped(reason)
-            if time.monotonic() - refreshed >= REFRESH_S and step.source != "VACUUM":
-                live.send(step.source, step.target_pa)  # (a VACUUM once there stays closed)
-                refreshed = time.monotonic()
-            time.sleep(0.005)
+        hold_for(live, sensors, step.source, step.target_pa, step.duration_s)
         elapsed += step.duration_s
     with live.lock:
         live.recording = False
@@ -371,6 +419,8 @@ def fit_log(log: pathlib.Path, args, output: pathlib.Path, progress, command: st
     recording, info = recording_from_log(log)
     base = plant_file.load(args.base) if args.base else plant_file.parse(
         info["base_plant"], "the log's base plant")
+    if "contact" in info:
+        return _fit_contact(recording, info, base, output, progress, command)
     progress(f"fitting {sum(len(t) for t, _ in recording.sensors.values())} readings")
     result = identification.fit(recording, base.parameters, args.volume_m3, progress,
                                 vacuum_source_pa=args.vacuum_source_pa,
@@ -387,6 +437,19 @@ def fit_log(log: pathlib.Path, args, output: pathlib.Path, progress, command: st
     for flag in result.flags:
         print(f"softgrip_identify: flagged: {flag}", file=sys.stderr)
     return {**written, "result": result}
+
+
+def _fit_contact(recording, info: dict, base, output: pathlib.Path, progress,
+                 command: str) -> dict:
+    from softgrip_ros.estimation.contact_identification import fit_bending_share
+    from softgrip_ros.estimation.grasp_sensing import contact_model_for
+    contact = info["contact"]
+    model = contact_model_for(contact["gripper_model"], "l0", base.parameters)
+    object_jobs, empty_jobs = identify_contact.jobs_from_log(recording, info, base)
+    fit = fit_bending_share(object_jobs, empty_jobs, model, float(contact["known_object_m"]),
+                            progress=progress)
+    written = identify_contact.write(fit, base, model.bending_volume_share, output, command)
+    return {**written, "contact": fit}
 
 
 def main(argv=None) -> int:
@@ -413,6 +476,9 @@ def main(argv=None) -> int:
     except Stopped as stop:
         print(f"softgrip_identify: stopped: {stop}; vented, nothing written", file=sys.stderr)
         return 1
+    except EOFError as error:
+        print(f"softgrip_identify: stopped: {error}; vented, nothing written", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("softgrip_identify: stopped by Ctrl-C; vented, nothing written", file=sys.stderr)
         return 1
@@ -421,6 +487,12 @@ def main(argv=None) -> int:
         if log is not None and args.from_log is None:
             shutil.rmtree(log.parent, ignore_errors=True)
         return 1
+    if "contact" in written:
+        fit = written["contact"]
+        print(f"wrote {written['plant']} (bending_volume_share {fit.bending_volume_share:.3f}, "
+              f"95 % {fit.ci95[0]:.3f} to {fit.ci95[1]:.3f}), {written['report']}, "
+              f"{written['figure']}")
+        return 0
     result = written["result"]
     print(f"wrote {written['plant']} ({len(result.flags)} flagged), {written['report']}, "
           f"{written['figure']}; fit {result.fit_s:.1f} s, validation "

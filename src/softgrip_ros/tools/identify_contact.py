@@ -1,0 +1,217 @@
+"""softgrip_identify's known-object step: the fingers' contact learnt on a rigid object of known
+size, so that the grasp sensing (docs/grasp_sensing.md) judges with this gripper's
+``bending_volume_share`` and not the model's prediction.
+
+    softgrip_identify --known-object-m 0.03 --base my_gripper/plant.yaml --output my_contact
+
+Live, in the controller's identification mode: from an opening wider than the object, clamps on
+nothing (the empty hand), then, once the user has placed the object between the fingers and
+pressed Enter, clamps on it (softgrip_ros.estimation.contact_identification fits both). The
+output's plant.yaml is the base file with its ``contact`` section; contact.md and contact.png say
+how well the share is pinned and how the felt sizes moved.
+"""
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import math
+import pathlib
+import select
+import sys
+
+from softgrip_ros.estimation.grasp_sensing import AirRecord, MotionJob
+from softgrip_ros.model import plant_file
+from softgrip_ros.model.pneumatics import PlantInputs
+
+REPORT, FIGURE = "contact.md", "contact.png"
+OPEN_MARGIN_M = 0.01  # the opening clears the object by this much of D2
+CLAMP_PA = -30e3  # deep enough that the closing's transient decides (docs/grasp_sensing.md)
+OPEN_S, CLAMP_S = 1.5, 1.0  # the opening settles; the clamp's transient and its settling
+JUDGED_S = 0.8  # the part of a clamp that is fitted
+EMPTY_CLOSINGS, OBJECT_CLOSINGS = 2, 3
+PLACE_PROMPT = "then press Enter"
+
+
+@dataclasses.dataclass(frozen=True)
+class ContactPlan:
+    """The step's pressures (Pa gauge): the opening wider than the object and the clamp."""
+
+    known_size_m: float
+    open_pa: float
+    clamp_pa: float
+
+
+def plan(model, known_size_m: float, max_pa: float, min_pa: float) -> ContactPlan:
+    """Where to open and clamp for an object of ``known_size_m`` within the limits (Pa gauge);
+    ValueError when the gripper cannot open around it."""
+    open_pa = float(model.pressure_for_tip_spacing(known_size_m + OPEN_MARGIN_M))
+    if not open_pa < max_pa:
+        widest = model.tip_spacing_m(max_pa) * 1e3
+        raise ValueError(f"a {known_size_m * 1e3:.1f} mm object needs an opening to "
+                         f"{open_pa / 1e3:.1f} kPa, above the {max_pa / 1e3:.1f} kPa the limits "
+                         f"allow ({widest:.0f} mm): use a smaller object")
+    return ContactPlan(known_size_m, open_pa, max(CLAMP_PA, min_pa))
+
+
+def run(live, contact_plan: ContactPlan, sensors: list, progress, wait_placed) -> list:
+    """The closings, live (``live``: softgrip_ros.tools.identify.Live, in identification mode):
+    [(kind 'empty' or 'object', when the clamp was sent, ROS s)]. ``wait_placed(check)`` blocks
+    until the user has placed the object, calling ``check()`` meanwhile. Raises
+    identify.Stopped."""
+    from softgrip_ros.tools.identify import Stopped, hold_for
+    with live.lock:
+        live.recording = True
+    closings = []
+    for kind, count in (("empty", EMPTY_CLOSINGS), ("object", OBJECT_CLOSINGS)):
+        if kind == "object":
+            live.send("SUPPLY", contact_plan.open_pa)
+            hold_for(live, sensors, "SUPPLY", contact_plan.open_pa, 0.5)
+            progress(f"open for a {contact_plan.known_size_m * 1e3:.1f} mm object: place it "
+                     f"between the fingers, level with their tip chambers, {PLACE_PROMPT}")
+
+            def check():
+                reason = live.problem(sensors)
+                if reason:
+                    raise Stopped(reason)
+                live.send("SUPPLY", contact_plan.open_pa)
+            wait_placed(check)
+        for index in range(count):
+            target = "nothing" if kind == "empty" else "the object"
+            progress(f"clamp {index + 1}/{count} on {target}: open to "
+                     f"{contact_plan.open_pa / 1e3:+.1f} kPa, clamp at "
+                     f"{contact_plan.clamp_pa / 1e3:+.1f} kPa")
+            live.send("SUPPLY", contact_plan.open_pa)
+            hold_for(live, sensors, "SUPPLY", contact_plan.open_pa, OPEN_S)
+            sent = live.node.get_clock().now().nanoseconds * 1e-9
+            live.send("SUPPLY", contact_plan.clamp_pa)
+            hold_for(live, sensors, "SUPPLY", contact_plan.clamp_pa, CLAMP_S)
+            closings.append((kind, sent))
+    live.send("SUPPLY", contact_plan.open_pa)
+    hold_for(live, sensors, "SUPPLY", contact_plan.open_pa, 0.5)
+    with live.lock:
+        live.recording = False
+    return closings
+
+
+def wait_for_enter(check, period_s: float = 0.05) -> None:
+    """Block until a line arrives on stdin (Enter), calling ``check()`` every ``period_s``;
+    EOFError when stdin ends first (no one to place the object)."""
+    while True:
+        check()
+        ready, _, _ = select.select([sys.stdin], [], [], period_s)
+        if ready:
+            if not sys.stdin.readline():
+                raise EOFError("stdin closed before the object was placed")
+            return
+
+
+def jobs_from_log(recording, info: dict, base: plant_file.PlantDescription) -> tuple:
+    """(closings on the object, closings on nothing) as MotionJobs, from a log's Recording
+    (softgrip_identify.recording_from_log) and its info. The readings are taken as the
+    controller published them (the base file's biases off), as the sensing reads them."""
+    contact = info["contact"]
+    open_pa, clamp_pa = float(contact["open_pa"]), float(contact["clamp_pa"])
+    changes = sorted(recording.inputs, key=lambda change: change.time_s)
+    inputs = [(c.time_s, PlantInputs(c.regulator_setpoint_pa, c.regulator_enabled, (c.valve,)))
+              for c in changes]
+    readings = []
+    for name, (times, values) in recording.sensors.items():
+        sensor = base.sensor(name)
+        readings += [(float(t), float(v) - sensor.bias_pa, sensor.noise_std_pa)
+                     for t, v in zip(times, values)]
+    readings.sort()
+    object_jobs, empty_jobs = [], []
+    for kind, sent in contact["closings"]:
+        start = next((c.time_s for c in changes if c.time_s >= sent - 0.05 and
+                      abs(c.regulator_setpoint_pa - clamp_pa) < 1.0), None)
+        if start is None:
+            raise ValueError(f"the log holds no clamp output after {sent:.3f} s")
+        before = sorted(v for t, v, _ in readings if start - 0.3 <= t < start - 0.01)
+        if len(before) < 5:
+            raise ValueError(f"the log holds no steady opening before the clamp at {start:.3f} s")
+        record = AirRecord(start, before[len(before) // 2])
+        for stamp, value in inputs:
+            record.add_inputs(stamp, value)
+        for stamp, value, std in readings:
+            if start < stamp <= start + JUDGED_S:
+                record.add_sample(stamp, value, std)
+        job = MotionJob(record, False, float(contact["known_object_m"]), clamp_pa,
+                        start + JUDGED_S)
+        (object_jobs if kind == "object" else empty_jobs).append(job)
+    if not math.isfinite(open_pa):
+        raise ValueError("the log's opening pressure is not a number")
+    return object_jobs, empty_jobs
+
+
+def description(fit, base: plant_file.PlantDescription, provenance: dict
+                ) -> plant_file.PlantDescription:
+    """The base plant file with the identified share in its contact section."""
+    details = dict(base.details)
+    details["contact.bending_volume_share"] = {
+        "source": "identified", "ci95": [float(f"{b:.4g}") for b in fit.ci95],
+        "known_object_m": float(fit.known_size_m)}
+    merged = dict(base.provenance)
+    merged["contact"] = provenance
+    return dataclasses.replace(base, provenance=merged, details=details,
+                               bending_volume_share=float(f"{fit.bending_volume_share:.4g}"))
+
+
+def write(fit, base: plant_file.PlantDescription, model_share: float, output: pathlib.Path,
+          command: str) -> dict:
+    """plant.yaml, contact.md and contact.png into ``output`` (each written whole, or not)."""
+    from softgrip_ros.fileio import write_text_atomically
+    output.mkdir(parents=True, exist_ok=True)
+    provenance = {"source": "identified", "date": datetime.date.today().isoformat(),
+                  "tool": "softgrip_identify --known-object-m",
+                  "object_m": float(fit.known_size_m)}
+    figure = _plot(fit, model_share, output / FIGURE)
+    low, high = fit.ci95
+    felt = ", ".join(f"{s * 1e3:.1f}" for s in fit.felt_sizes_m)
+    before = ", ".join(f"{s * 1e3:.1f}" for s in fit.felt_sizes_before_m)
+    report = "\n".join([
+        "# Contact identification",
+        "",
+        f"`{command}`",
+        "",
+        f"Clamps from {fit.known_contact_pa / 1e3:.1f} kPa of the fingers' shape: on a "
+        f"{fit.known_size_m * 1e3:.1f} mm rigid object and on nothing.",
+        "",
+        "| | value |",
+        "|---|---|",
+        f"| `bending_volume_share` identified | {fit.bending_volume_share:.3f} "
+        f"(95 %: {low:.3f} to {high:.3f}) |",
+        f"| the model's prediction | {model_share:.3f} |",
+        f"| sizes felt on the object, identified share (mm) | {felt} |",
+        f"| ... with the model's prediction (mm) | {before} |",
+        f"| reduced chi-square | {fit.reduced_chi2:.2f} |",
+        "",
+        f"![chi-square against the share]({FIGURE})",
+        "",
+    ])
+    plant = plant_file.save(description(fit, base, provenance), output / "plant.yaml",
+                            f"softgrip_ros plant, its contact identified: {command}")
+    write_text_atomically(output / REPORT, report)
+    return {"plant": plant, "report": output / REPORT, "figure": figure}
+
+
+def _plot(fit, model_share: float, path: pathlib.Path) -> pathlib.Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    figure, axes = plt.subplots(figsize=(7, 4))
+    costs = np.array(fit.costs)
+    axes.plot(fit.shares, costs - costs.min(), "-", lw=1.0, label="closings' chi-square")
+    axes.axvline(fit.bending_volume_share, color="C1", label="identified")
+    axes.axvspan(*fit.ci95, color="C1", alpha=0.2, label="95 % interval")
+    axes.axvline(model_share, color="C2", ls="--", label="the model's prediction")
+    axes.set_yscale("symlog")
+    axes.set_xlabel("bending_volume_share")
+    axes.set_ylabel("chi-square above its minimum")
+    axes.legend(fontsize=8)
+    figure.tight_layout()
+    from softgrip_ros.fileio import replacing
+    with replacing(path) as temporary:
+        figure.savefig(temporary, dpi=110)
+    plt.close(figure)
+    return path
