@@ -146,6 +146,15 @@ def test_bench_estimator_quick_json_reports_every_filter_with_its_interleaved_co
         # better than the best sensor alone
         assert 0 < figures[f"rmse_ratio_{name}"] < 0.85, name
     assert isinstance(figures["nees_in_bounds"], bool)
+    # the kf against filterpy alone, and its pieces, which cannot exceed the whole step
+    assert 0 < figures["raw_filterpy_step_us"] < figures["kf_step_us"]
+    assert figures["kf_step_over_raw_filterpy"] > 1.0
+    pieces = figures["details"]["kf_pieces_us"]
+    assert {"record for rewinds", "predict (transition + filterpy)", "the rest",
+            "update (filterpy + symmetrise)", "whole step"} <= set(pieces)
+    parts = sum(value for label, value in pieces.items() if label != "whole step")
+    assert parts == pytest.approx(pieces["whole step"], rel=1e-6)
+    assert all(value >= 0.0 for label, value in pieces.items() if label != "the rest")
 
 
 @pytest.mark.ros

@@ -66,8 +66,8 @@ import numpy as np
 from scipy.stats import chi2
 
 from softgrip_ros.checks import require_positive
-from softgrip_ros.estimation.filters import (CHAMBER, FILTER_TYPES, REGULATOR, make_filter,
-                                             plant_step)
+from softgrip_ros.estimation.filters import (CHAMBER, FILTER_TYPES, REGULATOR, chamber_rate,
+                                             make_filter, plant_step)
 from softgrip_ros.health import Health, Report
 from softgrip_ros.model.pneumatics import PlantInputs, PneumaticPlant, Valve
 
@@ -447,18 +447,18 @@ class PressureEstimator:
             name: float(value)
             for name, value in samples.items() if self._screen(name, value, stamp_s)
         }
-        used = {name: False for name in samples}
+        used = dict.fromkeys(samples, False)
         if not valid:
             return used
         if not self.initialised:
             self._initialise(valid, stamp_s)
-            return {**used, **{name: True for name in valid}}
+            used.update(dict.fromkeys(valid, True))
+            return used
         if self._late(valid, stamp_s):
             return used
         self._predict_to(stamp_s)
-        return {
-            **used, **self._fuse([(name, value, 0.0) for name, value in valid.items()], stamp_s)
-        }
+        used.update(self._fuse([(name, value, 0.0) for name, value in valid.items()], stamp_s))
+        return used
 
     def fuse_pending(self) -> None:
         """Fuse the samples taken since the last fusion in one filter step, at the newest one's
@@ -561,22 +561,24 @@ class PressureEstimator:
                                                                                      CHAMBER])
         timing_variance = 0.0
         if self.config.sample_timing_std_s > 0.0:
-            rate = self._state_rate(self.inputs)[CHAMBER]
+            rate = chamber_rate(self.plant, self.filter.x[:, 0], self.inputs)
             timing_variance = (rate * self.config.sample_timing_std_s)**2
+        first_pass = not self._rewinding  # a rewind's samples were counted already
+        settled = stamp_s - max(self._inputs_changed_s,
+                                self._sight_regained_s) >= self.config.nis_input_settle_s
+        variances, sensors = self._variance, self.sensors
         for name, value, walk_variance in samples:
             stats = self.stats[name]
-            noise_variance = self._variance[name] + timing_variance
+            noise_variance = variances[name] + timing_variance
             d2 = (value - x_chamber)**2 / (p_chamber + noise_variance + walk_variance)
-            first_pass = not self._rewinding  # a rewind's samples were counted already
             if not first_pass:
                 pass
-            elif stamp_s - max(self._inputs_changed_s,
-                               self._sight_regained_s) >= self.config.nis_input_settle_s:
+            elif settled:
                 stats.nis.append(d2)
                 stats.nis_stamps.append(stamp_s)
             else:
                 stats.nis_settling += 1
-            if d2 > self.sensors[name].rejection_threshold:
+            if d2 > sensors[name].rejection_threshold:
                 stats.rejected += first_pass
                 stats.consecutive_rejections += 1
                 used[name] = False
@@ -592,7 +594,8 @@ class PressureEstimator:
                 used[name] = True
         if total > 0.0:
             mean = weighted_sum / total
-            variance = noise_part / total**2 + _shared_walk_variance(walks, total)
+            variance = noise_part / total**2 + (_shared_walk_variance(walks, total)
+                                                if walks else 0.0)
             self.filter.update(np.array([[mean]]), _H_CHAMBER, np.array([[variance]]))
         elif self._locked_out(stamp_s):
             self._initialise({name: value for name, value, _ in samples}, stamp_s)

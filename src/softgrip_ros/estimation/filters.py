@@ -40,7 +40,8 @@ _MAX_SECANT_RATE_PER_S = 1e5  # lambda near equilibrium, where the flow's slope 
 
 
 def _valve(inputs: PlantInputs) -> Valve:
-    return Valve(inputs.valves[0])
+    valve = inputs.valves[0]
+    return valve if type(valve) is Valve else Valve(valve)  # an enum's call costs a microsecond
 
 
 def plant_step(plant: PneumaticPlant, x: np.ndarray, dt: float, inputs: PlantInputs,
@@ -55,6 +56,15 @@ def plant_step(plant: PneumaticPlant, x: np.ndarray, dt: float, inputs: PlantInp
     if not jacobian:
         return state
     return state, np.array([[d_chamber, d_chamber_d_regulator * d_regulator], [0.0, d_regulator]])
+
+
+def chamber_rate(plant: PneumaticPlant, x: np.ndarray, inputs: PlantInputs) -> float:
+    """d(chamber)/dt (Pa/s) at the state x (2,) or (2, 1) under ``inputs``: the plant's flow
+    law at that instant, with no step taken (a plant step's Newton solve costs several times
+    more)."""
+    chamber_pa = max(float(x[CHAMBER]) + P_ATM_PA, _MIN_ABSOLUTE_PA)
+    return plant.chamber_rate(chamber_pa, _valve(inputs), float(x[REGULATOR]),
+                              inputs.regulator_enabled)
 
 
 def _upper_cholesky_2x2(A: np.ndarray) -> np.ndarray:
@@ -83,6 +93,13 @@ def _inverse_small(S: np.ndarray) -> np.ndarray:
 
 def _symmetric(P: np.ndarray) -> np.ndarray:
     return 0.5 * (P + P.T)
+
+
+def _symmetrise(P: np.ndarray) -> None:
+    """Make the 2x2 ``P`` symmetric in place (a fresh array filterpy just computed): a third of
+    the cost of building 0.5 (P + P')."""
+    off_diagonal = 0.5 * (P[0, 1] + P[1, 0])
+    P[0, 1] = P[1, 0] = off_diagonal
 
 
 class PressureFilter:
@@ -170,15 +187,18 @@ class LinearFilter(PressureFilter):
         return math.exp(-min(max(rate / gap, 0.0), _MAX_SECANT_RATE_PER_S) * dt)
 
     def predict(self, dt: float, inputs: PlantInputs) -> None:
-        F, B = self.transition(dt, inputs)
-        self.f.predict(u=self._one, B=B, F=F, Q=self.q_continuous * dt)
-        self.f.P = _symmetric(self.f.P)
+        # set as attributes, not passed: filterpy tests a passed Q (and R) with numpy's isscalar
+        self.f.F, self.f.B = self.transition(dt, inputs)
+        self.f.Q = self.q_continuous * dt
+        self.f.predict(u=self._one)
+        _symmetrise(self.f.P)
 
     def update(self, z, H, R) -> None:
         # filterpy shapes z by dim_z; the sensors present vary per instant
         self.f.dim_z = len(z)
-        self.f.update(z, R=R, H=H)
-        self.f.P = _symmetric(self.f.P)
+        self.f.R = R
+        self.f.update(z, H=H)  # (without H, filterpy reshapes z first)
+        _symmetrise(self.f.P)
 
 
 class _PlantEKFCore(ExtendedKalmanFilter):
@@ -201,12 +221,12 @@ class PlantEKF(PressureFilter):
     def predict(self, dt: float, inputs: PlantInputs) -> None:
         self.f.Q = self.q_continuous * dt
         self.f.predict(u=(self.plant, dt, inputs))
-        self.f.P = _symmetric(self.f.P)
+        _symmetrise(self.f.P)
 
     def update(self, z, H, R) -> None:
         self._H = H
         self.f.update(z, self._jacobian, self._measure, R=R)
-        self.f.P = _symmetric(self.f.P)
+        _symmetrise(self.f.P)
 
     def _jacobian(self, x):
         return self._H
