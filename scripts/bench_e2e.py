@@ -46,6 +46,7 @@ Reproduce: scripts/env.sh sourced, then  python scripts/bench_e2e.py
 """
 import bisect
 import os
+import pathlib
 import signal
 import statistics
 import subprocess
@@ -67,12 +68,14 @@ from demo_grasp import wait_phase
 from softgrip_interfaces.msg import GraspCommand, GripperState
 from softgrip_ros.client import grasp_command as command
 from softgrip_ros.devtools.benchmarking import (benchmark_parser, figure_rows, machine_line,
-                                                update_section, strict_json)
+                                                paired_rows, reference_checkout, strict_json,
+                                                update_section, UnknownReference)
 from softgrip_ros.canbus.codec import FrameCodec
 from softgrip_ros.canbus.reader import BatchReader
 from softgrip_ros.nodes.common import spinning, stamp_seconds
 from softgrip_ros.devtools.processes import installed_executable, stop_process
 
+ROOT = pathlib.Path(__file__).resolve().parent.parent
 TARGETS = {
     "cmd_to_valve_frame_ms_p99": (10.0, True), "sensor_to_tip_pose_ms_p99": (5.0, True),
     "controller_cpu_pct_idle": (15.0, True), "controller_cpu_pct_grasp": (40.0, True),
@@ -340,8 +343,9 @@ def matched_latencies(watch, samples) -> list:
     return [1e3 * (published_s - sent_s) for published_s, sent_s in matched if sent_s is not None]
 
 
-def measure(idle_s: float, grasp_s: float, window_s: float,
-            open_pairs: int, cancels: int) -> tuple[dict, dict]:
+def measure(idle_s: float, grasp_s: float, window_s: float, open_pairs: int, cancels: int,
+            controller_env: dict | None = None) -> tuple[dict, dict]:
+    """One run; ``controller_env``: the controller's environment (None: this one's)."""
     channel = f"bench-e2e-{uuid.uuid4().hex[:8]}"
     ros_args = [
         "--ros-args", "-p", "can.interface:=softgrip_ipc", "-p", f"can.channel:={channel}",
@@ -349,7 +353,8 @@ def measure(idle_s: float, grasp_s: float, window_s: float,
     ]
     watch = BusWatch(channel)
     device = subprocess.Popen([installed_executable("sim_device"), *ros_args])
-    controller = subprocess.Popen([installed_executable("controller"), *ros_args])
+    controller = subprocess.Popen([installed_executable("controller"), *ros_args],
+                                  env=controller_env)
     rclpy.init()
     node = Node("softgrip_bench_e2e")
     # poses: (published, received, stamp), matched to their frames once the watch has read them
@@ -502,6 +507,31 @@ def measure(idle_s: float, grasp_s: float, window_s: float,
     return figures, details
 
 
+def against(args) -> int:
+    """--against: interleaved pairs, the reference first in each; the table (or --json)."""
+    settings = (args.idle_s, args.grasp_s, args.window_s, args.open_pairs, args.cancels)
+    pairs = {}
+    try:
+        with reference_checkout(args.against, ROOT) as (commit, environment):
+            for run in range(args.runs):
+                progress(f"pair {run + 1} of {args.runs}: {args.against} ({commit[:8]})")
+                reference, _ = measure(*settings, controller_env=environment)
+                progress(f"pair {run + 1} of {args.runs}: this code")
+                this, _ = measure(*settings)
+                for key in this:
+                    pairs.setdefault(key, []).append((reference[key], this[key]))
+    except UnknownReference as error:
+        print(f"bench_e2e: {error}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(strict_json({"against": args.against, "commit": commit, "pairs": pairs}))
+    else:
+        print(f"{args.runs} interleaved pairs, {args.against} ({commit[:8]}) -> this code "
+              f"({machine_line()}):\n")
+        print("\n".join(paired_rows(pairs, TARGETS, (args.against, "this code"))))
+    return 0
+
+
 def main(argv=None) -> int:
     parser = benchmark_parser(__doc__, "one short run (2 s idle, 6 s of grasps); writes nothing")
     parser.add_argument("--idle-s", type=float, default=10.0,
@@ -516,6 +546,11 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--runs", type=int, default=3,
         help="whole measurements, each with fresh processes; each figure is the median over them")
+    parser.add_argument(
+        "--against", metavar="GIT_REF",
+        help="A/B: alternate each run of this code with one of the controller at GIT_REF (from "
+        "its sources in a temporary git worktree, on this workspace's messages, configuration "
+        "and simulated device); prints the pairs, writes nothing")
     args = parser.parse_args(argv)
     if args.quick:
         args.runs, args.idle_s, args.grasp_s, args.window_s, args.open_pairs = 1, 3.0, 6.0, 1.0, 1
@@ -525,6 +560,8 @@ def main(argv=None) -> int:
     if args.runs < 1 or args.open_pairs < 1 or args.cancels < 1:
         parser.error("need --runs >= 1, --open-pairs >= 1 and --cancels >= 1")
     started = time.perf_counter()
+    if args.against:
+        return against(args)
     runs = []
     for run in range(args.runs):
         progress(f"run {run + 1} of {args.runs}")

@@ -1,5 +1,6 @@
 """The kinematics node on its own, over DDS: the scene arrives on grasp_scene (latched), auto
-switches to L2 on an object and back to free bending, and a malformed scene is refused."""
+switches to L2 on an object (spawning the L2 child then, not before) and back to free bending,
+and a malformed scene is refused."""
 import math
 
 import pytest
@@ -59,11 +60,13 @@ def test_an_object_on_grasp_scene_switches_auto_to_l2_and_free_bending_back(wire
     # the default tolerance (10 mm): L0, the cheapest, is within it of the FE in free bending
     free = model_after(node, estimate, 20e3, "l0")
     assert free.scene_class == "free" and free.contact_force_n == 0.0
+    assert not node.rod_solver.started  # no L2 child until a scene needs L2
     scenes.publish(
         GraspScene(kind=GraspScene.CYLINDER, object_diameter_m=0.04, object_center_z_m=0.0981,
                    opening_gauge_pressure_pa=30e3))
     on_object = model_after(node, estimate, -10e3, "l2")  # solved on the worker thread
     assert on_object.scene_class == "contact" and on_object.contact_force_n > 0.0
+    assert node.rod_solver.started
     # held open by the object, not closed past it
     assert on_object.tip[0] < -0.02
     scenes.publish(GraspScene(kind=GraspScene.FREE))

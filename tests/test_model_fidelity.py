@@ -158,7 +158,9 @@ def test_closing_the_solver_process_ends_a_running_solve_at_once():
     import time
     from concurrent.futures.process import BrokenProcessPool
     solver = RodSolverProcess("type_II", nice_increment=0)
-    pid = solver._worker.submit(os.getpid).result(timeout=30.0)
+    assert not solver.started  # spawned at the first need
+    pid = solver.worker().submit(os.getpid).result(timeout=30.0)
+    assert solver.started
     assert [child.pid for child in solver._worker._children] == [pid]
     running = solver._worker.submit(time.sleep, 60.0)
     time.sleep(0.2)
@@ -168,6 +170,8 @@ def test_closing_the_solver_process_ends_a_running_solve_at_once():
         running.result(timeout=5.0)
     with pytest.raises(ProcessLookupError):
         os.kill(pid, 0)  # ended and reaped
+    with pytest.raises(RuntimeError, match="closed"):
+        solver(0.0, None, 0.0)
 
 
 def test_the_solve_thread_solves_the_latest_request_and_reports_failures():

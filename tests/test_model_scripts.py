@@ -473,3 +473,24 @@ def test_bench_grasp_sensing_quick_json_judges_the_closing_against_the_world():
     assert figures["faults_read_as_lost"] == 0 and figures["false_lost"] == 0
     assert figures["suite_sensing_trials"] == 1 and figures["suite_sensing_wrong"] == 0
     assert list(figures["suite_sensing_confusion"]) == ["nothing: as for cylinder 40 mm"]
+
+
+def test_a_reference_checkout_runs_the_code_of_its_ref_and_leaves_nothing(tmp_path):
+    """bench_e2e --against: the reference's sources come first on the path of what it starts;
+    the worktree goes afterwards, and an unknown ref is refused by name."""
+    import subprocess
+    import sys
+    from softgrip_ros.devtools.benchmarking import UnknownReference, reference_checkout
+    with reference_checkout("HEAD", REPO_ROOT) as (commit, environment):
+        source = environment["PYTHONPATH"].split(os.pathsep)[0]
+        imported = subprocess.run(
+            [sys.executable, "-c", "import softgrip_ros; print(softgrip_ros.__file__)"],
+            env=environment, capture_output=True, text=True, check=True).stdout.strip()
+        assert imported.startswith(source) and len(commit) == 40
+    assert not pathlib.Path(source).exists()
+    listed = subprocess.run(["git", "-C", str(REPO_ROOT), "worktree", "list"],
+                            capture_output=True, text=True).stdout
+    assert source.rsplit("/src", 1)[0] not in listed
+    with pytest.raises(UnknownReference, match="no-such-ref"):
+        with reference_checkout("no-such-ref", REPO_ROOT):
+            pass

@@ -52,10 +52,12 @@ def opened_buses(monkeypatch, module) -> list:
 @pytest.fixture
 def controller(tmp_path):
     """The installed controller (its own simulated device, a private channel) in a new process
-    group, as a terminal starts it; its L2 solver child found. Stopped afterwards."""
+    group, as a terminal starts it; its L2 solver child found (the kinematics on L2, so that it
+    needs the child from the first estimate). Stopped afterwards."""
     log = open(tmp_path / "controller.log", "w+")
     process = subprocess.Popen(
-        [installed_executable("controller"), "--ros-args", "-p", f"can.channel:={unique('proc')}"],
+        [installed_executable("controller"), "--ros-args", "-p", f"can.channel:={unique('proc')}",
+         "-p", "kinematics:fidelity:=l2"],
         stdout=log, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
         child = wait_for(lambda: children_of(process.pid), timeout=30.0,
@@ -98,19 +100,20 @@ def test_a_ctrl_c_while_the_suite_is_built_closes_the_nodes_already_made(
 
 
 
-def test_a_ctrl_c_while_the_kinematics_is_built_closes_its_l2_child_and_threads(rclpy_context,
-                                                                                monkeypatch):
-    """The kinematics spawns its L2 child and starts its solve thread before the rest of its
+def test_a_ctrl_c_while_the_kinematics_is_built_closes_its_l2_solver_and_threads(rclpy_context,
+                                                                                 monkeypatch):
+    """The kinematics creates its L2 solver and starts its solve thread before the rest of its
     start: a Ctrl-C in between leaves a node nobody gets to close, so it closes itself (the
-    context fixture finds no thread left) and its child ends."""
+    context fixture finds no thread left). Its L2 child was never spawned (no scene needed it),
+    and the closed solver spawns none."""
     from rclpy.parameter import Parameter
     from softgrip_ros.nodes import kinematics as module
 
-    children = []
+    solvers = []
     real_solver = module.LatestSolveThread
 
     def solver(model, **kwargs):
-        children.extend(model._rod_solver._worker._children)
+        solvers.append(model._rod_solver)
         return real_solver(model, **kwargs)
 
     def interrupted(*args, **kwargs):
@@ -121,10 +124,10 @@ def test_a_ctrl_c_while_the_kinematics_is_built_closes_its_l2_child_and_threads(
     with pytest.raises(KeyboardInterrupt):
         module.KinematicsNode(in_process=True, context=rclpy_context, parameter_overrides=[
             Parameter("fidelity", value="auto")])
-    assert children
-    for child in children:
-        child.join(timeout=5.0)
-        assert not child.is_alive()
+    (rod_solver,) = solvers
+    assert not rod_solver.started
+    with pytest.raises(RuntimeError, match="closed"):
+        rod_solver.worker()
 
 
 def test_a_ctrl_c_as_the_simulated_device_starts_stops_it_and_closes_its_bus(rclpy_context,

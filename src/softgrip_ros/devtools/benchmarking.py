@@ -8,13 +8,17 @@ taken in one run.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime
 import json
 import math
 import os
 import pathlib
 import platform
+import shutil
 import statistics
+import subprocess
+import tempfile
 import time
 
 import numpy as np
@@ -148,4 +152,50 @@ def figure_rows(figures: dict, targets: dict) -> list:
                 f"{verdict(value, target, smaller_is_better)} |")
         else:
             rows.append(f"| `{key}` | {value:.4g} | reported | |")
+    return rows
+
+
+class UnknownReference(ValueError):
+    """A git ref that names no commit of the repository."""
+
+
+@contextlib.contextmanager
+def reference_checkout(git_ref: str, repository):
+    """The code at ``git_ref`` of the git ``repository``, for A/B pairs against this code: a
+    temporary worktree, and the environment (os.environ with its ``src`` first on PYTHONPATH)
+    in which this workspace's executables import the reference's sources instead of the
+    installed package. Its messages, configuration files and dependencies stay this
+    workspace's. Removed on leaving. UnknownReference naming the ref when git does not know it."""
+    repository = pathlib.Path(repository)
+    found = subprocess.run(["git", "-C", str(repository), "rev-parse", "--verify", "--quiet",
+                            f"{git_ref}^{{commit}}"], capture_output=True, text=True)
+    if found.returncode != 0:
+        raise UnknownReference(f"--against {git_ref}: not a commit of {repository}")
+    commit = found.stdout.strip()
+    parent = pathlib.Path(tempfile.mkdtemp(prefix="softgrip_reference_"))
+    tree = parent / "tree"
+    subprocess.run(["git", "-C", str(repository), "worktree", "add", "--detach", "--quiet",
+                    str(tree), commit], check=True, capture_output=True)
+    try:
+        environment = dict(os.environ)
+        environment["PYTHONPATH"] = os.pathsep.join(
+            [str(tree / "src")] + [p for p in [os.environ.get("PYTHONPATH")] if p])
+        yield commit, environment
+    finally:
+        subprocess.run(["git", "-C", str(repository), "worktree", "remove", "--force",
+                        str(tree)], capture_output=True)
+        shutil.rmtree(parent, ignore_errors=True)
+
+
+def paired_rows(pairs: dict, targets: dict, names=("reference", "this code")) -> list:
+    """A markdown table of A/B pairs {key: [(reference, this), ...]}: each key's medians on both
+    sides, its target, and every pair in the order run."""
+    rows = [f"| key | {names[0]} (median) | {names[1]} (median) | target | pairs |",
+            "|---|---|---|---|---|"]
+    for key, values in pairs.items():
+        before = statistics.median(a for a, _ in values)
+        after = statistics.median(b for _, b in values)
+        target = f"<= {targets[key][0]:g}" if key in targets else "reported"
+        listed = ", ".join(f"{a:.3g} -> {b:.3g}" for a, b in values)
+        rows.append(f"| `{key}` | {before:.4g} | {after:.4g} | {target} | {listed} |")
     return rows

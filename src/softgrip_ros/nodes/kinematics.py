@@ -56,8 +56,8 @@ class KinematicsNode(Node):
         self.values = declare(self, SPECS)
         self.add_on_set_parameters_callback(lambda params: check_all(
             specs, params, lambda _: "kinematics parameters apply at start-up: restart the node"))
-        # L2 runs in a process of its own: in this one it would starve the controller's threads of
-        # the GIL
+        # L2 runs in a process of its own (spawned at the first scene that needs it): in this one
+        # it would starve the controller's threads of the GIL
         self.rod_solver = (RodSolverProcess(
             self.values["gripper_model"], self.values["l2_nice_increment"], ROD_CONTINUATION_STEPS)
                            if self.values["fidelity"] in ("l2", "auto") else None)
@@ -66,7 +66,7 @@ class KinematicsNode(Node):
             self._build(in_process)
 
     def _build(self, in_process: bool) -> None:
-        """Everything after the L2 child's spawn, up to the timers' start."""
+        """Everything after the L2 solver's creation, up to the timers' start."""
         self.model = SceneModel(self.values["fidelity"], self.values["tolerance_m"],
                                 self.values["gripper_model"],
                                 resolve_pressure_pa=self.values["resolve_pressure_pa"],

@@ -9,33 +9,58 @@ from __future__ import annotations
 import threading
 
 from softgrip_ros.runtime.worker_process import (WORKER_NICE_INCREMENT, WorkerProcess,
-                                                 worker_state)
+                                                 check_nice_increment, worker_state)
 
 SOLVER_PROCESS_NICE_INCREMENT = WORKER_NICE_INCREMENT
 
 
 class RodSolverProcess:
-    """L2 solves in a child process of their own (:class:`WorkerProcess`). A solve is
-    milliseconds of pure-Python CPU; in a thread of the composed controller it holds the GIL that
-    the 500 Hz pressure loop and the CAN threads need, and they stall behind it. Call it as
-    SceneModel's ``rod_solver``; :meth:`close` it when done. ``nice_increment``: see
-    WorkerProcess (ValueError outside 0..19).
+    """L2 solves in a child process of their own (:class:`WorkerProcess`), spawned at the first
+    solve: with ``fidelity`` auto most scenes never need L2, and the child's interpreter and model
+    are a second of CPU and tens of MB for nothing then. A solve is milliseconds of pure-Python
+    CPU; in a thread of the composed controller it holds the GIL that the 500 Hz pressure loop
+    and the CAN threads need, and they stall behind it. Call it as SceneModel's ``rod_solver``
+    (from a thread that may wait for the spawn: :class:`LatestSolveThread`); :meth:`close` it
+    when done. ``nice_increment``: see WorkerProcess (ValueError outside 0..19).
 
     continuation_steps: the load steps of each solve (SceneModel's ROD_CONTINUATION_STEPS)."""
 
     def __init__(self, gripper_model: str = "type_II",
                  nice_increment: int = SOLVER_PROCESS_NICE_INCREMENT, continuation_steps: int = 4):
-        self._worker = WorkerProcess(_setup_rod, (gripper_model, continuation_steps),
-                                     nice_increment, "softgrip-l2")
+        check_nice_increment(nice_increment)
+        self._setup_args = (gripper_model, continuation_steps)
+        self._nice_increment = nice_increment
+        self._lock = threading.Lock()
+        self._worker: WorkerProcess | None = None
+        self._closed = False
+
+    def worker(self) -> WorkerProcess:
+        """The child, spawned now if it is not yet; RuntimeError once closed."""
+        with self._lock:
+            if self._closed:
+                raise RuntimeError("the L2 solver process is closed")
+            if self._worker is None:
+                self._worker = WorkerProcess(_setup_rod, self._setup_args, self._nice_increment,
+                                             "softgrip-l2")
+            return self._worker
+
+    @property
+    def started(self) -> bool:
+        """Whether the child has been spawned (and not closed)."""
+        return self._worker is not None and not self._closed
 
     def __call__(self, pressure_pa: float, obstacle, from_pressure_pa: float):
-        return self._worker.submit(_solve_in_rod_worker, pressure_pa, obstacle,
-                                   from_pressure_pa).result()
+        return self.worker().submit(_solve_in_rod_worker, pressure_pa, obstacle,
+                                    from_pressure_pa).result()
 
     def close(self) -> None:
         """End the child now, a solve in it or not; a caller waiting in :meth:`__call__` gets
-        BrokenProcessPool."""
-        self._worker.close()
+        BrokenProcessPool, and a later one RuntimeError."""
+        with self._lock:
+            self._closed = True
+            worker = self._worker
+        if worker is not None:
+            worker.close()
 
 
 class LatestSolveThread:

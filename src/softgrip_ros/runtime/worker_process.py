@@ -64,8 +64,7 @@ class WorkerProcess:
 
     def __init__(self, setup, setup_args: tuple = (),
                  nice_increment: int = WORKER_NICE_INCREMENT, name: str = "softgrip-worker"):
-        if not 0 <= nice_increment <= 19:
-            raise ValueError(f"nice_increment must lie in [0, 19], got {nice_increment}")
+        check_nice_increment(nice_increment)
         self._executor = ProcessPoolExecutor(
             1, mp_context=multiprocessing.get_context("spawn"), initializer=_start_worker,
             initargs=(os.getpid(), nice_increment, setup, tuple(setup_args)))
@@ -109,6 +108,12 @@ class WorkerProcess:
                 child.terminate()
         # the executor's manager thread sees its child gone, reaps it and ends; this joins it
         self._executor.shutdown(wait=True, cancel_futures=True)
+
+
+def check_nice_increment(nice_increment: int) -> None:
+    """ValueError unless ``nice_increment`` lies in 0..19 (os.nice's useful range)."""
+    if not 0 <= nice_increment <= 19:
+        raise ValueError(f"nice_increment must lie in [0, 19], got {nice_increment}")
 
 
 def worker_state():
