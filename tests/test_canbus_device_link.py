@@ -12,8 +12,9 @@ import pytest
 from softgrip_ros.canbus.codec import FrameCodec
 from softgrip_ros.canbus.controller_link import ControllerLink, SensorBinding
 from softgrip_ros.canbus.sim_device import SimDeviceConfig, SimulatedDevice
-from softgrip_ros.control.pressure import (Fault, PressureMode, PressureControlConfig,
-                                           PressureController, Source)
+from softgrip_ros.control.faults import Fault
+from softgrip_ros.control.pressure import (PressureMode, PressureControlConfig, PressureController,
+                                           Source)
 from softgrip_ros.control.reports import pressure_controller_report
 from softgrip_ros.model.pneumatics import Valve
 from softgrip_ros.realtime import freeze_start_up_heap

@@ -285,7 +285,7 @@ def test_bad_configuration_is_refused():
 
 def test_controller_feedback_prefers_a_fresh_estimate_and_reports_silence():
     from softgrip_ros.control.grasp_fsm import ControllerFeedback
-    from softgrip_ros.control.pressure import Fault
+    from softgrip_ros.control.faults import Fault
     feedback = ControllerFeedback(estimate_timeout_s=0.1, status_timeout_s=1.0)
     assert math.isnan(feedback.pressure(0.0)[0])
     assert feedback.fault(0.0, idle=True) == ""
@@ -312,7 +312,7 @@ def test_a_sensor_timeout_stops_a_grasp_only_once_it_lasts():
     shorter than the grace (frames delayed on a loaded machine), and faults on a dropout that
     lasts."""
     from softgrip_ros.control.grasp_fsm import ControllerFeedback
-    from softgrip_ros.control.pressure import Fault
+    from softgrip_ros.control.faults import Fault
     feedback = ControllerFeedback(estimate_timeout_s=0.1, status_timeout_s=1.0,
                                   transient_grace_s=0.3)
     feedback.on_status(int(Fault.SENSOR_TIMEOUT), math.nan, 0.0)
@@ -330,7 +330,7 @@ def test_a_sensor_timeout_stops_a_grasp_only_once_it_lasts():
 
 def test_controller_feedback_tells_the_safe_state_from_other_faults():
     from softgrip_ros.control.grasp_fsm import ControllerFeedback
-    from softgrip_ros.control.pressure import Fault
+    from softgrip_ros.control.faults import Fault
     feedback = ControllerFeedback(estimate_timeout_s=0.1, status_timeout_s=1.0)
     assert not feedback.safe_state(0.0)  # no status yet
     feedback.on_status(int(Fault.COMMAND_TIMEOUT | Fault.SENSOR_TIMEOUT), 0.0, 0.0)

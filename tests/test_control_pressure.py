@@ -4,8 +4,9 @@ import math
 import numpy as np
 import pytest
 
-from softgrip_ros.control.pressure import (Fault, PressureMode, PressureControlConfig,
-                                           PressureController, Source)
+from softgrip_ros.control.faults import Fault
+from softgrip_ros.control.pressure import (PressureMode, PressureControlConfig, PressureController,
+                                           Source)
 from softgrip_ros.model.pneumatics import PneumaticPlant, Valve
 from softgrip_ros.devtools.closed_loop import rise_time_s, step_figures, step_response
 from softgrip_ros.devtools.identification_sim import SLOW_LARGE, drawn, scaled

@@ -9,9 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from softgrip_ros.control.pressure import (Fault, PressureMode, PressureControlConfig,
-                                           PressureController, Source, boost_ceiling_pa)
-from softgrip_ros.control.safety import SAFETY_FAULTS, SafetyConfig
+from softgrip_ros.control.faults import SAFETY_FAULTS, Fault
+from softgrip_ros.control.pressure import (PressureMode, PressureControlConfig, PressureController,
+                                           Source, boost_ceiling_pa)
+from softgrip_ros.control.safety import SafetyConfig
 from softgrip_ros.model.pneumatics import PlantInputs, PneumaticPlant, Valve
 from softgrip_ros.devtools.identification_sim import SLOW_LARGE, scaled
 from tests.helpers.closed_loop import FaultyLoop

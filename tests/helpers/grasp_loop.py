@@ -4,8 +4,8 @@ import math
 
 import numpy as np
 
-from softgrip_ros.control.grasp_fsm import (HALTING_FAULTS, TRANSIENT_FAULTS, GraspStateMachine,
-                                            fault_text)
+from softgrip_ros.control.faults import HALTING_FAULTS, TRANSIENT_FAULTS, fault_text
+from softgrip_ros.control.grasp_fsm import GraspStateMachine
 from softgrip_ros.control.pressure import PressureController
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 

@@ -31,8 +31,8 @@ import can
 from softgrip_ros.canbus.codec import FrameCodec, frame_sent_at
 from softgrip_ros.checks import future_stamp_reason
 from softgrip_ros.canbus.reader import BatchReader
-from softgrip_ros.control.pressure import (ControlOutput, Fault, PressureMode, PressureController,
-                                           Source)
+from softgrip_ros.control.faults import Fault
+from softgrip_ros.control.pressure import ControlOutput, PressureMode, PressureController, Source
 from softgrip_ros.control.reports import LinkStats
 from softgrip_ros.model.pneumatics import SOURCE_VALVES, Valve
 from softgrip_ros.realtime import PeriodicThread

@@ -33,28 +33,20 @@ import enum
 import math
 
 from softgrip_ros.checks import require_positive
-from softgrip_ros.control.pressure import ERROR_FAULTS, Fault, Source
-from softgrip_ros.control.safety import SAFETY_FAULTS
+from softgrip_ros.control.faults import (HALTING_FAULTS, SAFETY_FAULTS, TRANSIENT_FAULTS, Fault,
+                                         fault_text)
+from softgrip_ros.control.pressure import Source
 from softgrip_ros.estimation.grasp_sensing import Detection, ObjectStatus
 from softgrip_ros.model.fidelity import FREE, Scene, cylinder_scene
 from softgrip_ros.model.force_law import ClampForceLaw, ObjectKind, load_table
 from softgrip_ros.model.rod import Sheet
 
-HALTING_FAULTS = ERROR_FAULTS | Fault.REGULATOR | Fault.BUS_ERROR
-# the controller holds, and resumes by itself
-TRANSIENT_FAULTS = Fault.SENSOR_TIMEOUT | Fault.BUS_SILENT
 
 
 HOLD_AIR = ("trap", "regulate")
 ON_OBJECT_LOST = ("hold", "release", "fault")
 # the sensed statuses that mean an object is between the fingers
 HOLDING_STATUSES = (ObjectStatus.HELD, ObjectStatus.CONTACT_CLOSING)
-
-
-def fault_text(fault_flags: int) -> str:
-    """The controller faults that stop a grasp, named ('' when none)."""
-    bad = Fault(fault_flags) & HALTING_FAULTS
-    return ", ".join(f.name.lower().replace("_", " ") for f in Fault if f and f in bad)
 
 
 class Phase(enum.IntEnum):

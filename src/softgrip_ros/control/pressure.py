@@ -64,8 +64,8 @@ import enum
 import functools
 import math
 
-from softgrip_ros.control.safety import (SAFETY_FAULTS, Fault, SafetyConfig, SafetyMonitor,
-                                         fault_names)
+from softgrip_ros.control.faults import SAFETY_FAULTS, Fault, fault_names
+from softgrip_ros.control.safety import SafetyConfig, SafetyMonitor
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 
 
@@ -89,11 +89,6 @@ class PressureMode(enum.IntEnum):
     IDENTIFY = 5
 
 
-ERROR_FAULTS = SAFETY_FAULTS | Fault.SENSOR_TIMEOUT | Fault.BUS_SILENT
-__all__ = [
-    "ControlOutput", "ERROR_FAULTS", "Fault", "PressureMode", "PressureControlConfig",
-    "PressureController", "SafetyConfig", "Source", "fault_names"
-]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -7,8 +7,8 @@ import math
 
 from softgrip_ros.control.grasp_fsm import GraspState, Phase
 from softgrip_ros.estimation.grasp_sensing import ObjectStatus
-from softgrip_ros.control.pressure import (ERROR_FAULTS, ControlOutput, Fault, PressureMode,
-                                           fault_names)
+from softgrip_ros.control.faults import ERROR_FAULTS, Fault, fault_names
+from softgrip_ros.control.pressure import ControlOutput, PressureMode
 from softgrip_ros.health import Health, Report
 
 

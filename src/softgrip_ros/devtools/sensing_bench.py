@@ -21,7 +21,8 @@ import numpy as np
 
 from softgrip_ros.canbus.sim_device import DEFAULT_SENSORS
 from softgrip_ros.control.grasp_fsm import (GraspConfig, GraspMode, GraspRequest,
-                                            GraspStateMachine, Phase, fault_text)
+                                            GraspStateMachine, Phase)
+from softgrip_ros.control.faults import fault_text
 from softgrip_ros.control.object_sensing import ObjectSensingLink
 from softgrip_ros.control.pressure import PressureControlConfig, PressureController
 from softgrip_ros.devtools.grasp_bench import GraspCase, Placement, verdict_correct
