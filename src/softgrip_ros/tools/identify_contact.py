@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
-import math
 import pathlib
 import select
 import sys
@@ -110,7 +109,7 @@ def jobs_from_log(recording, info: dict, base: plant_file.PlantDescription) -> t
     (softgrip_identify.recording_from_log) and its info. The readings are taken as the
     controller published them (the base file's biases off), as the sensing reads them."""
     contact = info["contact"]
-    open_pa, clamp_pa = float(contact["open_pa"]), float(contact["clamp_pa"])
+    clamp_pa = float(contact["clamp_pa"])
     changes = sorted(recording.inputs, key=lambda change: change.time_s)
     inputs = [(c.time_s, PlantInputs(c.regulator_setpoint_pa, c.regulator_enabled, (c.valve,)))
               for c in changes]
@@ -138,8 +137,6 @@ def jobs_from_log(recording, info: dict, base: plant_file.PlantDescription) -> t
         job = MotionJob(record, False, float(contact["known_object_m"]), clamp_pa,
                         start + JUDGED_S)
         (object_jobs if kind == "object" else empty_jobs).append(job)
-    if not math.isfinite(open_pa):
-        raise ValueError("the log's opening pressure is not a number")
     return object_jobs, empty_jobs
 
 
