@@ -521,7 +521,7 @@ def against(args) -> int:
                 for key in this:
                     pairs.setdefault(key, []).append((reference[key], this[key]))
     except UnknownReference as error:
-        print(f"bench_e2e: {error}", file=sys.stderr)
+        print(f"bench_e2e: --against {error}", file=sys.stderr)
         return 2
     if args.json:
         print(strict_json({"against": args.against, "commit": commit, "pairs": pairs}))

@@ -96,6 +96,7 @@ def _follow(client, until, timeout_s: float) -> bool:
     """Print each phase as it comes until ``until(state)`` or the task ends; whether ``until``
     was met (or, without one, whether the task succeeded)."""
     from action_msgs.msg import GoalStatus
+    from softgrip_interfaces.msg import GripperState
     deadline, last = time.monotonic() + timeout_s, None
     while time.monotonic() < deadline:
         state = client.feedback() or client.state()
@@ -111,8 +112,8 @@ def _follow(client, until, timeout_s: float) -> bool:
                 return False
             phase = PHASES[result.final_phase] if result.final_phase < len(PHASES) else "?"
             # object_held false is "not sensed held": the status tells unknown from no
-            held = "yes" if result.object_held else (
-                "unknown" if last is None or last[2] == 0 else "no")  # 0: OBJECT_UNKNOWN
+            unknown = last is None or last[2] == GripperState.OBJECT_UNKNOWN
+            held = "yes" if result.object_held else ("unknown" if unknown else "no")
             print(f"result: {phase}, {result.final_gauge_pressure_pa / 1e3:.1f} kPa: "
                   f"{result.message}; object held: {held}")
             return until is None and client.status() == GoalStatus.STATUS_SUCCEEDED

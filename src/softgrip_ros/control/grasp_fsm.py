@@ -41,8 +41,6 @@ from softgrip_ros.model.fidelity import FREE, Scene, cylinder_scene
 from softgrip_ros.model.force_law import ClampForceLaw, ObjectKind, load_table
 from softgrip_ros.model.rod import Sheet
 
-
-
 HOLD_AIR = ("trap", "regulate")
 ON_OBJECT_LOST = ("hold", "release", "fault")
 # the sensed statuses that mean an object is between the fingers

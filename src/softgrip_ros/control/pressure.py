@@ -89,8 +89,6 @@ class PressureMode(enum.IntEnum):
     IDENTIFY = 5
 
 
-
-
 @dataclasses.dataclass(frozen=True)
 class PressureControlConfig:
     """Parameters of the control law and the safety rules. Pressures gauge, Pa; times s."""

@@ -170,7 +170,7 @@ def reference_checkout(git_ref: str, repository):
     found = subprocess.run(["git", "-C", str(repository), "rev-parse", "--verify", "--quiet",
                             f"{git_ref}^{{commit}}"], capture_output=True, text=True)
     if found.returncode != 0:
-        raise UnknownReference(f"--against {git_ref}: not a commit of {repository}")
+        raise UnknownReference(f"{git_ref}: not a commit of {repository}")
     commit = found.stdout.strip()
     parent = pathlib.Path(tempfile.mkdtemp(prefix="softgrip_reference_"))
     tree = parent / "tree"

@@ -594,8 +594,7 @@ class PressureEstimator:
                 used[name] = True
         if total > 0.0:
             mean = weighted_sum / total
-            variance = noise_part / total**2 + (_shared_walk_variance(walks, total)
-                                                if walks else 0.0)
+            variance = noise_part / total**2 + _shared_walk_variance(walks, total)
             self.filter.update(np.array([[mean]]), _H_CHAMBER, np.array([[variance]]))
         elif self._locked_out(stamp_s):
             self._initialise({name: value for name, value, _ in samples}, stamp_s)

@@ -14,7 +14,7 @@ from softgrip_ros.model.fidelity import CHOICES as FIDELITY_CHOICES
 from softgrip_ros.model import plant_file
 from softgrip_ros.model.force_law import ClampForceLaw, load_table
 from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, replace_fields
-from softgrip_ros.runtime.rod_solver import SOLVER_PROCESS_NICE_INCREMENT
+from softgrip_ros.runtime.worker_process import WORKER_NICE_INCREMENT
 
 
 
@@ -297,7 +297,7 @@ KINEMATICS_SPECS = [
     ParamSpec("min_solve_interval", 0.1, "... and at most once per this (its CPU would starve "
               "the pressure loop)", "s", 0.0, 10.0),
     ParamSpec(
-        "l2_nice_increment", SOLVER_PROCESS_NICE_INCREMENT, "added to the nice value of "
+        "l2_nice_increment", WORKER_NICE_INCREMENT, "added to the nice value of "
         "the L2 solver's child process, so that its solves yield the CPU to the pressure "
         "loop, the CAN reception and the estimator", "", 0, 19),
     gripper_model_spec(),

@@ -11,8 +11,6 @@ import threading
 from softgrip_ros.runtime.worker_process import (WORKER_NICE_INCREMENT, WorkerProcess,
                                                  check_nice_increment, worker_state)
 
-SOLVER_PROCESS_NICE_INCREMENT = WORKER_NICE_INCREMENT
-
 
 class RodSolverProcess:
     """L2 solves in a child process of their own (:class:`WorkerProcess`), spawned at the first
@@ -26,7 +24,7 @@ class RodSolverProcess:
     continuation_steps: the load steps of each solve (SceneModel's ROD_CONTINUATION_STEPS)."""
 
     def __init__(self, gripper_model: str = "type_II",
-                 nice_increment: int = SOLVER_PROCESS_NICE_INCREMENT, continuation_steps: int = 4):
+                 nice_increment: int = WORKER_NICE_INCREMENT, continuation_steps: int = 4):
         check_nice_increment(nice_increment)
         self._setup_args = (gripper_model, continuation_steps)
         self._nice_increment = nice_increment
