@@ -209,3 +209,37 @@ def test_the_known_object_step_learns_the_share_on_the_worlds_fingers(tmp_path):
     assert all(abs(float(size) - 30.0) < 5.0 for size in felt.split(", ")), report
     assert (tmp_path / "out" / identify_contact.FIGURE).stat().st_size > 10_000
     assert (tmp_path / "out" / "recording" / "metadata.yaml").is_file()
+
+
+def test_the_known_object_step_stops_when_no_one_can_place_the_object():
+    """stdin closed at the prompt (a script, no terminal): the step stops as any other stop,
+    after its clamps on nothing, with the reason."""
+    import threading
+    from softgrip_ros.tools import identify_contact
+
+    class Clock:
+        def now(self):
+            return type("T", (), {"nanoseconds": time.time_ns()})()
+
+    class FakeLive:
+        lock = threading.Lock()
+        recording = False
+        node = type("N", (), {"get_clock": lambda self: Clock()})()
+        sent = []
+
+        def send(self, source, target_pa):
+            self.sent.append((source, target_pa))
+
+        def problem(self, sensors):
+            return ""
+
+    def closed_stdin(check):
+        check()
+        raise EOFError("stdin closed before the object was placed")
+
+    live, told = FakeLive(), []
+    contact_plan = identify_contact.ContactPlan(0.03, 13e3, -30e3)
+    with pytest.raises(identify.Stopped, match="stdin closed before the object was placed"):
+        identify_contact.run(live, contact_plan, ["chamber_a"], told.append, closed_stdin)
+    assert sum("on nothing" in line for line in told) == identify_contact.EMPTY_CLOSINGS
+    assert ("SUPPLY", -30e3) in live.sent and identify_contact.PLACE_PROMPT in told[-1]

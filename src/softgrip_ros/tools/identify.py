@@ -476,9 +476,6 @@ def main(argv=None) -> int:
     except Stopped as stop:
         print(f"softgrip_identify: stopped: {stop}; vented, nothing written", file=sys.stderr)
         return 1
-    except EOFError as error:
-        print(f"softgrip_identify: stopped: {error}; vented, nothing written", file=sys.stderr)
-        return 1
     except KeyboardInterrupt:
         print("softgrip_identify: stopped by Ctrl-C; vented, nothing written", file=sys.stderr)
         return 1

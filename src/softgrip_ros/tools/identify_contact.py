@@ -55,8 +55,8 @@ def plan(model, known_size_m: float, max_pa: float, min_pa: float) -> ContactPla
 def run(live, contact_plan: ContactPlan, sensors: list, progress, wait_placed) -> list:
     """The closings, live (``live``: softgrip_ros.tools.identify.Live, in identification mode):
     [(kind 'empty' or 'object', when the clamp was sent, ROS s)]. ``wait_placed(check)`` blocks
-    until the user has placed the object, calling ``check()`` meanwhile. Raises
-    identify.Stopped."""
+    until the user has placed the object, calling ``check()`` meanwhile (EOFError: never).
+    Raises identify.Stopped."""
     from softgrip_ros.tools.identify import Stopped, hold_for
     with live.lock:
         live.recording = True
@@ -73,7 +73,10 @@ def run(live, contact_plan: ContactPlan, sensors: list, progress, wait_placed) -
                 if reason:
                     raise Stopped(reason)
                 live.send("SUPPLY", contact_plan.open_pa)
-            wait_placed(check)
+            try:
+                wait_placed(check)
+            except EOFError as error:  # no one to place the object
+                raise Stopped(str(error)) from None
         for index in range(count):
             target = "nothing" if kind == "empty" else "the object"
             progress(f"clamp {index + 1}/{count} on {target}: open to "
