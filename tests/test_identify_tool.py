@@ -171,9 +171,12 @@ def test_the_known_object_step_learns_the_share_on_the_worlds_fingers(tmp_path):
     """The installed controller, and the device with its physics world apart; the tool opens,
     clamps twice on nothing, asks for the object, which the arm brings between the fingers,
     clamps three times on it, and writes a plant file whose contact share is pinned (an
-    interval narrower than 0.1) and under which the world's 30 mm cylinder is felt within the
-    5 mm the sensing is asked for; the report and the figure beside it."""
+    interval narrower than 0.1) around the world's own (FE_BENDING_VOLUME_SHARE), and under which
+    the world's 30 mm cylinder is felt, the median of the clamps, within the 5 mm the sensing is
+    asked for (one clamp of several may read further off: the felt sizes' p95 in the world is
+    some 15 mm, docs/grasp_sensing.md); the report and the figure beside it."""
     from softgrip_ros.devtools.grasp_bench import GraspCase, Placement, SuiteRig, write_scene
+    from softgrip_ros.model.world.fingers import FE_BENDING_VOLUME_SHARE
     from softgrip_ros.tools import identify_contact
     scene = write_scene(Placement().scene(GraspCase("cylinder", 0.03, 0.02, 0.8)), tmp_path)
     rig = SuiteRig(scene, unique("contact"), tmp_path / "rig.log", device_apart=True)
@@ -204,9 +207,11 @@ def test_the_known_object_step_learns_the_share_on_the_worlds_fingers(tmp_path):
     low, high = detail["ci95"]
     assert detail["source"] == "identified" and detail["known_object_m"] == 0.03
     assert low <= written.bending_volume_share <= high and high - low < 0.1, detail
+    assert low <= FE_BENDING_VOLUME_SHARE <= high, detail  # the world's truth
     report = (tmp_path / "out" / identify_contact.REPORT).read_text()
     felt = report.split("identified share (mm) | ", 1)[1].split(" |", 1)[0]
-    assert all(abs(float(size) - 30.0) < 5.0 for size in felt.split(", ")), report
+    sizes = sorted(float(size) for size in felt.split(", "))
+    assert abs(sizes[len(sizes) // 2] - 30.0) < 5.0, report
     assert (tmp_path / "out" / identify_contact.FIGURE).stat().st_size > 10_000
     assert (tmp_path / "out" / "recording" / "metadata.yaml").is_file()
 
