@@ -40,6 +40,7 @@ from softgrip_ros.estimation.grasp_sensing import Detection, ObjectStatus
 from softgrip_ros.model.fidelity import FREE, Scene, cylinder_scene
 from softgrip_ros.model.force_law import ClampForceLaw, ObjectKind, load_table
 from softgrip_ros.model.rod import Sheet
+from softgrip_ros.settings import check_settings, setting
 
 HOLD_AIR = ("trap", "regulate")
 ON_OBJECT_LOST = ("hold", "release", "fault")
@@ -115,47 +116,43 @@ class Plan:
 class GraspConfig:
     """Pressures gauge Pa, lengths m, times s."""
 
-    max_gauge_pa: float = 50e3
-    min_gauge_pa: float = -60e3
-    envelop_margin_m: float = 0.01
-    pinch_max_diameter_m: float = 0.005
-    release_tip_spacing_m: float = 0.02
-    pressure_tolerance_pa: float = 1.5e3
-    settle_s: float = 0.1
-    auto_clamp_delay_s: float = -1.0
-    opening_timeout_s: float = 3.0
-    clamping_timeout_s: float = 3.0
-    releasing_timeout_s: float = 3.0
+    max_gauge_pa: float = setting(50e3, "highest pressure a command may ask for", "Pa", 1e3,
+                                  100e3)
+    min_gauge_pa: float = setting(-60e3, "lowest pressure a command may ask for", "Pa", -100e3,
+                                  -1e3)
+    envelop_margin_m: float = setting(0.01, "D2 beyond the object before ENVELOPED", "m", 1e-4,
+                                      0.1)
+    pinch_max_diameter_m: float = setting(0.005, "largest object for PINCH", "m", 1e-4, 0.02)
+    release_tip_spacing_m: float = setting(0.02, "least opening after RELEASE", "m", 1e-3, 0.15)
+    pressure_tolerance_pa: float = setting(
+        1.5e3, "a phase's pressure counts as reached within this", "Pa", 100.0, 20e3)
+    settle_s: float = setting(0.1, "time within tolerance before a phase completes", "s", 0.01,
+                              5.0)
+    auto_clamp_delay_s: float = setting(
+        -1.0, "ENVELOPED to CLAMPING on its own after this; < 0: wait for CLAMP", "s", -1.0, 600.0)
+    opening_timeout_s: float = setting(3.0, "OPENING longer than this: FAULT", "s", 0.1, 60.0)
+    clamping_timeout_s: float = setting(3.0, "CLAMPING longer than this: FAULT", "s", 0.1, 60.0)
+    releasing_timeout_s: float = setting(3.0, "RELEASING longer than this: FAULT", "s", 0.1,
+                                         60.0)
     vented_below_pa: float = 1.5e3
-    hold_error_limit_pa: float = 5e3
-    hold_error_time_s: float = 0.3
-    # "trap": once HOLDING has settled the valves close on the air (topped up when it drifts
-    # past pressure_tolerance_pa), so that an object's loss shows in the pressure; "regulate":
-    # the regulated line stays open (a loss is then not sensed)
-    hold_air: str = "regulate"
-    # what a sensed loss during HOLDING does: "hold" (report it), "release" or "fault" (vent)
-    on_object_lost: str = "hold"
-    # how long a HOLDING goal waits for the sensed verdict on its closing before it succeeds
-    # without one
-    sensing_wait_s: float = 2.0
+    hold_error_limit_pa: float = setting(
+        5e3, "HOLDING pressure off target by more than this ...", "Pa", 500.0, 50e3)
+    hold_error_time_s: float = setting(0.3, "... for this long: FAULT", "s", 0.01, 10.0)
+    hold_air: str = setting(
+        "regulate", "HOLDING once settled: trap (valves closed, topped up past "
+        "pressure_tolerance_pa; a lost object shows in the pressure) or regulate (the regulated "
+        "line open; a loss is not sensed)", choices=HOLD_AIR)
+    on_object_lost: str = setting(
+        "hold", "a loss sensed in HOLDING: hold (report it), release, or fault (vent)",
+        choices=ON_OBJECT_LOST)
+    sensing_wait_s: float = setting(
+        2.0, "a HOLDING goal waits this long for the closing's sensed verdict", "s", 0.0, 10.0)
 
     def __post_init__(self):
+        check_settings(self)
         if not self.min_gauge_pa < 0.0 < self.max_gauge_pa:
             raise ValueError("need min_gauge_pa < 0 < max_gauge_pa")
-        require_positive(self, "envelop_margin_m", "pinch_max_diameter_m", "release_tip_spacing_m",
-                         "pressure_tolerance_pa", "settle_s", "opening_timeout_s",
-                         "clamping_timeout_s", "releasing_timeout_s", "vented_below_pa",
-                         "hold_error_limit_pa", "hold_error_time_s")
-        if not math.isfinite(self.auto_clamp_delay_s):
-            raise ValueError("auto_clamp_delay_s must be finite (negative: never)")
-        if self.hold_air not in HOLD_AIR:
-            raise ValueError(f"hold_air must be one of {', '.join(HOLD_AIR)}, got "
-                             f"{self.hold_air!r}")
-        if self.on_object_lost not in ON_OBJECT_LOST:
-            raise ValueError(f"on_object_lost must be one of {', '.join(ON_OBJECT_LOST)}, got "
-                             f"{self.on_object_lost!r}")
-        if not (math.isfinite(self.sensing_wait_s) and self.sensing_wait_s >= 0.0):
-            raise ValueError("sensing_wait_s must be >= 0 and finite")
+        require_positive(self, "vented_below_pa")
 
 
 @dataclasses.dataclass

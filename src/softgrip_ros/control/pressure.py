@@ -67,6 +67,7 @@ import math
 from softgrip_ros.control.faults import SAFETY_FAULTS, Fault, fault_names
 from softgrip_ros.control.safety import SafetyConfig, SafetyMonitor
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
+from softgrip_ros.settings import check_settings, setting
 
 
 class Source(enum.IntEnum):
@@ -93,18 +94,23 @@ class PressureMode(enum.IntEnum):
 class PressureControlConfig:
     """Parameters of the control law and the safety rules. Pressures gauge, Pa; times s."""
 
-    max_gauge_pa: float = 50e3
-    min_gauge_pa: float = -60e3
-    overpressure_margin_pa: float = 5e3
-    sensor_timeout_s: float = 0.05
-    command_timeout_s: float = 2.0
-    command_timeout_action: str = "hold"
-    default_rate_pa_per_s: float = 1.0e6
+    max_gauge_pa: float = setting(50e3, "hard upper limit of the setpoint", "Pa", 1e3, 100e3)
+    min_gauge_pa: float = setting(-60e3, "hard lower limit of the setpoint", "Pa", -100e3, -1e3)
+    overpressure_margin_pa: float = setting(5e3, "measured excess beyond a limit that vents",
+                                            "Pa", 100.0, 50e3)
+    sensor_timeout_s: float = setting(0.05, "no valid reading for this long: hold and report",
+                                      "s", 0.005, 10.0)
+    command_timeout_s: float = setting(
+        2.0, "no command for this long while regulating: safe action", "s", 0.1, 3600.0)
+    command_timeout_action: str = setting("hold", "safe action on a command timeout",
+                                          choices=("hold", "vent"))
+    default_rate_pa_per_s: float = setting(1.0e6, "setpoint slew when a command gives none",
+                                           "Pa/s", 1e3, 1e8)
     regulator_max_gauge_pa: float = 150e3
     regulator_min_gauge_pa: float = -80e3
-    kp: float = 0.3
-    ki_per_s: float = 30.0
-    trim_limit_pa: float = 5e3
+    kp: float = setting(0.3, "proportional gain of the trim", "Pa/Pa", 0.0, 10.0)
+    ki_per_s: float = setting(30.0, "integral gain of the trim", "1/s", 0.0, 1000.0)
+    trim_limit_pa: float = setting(5e3, "largest trim of the regulator setpoint", "Pa", 0.0, 50e3)
     integral_band_pa: float = 1.5e3
     boost_band_pa: float = 1e3
     boost_min_step_pa: float = 5e3
@@ -131,22 +137,10 @@ class PressureControlConfig:
                 continue
             if isinstance(value, float) and not math.isfinite(value):
                 raise ValueError(f"{field.name} must be finite, got {value}")
+        check_settings(self)
         checks = [
-            (0.0 < self.max_gauge_pa <= 100e3, "max_gauge_pa must lie in (0, 100000] Pa"),
-            (-101_325.0 < self.min_gauge_pa < 0.0, "min_gauge_pa must lie in (-101325, 0) Pa"),
-            (0.0 < self.overpressure_margin_pa <= 50e3,
-             "overpressure_margin_pa must lie in (0, 50000] Pa"),
-            (0.0 < self.sensor_timeout_s <= 10.0, "sensor_timeout_s must lie in (0, 10] s"),
-            (0.0 < self.command_timeout_s <= 3600.0, "command_timeout_s must lie in (0, 3600] s"),
-            (self.command_timeout_action
-             in ("hold", "vent"), "command_timeout_action must be 'hold' or 'vent'"),
-            (0.0 < self.default_rate_pa_per_s <= 1e8,
-             "default_rate_pa_per_s must lie in (0, 1e8] Pa/s"),
             (self.regulator_min_gauge_pa < 0.0 < self.regulator_max_gauge_pa,
              "the regulator range must span 0"),
-            (0.0 <= self.kp <= 10.0 and
-             0.0 <= self.ki_per_s <= 1e3, "kp in [0, 10], ki_per_s in [0, 1000]"),
-            (0.0 <= self.trim_limit_pa <= 50e3, "trim_limit_pa must lie in [0, 50000] Pa"),
             (0.0 < self.integral_band_pa <= 50e3, "integral_band_pa must lie in (0, 50000] Pa"),
             (0.0 < self.boost_band_pa and
              0.0 <= self.boost_lead_s <= 1.0, "boost_band_pa > 0, boost_lead_s in [0, 1]"),

@@ -64,6 +64,7 @@ import numpy as np
 from softgrip_ros.checks import require_positive
 from softgrip_ros.control.faults import Fault
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
+from softgrip_ros.settings import check_settings, setting
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,48 +74,55 @@ class SafetyConfig:
     max_gauge_pa: float = 50e3
     min_gauge_pa: float = -60e3
     margin_pa: float = 5e3
-    reaction_time_s: float = 0.01
-    disagreement_pa: float = 5e3
-    disagreement_time_s: float = 0.05
-    stuck_time_s: float = 0.1
-    stuck_motion_pa: float = 2e3
-    noise_ratio: float = 4.0
-    noise_time_s: float = 0.2
-    jump_sigmas: float = 6.0
-    response_window_s: float = 0.05
-    response_settle_s: float = 0.02
-    response_min_change_pa: float = 2e3
-    response_tolerance: float = 0.75
-    response_time_s: float = 0.06
-    regulator_deviation_pa: float = 10e3
-    regulator_deviation_time_s: float = 0.03
-    nis_ratio: float = 50.0
-    nis_time_s: float = 0.5
-    clear_time_s: float = 0.5
+    reaction_time_s: float = setting(
+        0.01, "the limit trip extrapolates each pressure over this: a control period, the bus "
+        "and the valve's response", "s", 0.001, 0.2)
+    disagreement_pa: float = setting(5e3, "two sensors further apart than this ...", "Pa", 500.0,
+                                     50e3)
+    disagreement_time_s: float = setting(0.05, "... for this long: SENSOR_DISAGREE", "s", 0.005,
+                                         5.0)
+    stuck_time_s: float = setting(0.1, "a reading unchanged this long ...", "s", 0.01, 10.0)
+    stuck_motion_pa: float = setting(
+        2e3, "... while another sensor or the plant moved the pressure by this: SENSOR_STUCK",
+        "Pa", 100.0, 50e3)
+    noise_ratio: float = setting(
+        4.0, "a sensor's noise above this times its rated noise ...", "", 1.5, 1000.0)
+    noise_time_s: float = setting(0.2, "... for this long: SENSOR_NOISE", "s", 0.01, 10.0)
+    jump_sigmas: float = setting(
+        6.0, "every sensor stepping, in one sample, by more than the plant's fastest rate allows "
+        "plus this many noise sigmas: SENSOR_IMPLAUSIBLE", "", 3.0, 1000.0)
+    response_window_s: float = setting(
+        0.05, "the chamber's response to a valve state is judged over this ...", "s", 0.01, 1.0)
+    response_settle_s: float = setting(
+        0.02, "... from this long after the valve state was commanded", "s", 0.0, 1.0)
+    response_min_change_pa: float = setting(
+        2e3, "a change judged against the plant must be predicted this large; a chamber moving "
+        "this much with the valves closed is a fault", "Pa", 100.0, 50e3)
+    response_tolerance: float = setting(
+        0.75, "the measured change may differ from the plant's by this fraction of it (the "
+        "model's rates within about 2x of the hardware's)", "", 0.05, 0.95)
+    response_time_s: float = setting(
+        0.06, "a response off the plant in every check this long: RESPONSE", "s", 0.005, 5.0)
+    regulator_deviation_pa: float = setting(
+        10e3, "the regulator's output further from its model than this ...", "Pa", 1e3, 200e3)
+    regulator_deviation_time_s: float = setting(0.03, "... for this long: REGULATOR", "s", 0.005,
+                                                5.0)
+    nis_ratio: float = setting(
+        50.0, "the estimator's windowed NIS of a sensor above this times its bound ...", "", 1.0,
+        1e6)
+    nis_time_s: float = setting(0.5, "... for this long: SENSOR_INCONSISTENT", "s", 0.01, 60.0)
+    clear_time_s: float = setting(
+        0.5, "a safety fault clears on a new command once its evidence has been gone this long",
+        "s", 0.05, 60.0)
 
     def __post_init__(self):
-        for field in dataclasses.fields(self):
-            value = getattr(self, field.name)
-            if not math.isfinite(value):
-                raise ValueError(f"safety {field.name} must be finite, got {value}")
-        require_positive(self, "margin_pa", "reaction_time_s", "disagreement_pa",
-                         "disagreement_time_s", "stuck_time_s", "stuck_motion_pa", "noise_time_s",
-                         "jump_sigmas", "response_window_s", "response_min_change_pa",
-                         "response_time_s", "regulator_deviation_pa", "regulator_deviation_time_s",
-                         "nis_time_s", "clear_time_s")
+        for name in ("max_gauge_pa", "min_gauge_pa", "margin_pa"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"safety {name} must be finite, got {getattr(self, name)}")
+        check_settings(self)
+        require_positive(self, "margin_pa")
         if not self.min_gauge_pa < 0.0 < self.max_gauge_pa:
             raise ValueError("need min_gauge_pa < 0 < max_gauge_pa")
-        if not 1.0 < self.noise_ratio <= 1000.0:
-            raise ValueError(f"noise_ratio must lie in (1, 1000], got {self.noise_ratio}")
-        if not 0.0 < self.response_tolerance < 1.0:
-            raise ValueError(
-                f"response_tolerance must lie in (0, 1), got {self.response_tolerance}")
-        if not 0.0 <= self.response_settle_s <= 1.0 or self.reaction_time_s > 1.0:
-            raise ValueError(
-                "response_settle_s must lie in [0, 1] s and reaction_time_s in (0, 1] s")
-        if self.nis_ratio < 1.0:
-            raise ValueError(f"nis_ratio must be at least 1, got {self.nis_ratio}")
-
 
 EMA_TIME_S = 0.01  # low-pass time constant of each sensor's value and rate
 HISTORY_S = 0.5  # how far back the per-sensor and command histories reach

@@ -70,6 +70,7 @@ from softgrip_ros.estimation.filters import (CHAMBER, FILTER_TYPES, REGULATOR, c
                                              make_filter, plant_step)
 from softgrip_ros.health import Health, Report
 from softgrip_ros.model.pneumatics import PlantInputs, PneumaticPlant, Valve
+from softgrip_ros.settings import check_settings, setting
 
 _H_CHAMBER = np.array([[1.0, 0.0]])  # every sensor measures the chamber
 # the recent NIS the safety checks judge (see nis_evidence)
@@ -135,60 +136,56 @@ class EstimatorConfig:
     initial_regulator_std_pa: the regulator output's 1-sigma when the filter starts.
     """
 
-    filter_type: str = "ekf"
+    filter_type: str = setting("ekf", "the filter", choices=FILTER_TYPES)
     sensors: tuple = (SensorConfig("chamber_a", 300.0), SensorConfig("chamber_b", 150.0))
-    sensor_timeout_s: float = 0.05
+    sensor_timeout_s: float = setting(0.05, "a sensor silent this long is dropped from fusion",
+                                      "s", 0.001, 10.0)
     process_noise_pa2_per_s: tuple = (2.0e5, 1.0e6)
     max_step_s: float = 0.005
     max_lag_s: float = 0.02
-    fusion_window_s: float = 0.0
-    max_fusion_shift_pa: float = 50.0
-    input_timing_std_s: float = 0.01
-    # an input change stamped up to this long before the filter's time is applied at its stamp,
-    # the samples and predictions taken since taken again (see PressureEstimator.set_inputs)
-    rewind_horizon_s: float = 0.25
-    sample_timing_std_s: float = 0.0005
-    nis_input_settle_s: float = 0.1
-    nis_window: int = 200
+    fusion_window_s: float = setting(
+        0.0, "while the chamber rests, samples this close are fused in one filter step (0: each "
+        "at once; 20 ms: one fusion every other bus batch while the controller rests)", "s", 0.0,
+        0.02)
+    max_fusion_shift_pa: float = setting(
+        50.0, "the chamber rests (see fusion_window) while its modelled change over the window "
+        "stays within this", "Pa", 1.0, 1000.0)
+    input_timing_std_s: float = setting(
+        0.01, "how far an input's effect at the device may lie from its stamp (1 sigma); P grows "
+        "by the change in rate times this at each input change", "s", 0.0, 0.1)
+    rewind_horizon_s: float = setting(
+        0.25, "an input change stamped up to this long before the filter's time (a status held "
+        "up on a loaded host) is applied at its stamp, the samples since taken again; 0: applied "
+        "at the filter's time", "s", 0.0, 1.0)
+    sample_timing_std_s: float = setting(
+        0.0005, "how far a reading's stamp may lie from its sampling (1 sigma); the chamber's "
+        "rate times this adds to each sensor's noise", "s", 0.0, 0.01)
+    nis_input_settle_s: float = setting(
+        0.1, "samples this soon after an input change, or after every sensor fell silent, stay "
+        "out of the NIS window (still gated and fused): the inputs' timing is uncertain there",
+        "s", 0.0, 1.0)
+    nis_window: int = setting(200, "samples per sensor in the NIS consistency window", "", 10,
+                              100000)
     nis_confidence: float = 0.999
-    max_consecutive_rejections: int = 25
+    max_consecutive_rejections: int = setting(
+        25, "rejections in a row from every live sensor before re-initialising", "", 1, 100000)
     initial_regulator_std_pa: float = 20e3
 
     def __post_init__(self):
-        if self.filter_type not in FILTER_TYPES:
-            raise ValueError(
-                f"filter_type must be one of {list(FILTER_TYPES)}, got {self.filter_type!r}")
+        check_settings(self)
         if not self.sensors:
             raise ValueError("the estimator needs at least one sensor")
         names = [s.name for s in self.sensors]
         if len(set(names)) != len(names):
             raise ValueError(f"sensor names must be unique, got {names}")
         process_noise_matrix(self.process_noise_pa2_per_s)
-        require_positive(self, "sensor_timeout_s", "max_step_s", "max_lag_s",
-                         "initial_regulator_std_pa", "max_fusion_shift_pa")
-        if not 0.0 <= self.input_timing_std_s <= 0.1:
-            raise ValueError(
-                f"input_timing_std_s must lie in [0, 0.1] s, got {self.input_timing_std_s}")
-        if not 0.0 <= self.rewind_horizon_s <= 1.0:
-            raise ValueError(
-                f"rewind_horizon_s must lie in [0, 1] s, got {self.rewind_horizon_s}")
-        if not 0.0 <= self.sample_timing_std_s <= 0.01:
-            raise ValueError(
-                f"sample_timing_std_s must lie in [0, 0.01] s, got {self.sample_timing_std_s}")
+        require_positive(self, "max_step_s", "max_lag_s", "initial_regulator_std_pa")
         # a waiting sample is no older than a taken one
-        if not 0.0 <= self.fusion_window_s <= self.max_lag_s:
+        if self.fusion_window_s > self.max_lag_s:
             raise ValueError(f"fusion_window_s must lie in [0, max_lag_s = {self.max_lag_s:g}] s, "
                              f"got {self.fusion_window_s}")
-        if not 0.0 <= self.nis_input_settle_s <= 1.0:
-            raise ValueError(
-                f"nis_input_settle_s must lie in [0, 1] s, got {self.nis_input_settle_s}")
-        if self.nis_window < 10:
-            raise ValueError(f"nis_window must be at least 10 samples, got {self.nis_window}")
         if not 0.5 < self.nis_confidence < 1.0:
             raise ValueError(f"nis_confidence must lie in (0.5, 1), got {self.nis_confidence}")
-        if self.max_consecutive_rejections < 1:
-            raise ValueError("max_consecutive_rejections must be at least 1")
-
 
 @dataclasses.dataclass
 class SensorStats:

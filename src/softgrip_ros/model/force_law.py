@@ -51,8 +51,8 @@ import pathlib
 import numpy as np
 import yaml
 
-from softgrip_ros.checks import require_positive
 from softgrip_ros.fileio import write_text_atomically
+from softgrip_ros.settings import check_settings, setting
 
 LOG = logging.getLogger(__name__)
 G_M_PER_S2 = 9.80665
@@ -420,16 +420,15 @@ class ClampForceLaw:
     """
 
     table: ForceTable
-    friction_coefficient: float = 0.5
-    safety_factor: float = 2.0
-    min_squeeze_pa: float = 10e3
+    friction_coefficient: float = setting(0.5, "friction when a command gives none", "", 0.05,
+                                          2.0)
+    safety_factor: float = setting(2.0, "clamp force over what the weight needs", "", 1.0, 10.0)
+    min_squeeze_pa: float = setting(
+        10e3, "a clamp presses at least this far below the contact pressure, even for a "
+        "weightless object", "Pa", 0.0, 50e3)
 
     def __post_init__(self):
-        require_positive(self, "friction_coefficient", "safety_factor")
-        if self.safety_factor < 1.0:
-            raise ValueError(f"safety_factor must be at least 1, got {self.safety_factor}")
-        if not (math.isfinite(self.min_squeeze_pa) and self.min_squeeze_pa >= 0.0):
-            raise ValueError("min_squeeze_pa must be >= 0 and finite")
+        check_settings(self)
 
     def normal_force_n(self, pressure_pa: float, size_m: float, kind: ObjectKind) -> float:
         """F_n of one finger at ``pressure_pa`` on an object ``size_m`` across (0 before

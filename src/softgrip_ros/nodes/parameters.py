@@ -2,10 +2,11 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
+
+from softgrip_ros.settings import setting_of, value_problem
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,18 +43,22 @@ class ParamSpec:
 
     def check(self, value) -> str:
         """'' when ``value`` is acceptable, else the reason."""
-        if isinstance(value, float) and not math.isfinite(value):
-            return f"{self.name} must be finite, got {value}"
-        if self.choices and value not in self.choices:
-            return f"{self.name} must be one of {list(self.choices)}, got {value!r}"
-        if self.low is not None and isinstance(value,
-                                               (int, float)) and not isinstance(value, bool):
-            if not self.low <= value <= self.high:
-                return (f"{self.name} must lie in [{self.low}, {self.high}] {self.unit}, got "
-                        f"{value}")
-        if isinstance(value, str) and not value and not self.allow_empty:
-            return f"{self.name} must not be empty"
-        return ""
+        return value_problem(self.name, value, self.unit, self.low, self.high, self.choices,
+                             self.allow_empty)
+
+
+def field_spec(name: str, config_class, field: str, default=None) -> ParamSpec:
+    """The parameter ``name`` that sets ``field`` ("a.b": field b of the nested dataclass a) of
+    ``config_class``: its meaning, unit, range and choices are the field's
+    :func:`softgrip_ros.settings.setting`, and so is its default unless ``default`` is given (a
+    node whose default differs from the library's, said where it is given)."""
+    owner = config_class
+    head, _, rest = field.partition(".")
+    if rest:
+        owner = type(getattr(config_class(), head))
+    field_default, setting = setting_of(owner, rest or head)
+    return ParamSpec(name, field_default if default is None else default, setting.description,
+                     setting.unit, setting.low, setting.high, setting.choices, field=field)
 
 
 def declare(node, specs) -> dict:

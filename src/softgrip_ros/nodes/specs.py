@@ -1,19 +1,20 @@
-"""Every node's parameters: name, default, meaning, unit and range (config/softgrip.yaml holds
-the same, and tests/test_parameters_file.py checks that they agree), and how their values make
-each core's configuration: a spec with a ``field`` sets that field of the core's dataclass."""
+"""Every node's parameters: name, default, meaning, unit and range, and how their values make
+each core's configuration. A spec with a ``field`` sets that field of the core's dataclass and
+takes its meaning, unit, range and default from the field's setting (softgrip_ros.settings), so
+that the dataclass refuses what the parameter refuses. config/softgrip.yaml is written from these
+specs (nodes.params_file)."""
 from __future__ import annotations
 
-import dataclasses
 import math
 
-from softgrip_ros.control.grasp_fsm import HOLD_AIR, ON_OBJECT_LOST, GraspConfig
+from softgrip_ros.control.grasp_fsm import GraspConfig
 from softgrip_ros.config_paths import config_file
 from softgrip_ros.control.pressure import PressureControlConfig
 from softgrip_ros.estimation.estimator import EstimatorConfig, SensorConfig
 from softgrip_ros.model.fidelity import CHOICES as FIDELITY_CHOICES
 from softgrip_ros.model import plant_file
 from softgrip_ros.model.force_law import ClampForceLaw, load_table
-from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, replace_fields
+from softgrip_ros.nodes.parameters import CAN_SPECS, ParamSpec, field_spec, replace_fields
 from softgrip_ros.runtime.worker_process import WORKER_NICE_INCREMENT
 
 
@@ -58,74 +59,32 @@ def _stamp_tolerance(what: str) -> ParamSpec:
 
 # ---- pressure_controller ------------------------------------------------------------------------
 _P = PressureControlConfig()
-_S = _P.safety
+_SAFETY_FIELDS = ("reaction_time", "disagreement_pa", "disagreement_time", "stuck_time",
+                  "stuck_motion_pa", "noise_ratio", "noise_time", "jump_sigmas", "response_window",
+                  "response_settle", "response_min_change_pa", "response_tolerance",
+                  "response_time", "regulator_deviation_pa", "regulator_deviation_time",
+                  "nis_ratio", "nis_time", "clear_time")
 
 
-def _safety(name: str, field: str, description: str, unit: str, low: float, high: float):
-    return ParamSpec(f"safety.{name}", getattr(_S, field), description, unit, low, high,
-                     field=f"safety.{field}")
+def _seconds_field(name: str) -> str:
+    """A parameter's field: the parameter's name, with _s for a time (ROS parameters name a time
+    without its unit, as robot_localization does)."""
+    return name if name.endswith(("_pa", "_ratio", "_sigmas", "_tolerance")) else name + "_s"
 
 
 PRESSURE_CONTROL_SPECS = [  # the control law and safety rules (settable while running)
-    ParamSpec("max_gauge_pressure_pa", _P.max_gauge_pa, "hard upper limit of the setpoint", "Pa",
-              1e3, 100e3, field="max_gauge_pa"),
-    ParamSpec("min_gauge_pressure_pa", _P.min_gauge_pa, "hard lower limit of the setpoint", "Pa",
-              -100e3, -1e3, field="min_gauge_pa"),
-    ParamSpec("overpressure_margin_pa", _P.overpressure_margin_pa, "measured excess beyond a "
-              "limit that vents", "Pa", 100.0, 50e3, field="overpressure_margin_pa"),
-    ParamSpec("sensor_timeout", _P.sensor_timeout_s, "no valid reading for this long: hold and "
-              "report", "s", 0.005, 10.0, field="sensor_timeout_s"),
-    ParamSpec("command_timeout", _P.command_timeout_s, "no command for this long while "
-              "regulating: safe action", "s", 0.1, 3600.0, field="command_timeout_s"),
-    ParamSpec("command_timeout_action", _P.command_timeout_action, "safe action on a command "
-              "timeout", choices=("hold", "vent"), field="command_timeout_action"),
-    ParamSpec("default_rate_pa_per_s", _P.default_rate_pa_per_s, "setpoint slew when a command "
-              "gives none", "Pa/s", 1e3, 1e8, field="default_rate_pa_per_s"),
-    ParamSpec("kp", _P.kp, "proportional gain of the trim", "Pa/Pa", 0.0, 10.0, field="kp"),
-    ParamSpec("ki_per_s", _P.ki_per_s, "integral gain of the trim", "1/s", 0.0, 1000.0,
-              field="ki_per_s"),
-    ParamSpec("trim_limit_pa", _P.trim_limit_pa, "largest trim of the regulator setpoint", "Pa",
-              0.0, 50e3, field="trim_limit_pa"),
-    _safety(
-        "reaction_time", "reaction_time_s", "the limit trip extrapolates each pressure over "
-        "this: a control period, the bus and the valve's response", "s", 0.001, 0.2),
-    _safety("disagreement_pa", "disagreement_pa", "two sensors further apart than this ...", "Pa",
-            500.0, 50e3),
-    _safety("disagreement_time", "disagreement_time_s", "... for this long: SENSOR_DISAGREE", "s",
-            0.005, 5.0),
-    _safety("stuck_time", "stuck_time_s", "a reading unchanged this long ...", "s", 0.01, 10.0),
-    _safety("stuck_motion_pa", "stuck_motion_pa", "... while another sensor or the plant moved "
-            "the pressure by this: SENSOR_STUCK", "Pa", 100.0, 50e3),
-    _safety("noise_ratio", "noise_ratio", "a sensor's noise above this times its rated noise ...",
-            "", 1.5, 1000.0),
-    _safety("noise_time", "noise_time_s", "... for this long: SENSOR_NOISE", "s", 0.01, 10.0),
-    _safety(
-        "jump_sigmas", "jump_sigmas", "every sensor stepping, in one sample, by more than the "
-        "plant's fastest rate allows plus this many noise sigmas: SENSOR_IMPLAUSIBLE", "", 3.0,
-        1000.0),
-    _safety("response_window", "response_window_s", "the chamber's response to a valve state is "
-            "judged over this", "s", 0.01, 1.0),
-    _safety("response_settle", "response_settle_s", "... from this long after the valve state was "
-            "commanded", "s", 0.0, 1.0),
-    _safety(
-        "response_min_change_pa", "response_min_change_pa", "a change judged against the "
-        "plant must be predicted this large; a chamber moving this much with the valves "
-        "closed is a fault", "Pa", 100.0, 50e3),
-    _safety(
-        "response_tolerance", "response_tolerance", "the measured change may differ from the "
-        "plant's by this fraction of it (the model's rates within about 2x of the "
-        "hardware's)", "", 0.05, 0.95),
-    _safety("response_time", "response_time_s", "a response off the plant in every check this "
-            "long: RESPONSE", "s", 0.005, 5.0),
-    _safety("regulator_deviation_pa", "regulator_deviation_pa", "the regulator's output further "
-            "from its model than this ...", "Pa", 1e3, 200e3),
-    _safety("regulator_deviation_time", "regulator_deviation_time_s", "... for this long: "
-            "REGULATOR", "s", 0.005, 5.0),
-    _safety("nis_ratio", "nis_ratio", "the estimator's windowed NIS of a sensor above this times "
-            "its bound ...", "", 1.0, 1e6),
-    _safety("nis_time", "nis_time_s", "... for this long: SENSOR_INCONSISTENT", "s", 0.01, 60.0),
-    _safety("clear_time", "clear_time_s", "a safety fault clears on a new command once its "
-            "evidence has been gone this long", "s", 0.05, 60.0),
+    field_spec("max_gauge_pressure_pa", PressureControlConfig, "max_gauge_pa"),
+    field_spec("min_gauge_pressure_pa", PressureControlConfig, "min_gauge_pa"),
+    field_spec("overpressure_margin_pa", PressureControlConfig, "overpressure_margin_pa"),
+    field_spec("sensor_timeout", PressureControlConfig, "sensor_timeout_s"),
+    field_spec("command_timeout", PressureControlConfig, "command_timeout_s"),
+    field_spec("command_timeout_action", PressureControlConfig, "command_timeout_action"),
+    field_spec("default_rate_pa_per_s", PressureControlConfig, "default_rate_pa_per_s"),
+    field_spec("kp", PressureControlConfig, "kp"),
+    field_spec("ki_per_s", PressureControlConfig, "ki_per_s"),
+    field_spec("trim_limit_pa", PressureControlConfig, "trim_limit_pa"),
+    *(field_spec(f"safety.{name}", PressureControlConfig, f"safety.{_seconds_field(name)}")
+      for name in _SAFETY_FIELDS),
 ]
 PRESSURE_CONTROLLER_SPECS = (CAN_SPECS + [
     ParamSpec("autostart", True, "configure and activate on start-up"),
@@ -207,36 +166,17 @@ def check_rest_rate(values: dict) -> None:
 # ---- estimator ----------------------------------------------------------------------------------
 _E = EstimatorConfig()
 ESTIMATOR_FILTER_SPECS = [
-    ParamSpec("sensor_timeout", _E.sensor_timeout_s, "a sensor silent this long is dropped from "
-              "fusion", "s", 0.001, 10.0, field="sensor_timeout_s"),
-    ParamSpec("filter_type", _E.filter_type, "the filter", choices=("kf", "ekf", "ukf"),
-              field="filter_type"),
-    ParamSpec(
-        "fusion_window", 0.02, "while the chamber rests, samples this close are fused in "
-        "one filter step (0: each at once; 20 ms: one fusion every other bus batch while "
-        "the controller rests)", "s", 0.0, 0.02, field="fusion_window_s"),
-    ParamSpec(
-        "input_timing_std", _E.input_timing_std_s, "how far an input's effect at the "
-        "device may lie from its stamp (1 sigma); P grows by the change in rate times "
-        "this at each input change", "s", 0.0, 0.1, field="input_timing_std_s"),
-    ParamSpec(
-        "sample_timing_std", _E.sample_timing_std_s, "how far a reading's stamp may lie from "
-        "its sampling (1 sigma); the chamber's rate times this adds to each sensor's noise",
-        "s", 0.0, 0.01, field="sample_timing_std_s"),
-    ParamSpec(
-        "nis_input_settle", _E.nis_input_settle_s, "samples this soon after an input "
-        "change, or after every sensor fell silent, stay out of the NIS window (still gated and "
-        "fused): the inputs' timing is uncertain there", "s", 0.0, 1.0,
-        field="nis_input_settle_s"),
-    ParamSpec(
-        "rewind_horizon", _E.rewind_horizon_s, "an input change stamped up to this long before "
-        "the filter's time (a status held up on a loaded host) is applied at its stamp, the "
-        "samples since taken again; 0: applied at the filter's time", "s", 0.0, 1.0,
-        field="rewind_horizon_s"),
-    ParamSpec(
-        "max_fusion_shift_pa", _E.max_fusion_shift_pa, "the chamber rests (see "
-        "fusion_window) while its modelled change over the window stays within this", "Pa", 1.0,
-        1000.0, field="max_fusion_shift_pa"),
+    field_spec("sensor_timeout", EstimatorConfig, "sensor_timeout_s"),
+    field_spec("filter_type", EstimatorConfig, "filter_type"),
+    # the library fuses each sample at once; the node batches them while the chamber rests
+    field_spec("fusion_window", EstimatorConfig, "fusion_window_s", default=0.02),
+    field_spec("input_timing_std", EstimatorConfig, "input_timing_std_s"),
+    field_spec("sample_timing_std", EstimatorConfig, "sample_timing_std_s"),
+    field_spec("nis_input_settle", EstimatorConfig, "nis_input_settle_s"),
+    field_spec("rewind_horizon", EstimatorConfig, "rewind_horizon_s"),
+    field_spec("max_fusion_shift_pa", EstimatorConfig, "max_fusion_shift_pa"),
+    field_spec("nis_window", EstimatorConfig, "nis_window"),
+    field_spec("max_consecutive_rejections", EstimatorConfig, "max_consecutive_rejections"),
 ]
 ESTIMATOR_SPECS = [
     ParamSpec("frequency", 200.0, "largest pressure/estimate rate (predictions while silent: at "
@@ -254,10 +194,6 @@ ESTIMATOR_SPECS = [
         "process_noise_covariance", list(_E.process_noise_pa2_per_s),
         "Q spectral density over [chamber, regulator]: 2 values (diagonal) or 4 (full, "
         "row-major)", "Pa^2/s"),
-    ParamSpec("nis_window", _E.nis_window, "samples per sensor in the NIS consistency window", "",
-              10, 100000),
-    ParamSpec("max_consecutive_rejections", _E.max_consecutive_rejections,
-              "rejections in a row from every live sensor before re-initialising", "", 1, 100000),
     _stamp_tolerance("a sample, status or command"),
 ]
 
@@ -272,9 +208,8 @@ def estimator_config(values: dict, plant: plant_file.PlantDescription) -> Estima
     sensors = tuple(SensorConfig(n, plant.sensor(n).noise_std_pa, float(g))
                     for n, g in zip(names, gates))
     base = EstimatorConfig(
-        sensors=sensors, nis_window=values["nis_window"],
-        process_noise_pa2_per_s=tuple(float(v) for v in values["process_noise_covariance"]),
-        max_consecutive_rejections=values["max_consecutive_rejections"])
+        sensors=sensors,
+        process_noise_pa2_per_s=tuple(float(v) for v in values["process_noise_covariance"]))
     if values["rest_frequency"] > values["frequency"]:
         raise ValueError(f"rest_frequency ({values['rest_frequency']:g} Hz) must not exceed "
                          f"frequency ({values['frequency']:g} Hz)")
@@ -308,53 +243,22 @@ KINEMATICS_SPECS = [
 ]
 
 # ---- grasp_manager ------------------------------------------------------------------------------
-_G = GraspConfig()
-_F = {f.name: f.default for f in dataclasses.fields(ClampForceLaw) if f.name != "table"}
-GRASP_FSM_SPECS = [
-    ParamSpec("max_gauge_pressure_pa", _G.max_gauge_pa, "highest pressure a command may ask "
-              "for", "Pa", 1e3, 100e3, field="max_gauge_pa"),
-    ParamSpec("min_gauge_pressure_pa", _G.min_gauge_pa, "lowest pressure a command may ask for",
-              "Pa", -100e3, -1e3, field="min_gauge_pa"),
-    ParamSpec("envelop_margin_m", _G.envelop_margin_m, "D2 beyond the object before ENVELOPED",
-              "m", 1e-4, 0.1, field="envelop_margin_m"),
-    ParamSpec("pinch_max_diameter_m", _G.pinch_max_diameter_m, "largest object for PINCH", "m",
-              1e-4, 0.02, field="pinch_max_diameter_m"),
-    ParamSpec("release_tip_spacing_m", _G.release_tip_spacing_m, "least opening after RELEASE",
-              "m", 1e-3, 0.15, field="release_tip_spacing_m"),
-    ParamSpec("pressure_tolerance_pa", _G.pressure_tolerance_pa, "a phase's pressure counts as "
-              "reached within this", "Pa", 100.0, 20e3, field="pressure_tolerance_pa"),
-    ParamSpec("settle_time", _G.settle_s, "time within tolerance before a phase completes", "s",
-              0.01, 5.0, field="settle_s"),
-    ParamSpec("auto_clamp_delay", _G.auto_clamp_delay_s, "ENVELOPED to CLAMPING on its own after "
-              "this; < 0: wait for CLAMP", "s", -1.0, 600.0, field="auto_clamp_delay_s"),
-    ParamSpec("opening_timeout", _G.opening_timeout_s, "OPENING longer than this: FAULT", "s", 0.1,
-              60.0, field="opening_timeout_s"),
-    ParamSpec("clamping_timeout", _G.clamping_timeout_s, "CLAMPING longer than this: FAULT", "s",
-              0.1, 60.0, field="clamping_timeout_s"),
-    ParamSpec("releasing_timeout", _G.releasing_timeout_s, "RELEASING longer than this: FAULT",
-              "s", 0.1, 60.0, field="releasing_timeout_s"),
-    ParamSpec("hold_error_limit_pa", _G.hold_error_limit_pa, "HOLDING pressure off target by "
-              "more than this ...", "Pa", 500.0, 50e3, field="hold_error_limit_pa"),
-    ParamSpec("hold_error_time", _G.hold_error_time_s, "... for this long: FAULT", "s", 0.01, 10.0,
-              field="hold_error_time_s"),
-    ParamSpec("hold_air", _G.hold_air, "HOLDING once settled: trap (valves closed, topped up "
-              "past pressure_tolerance_pa; a lost object shows in the pressure) or regulate "
-              "(the regulated line open; a loss is not sensed)", choices=HOLD_AIR,
-              field="hold_air"),
-    ParamSpec("on_object_lost", _G.on_object_lost, "a loss sensed in HOLDING: hold (report "
-              "it), release, or fault (vent)", choices=ON_OBJECT_LOST, field="on_object_lost"),
-    ParamSpec("sensing_wait", _G.sensing_wait_s, "a HOLDING goal waits this long for the "
-              "closing's sensed verdict", "s", 0.0, 10.0, field="sensing_wait_s"),
-]
-CLAMP_FORCE_SPECS = [  # the clamp force law itself is the gripper model's table
-    ParamSpec("friction_coefficient", _F["friction_coefficient"], "friction when a command gives "
-              "none", "", 0.05, 2.0, field="friction_coefficient"),
-    ParamSpec("safety_factor", _F["safety_factor"], "clamp force over what the weight needs", "",
-              1.0, 10.0, field="safety_factor"),
-    ParamSpec("min_squeeze_pa", _F["min_squeeze_pa"], "a clamp presses at least this far below "
-              "the contact pressure, even for a weightless object", "Pa", 0.0, 50e3,
-              field="min_squeeze_pa"),
-]
+_G_FIELDS = (("max_gauge_pressure_pa", "max_gauge_pa"), ("min_gauge_pressure_pa", "min_gauge_pa"),
+             ("envelop_margin_m", "envelop_margin_m"),
+             ("pinch_max_diameter_m", "pinch_max_diameter_m"),
+             ("release_tip_spacing_m", "release_tip_spacing_m"),
+             ("pressure_tolerance_pa", "pressure_tolerance_pa"), ("settle_time", "settle_s"),
+             ("auto_clamp_delay", "auto_clamp_delay_s"), ("opening_timeout", "opening_timeout_s"),
+             ("clamping_timeout", "clamping_timeout_s"),
+             ("releasing_timeout", "releasing_timeout_s"),
+             ("hold_error_limit_pa", "hold_error_limit_pa"),
+             ("hold_error_time", "hold_error_time_s"),
+             ("hold_air", "hold_air"), ("on_object_lost", "on_object_lost"),
+             ("sensing_wait", "sensing_wait_s"))
+GRASP_FSM_SPECS = [field_spec(name, GraspConfig, field) for name, field in _G_FIELDS]
+# the clamp force law itself is the gripper model's table
+CLAMP_FORCE_SPECS = [field_spec(name, ClampForceLaw, name)
+                     for name in ("friction_coefficient", "safety_factor", "min_squeeze_pa")]
 GRASP_MANAGER_SPECS = [
     gripper_model_spec(),
     ParamSpec("fidelity", "l0", "bending law of the grasp model (opening pressures, D2)",
@@ -414,7 +318,7 @@ def sensing_sensors(values: dict, plant: plant_file.PlantDescription) -> dict:
 
 
 def grasp_config(values: dict) -> GraspConfig:
-    return replace_fields(_G, GRASP_FSM_SPECS, values)
+    return replace_fields(GraspConfig(), GRASP_FSM_SPECS, values)
 
 
 def clamp_force_law(values: dict) -> ClampForceLaw:
