@@ -4,8 +4,8 @@ import math
 
 import pytest
 
-from softgrip_ros.control.grasp_fsm import (GraspConfig, GraspRequest, GraspStateMachine,
-                                            GraspMode, Phase)
+from softgrip_ros.control.grasp_fsm import (GoalOutcome, GraspConfig, GraspRequest,
+                                            GraspStateMachine, GraspMode, Phase, Rejection)
 from softgrip_ros.control.pressure import Source
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.force_law import G_M_PER_S2, ClampForceLaw, ObjectKind, load_table
@@ -135,9 +135,9 @@ def test_a_controller_fault_while_holding_gives_fault_and_vents(kinematics):
     assert loop.fsm.state.phase == Phase.FAULT and "sensor disagree" in loop.fsm.state.message
     assert loop.fsm.request.source == Source.VENT and "venting" in loop.fsm.state.message
     assert "fault" in loop.fsm.command(GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.05),
-                                       loop.now, "sensor disagree")
+                                       loop.now, "sensor disagree").reason
     loop.controller_fault = ""
-    assert loop.fsm.command(GraspRequest(GraspMode.STOP), loop.now) == ""
+    assert loop.fsm.command(GraspRequest(GraspMode.STOP), loop.now) is None
     assert loop.fsm.state.phase == Phase.RELEASING and loop.fsm.request.source == Source.VENT
     loop.run_until(lambda s: s.phase == Phase.IDLE, 1.0)
     assert "stopped: vented" in loop.fsm.state.message
@@ -157,7 +157,7 @@ def test_a_safety_fault_found_after_a_release_ended_gives_fault_from_idle(kinema
     loop.fsm.update(loop.now, loop.gauge(), 100.0, "sensor noise", controller_safe_state=True)
     assert loop.fsm.state.phase == Phase.FAULT and "sensor noise" in loop.fsm.state.message
     assert loop.fsm.request.source == Source.VENT
-    assert loop.fsm.command(GraspRequest(GraspMode.STOP), loop.now) == ""
+    assert loop.fsm.command(GraspRequest(GraspMode.STOP), loop.now) is None
 
 
 def test_a_blind_controller_gives_fault_with_the_valves_held_and_says_so(kinematics):
@@ -271,7 +271,7 @@ def test_every_invalid_command_is_rejected_with_its_reason_and_nothing_moves(
     fsm = GraspStateMachine(kinematics)
     before = (fsm.state.phase, fsm.request)
     got = fsm.command(request_, 0.0)
-    assert reason in got
+    assert isinstance(got, Rejection) and reason in got.reason
     assert fsm.state.command_rejected and reason in fsm.state.message
     assert (fsm.state.phase, fsm.request) == before
 
@@ -349,10 +349,10 @@ def test_a_rejected_command_leaves_a_running_grasp_untouched(kinematics):
               loop.fsm._open_pa)
     force = loop.fsm.state.clamp_force_n
     assert "too heavy" in loop.command(
-        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.01, object_mass_kg=5.0))
+        GraspRequest(GraspMode.ENVELOP_CLAMP, object_diameter_m=0.01, object_mass_kg=5.0)).reason
     assert "does not squeeze" in loop.command(
         GraspRequest(GraspMode.PINCH, object_diameter_m=1e-4, object_mass_kg=0.02,
-                     clamp_pressure_pa=0.0))
+                     clamp_pressure_pa=0.0)).reason
     assert (loop.fsm.request, loop.fsm.state.phase, loop.fsm._contact_pa, loop.fsm._clamp_pa,
             loop.fsm._open_pa) == before
     loop.run_for(0.1)
@@ -394,7 +394,7 @@ def test_without_sensing_a_grasp_that_reaches_holding_does_not_claim_the_object(
                               object_mass_kg=0.02, command_id="g"))
     task = loop.fsm.task
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
-    assert loop.fsm.outcome(task, GraspMode.ENVELOP_CLAMP) == "succeeded"
+    assert loop.fsm.outcome(task, GraspMode.ENVELOP_CLAMP) == GoalOutcome.SUCCEEDED
     assert not loop.fsm.object_held()
 
 
@@ -409,11 +409,12 @@ def test_the_sensed_verdicts_end_the_goal_and_act_on_a_loss(kinematics, on_lost)
                               object_mass_kg=0.02, command_id="g"))
     task = loop.fsm.task
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
-    assert loop.fsm.outcome(task, GraspMode.ENVELOP_CLAMP) == ""  # the verdict is awaited
+    # the verdict is awaited
+    assert loop.fsm.outcome(task, GraspMode.ENVELOP_CLAMP) == GoalOutcome.RUNNING
     assert not loop.fsm.object_held()
     loop.fsm.sensed(Detection(ObjectStatus.HELD, 0.99, "held: felt 41 mm", loop.now, 0.041),
                     loop.now)
-    assert loop.fsm.outcome(task, GraspMode.ENVELOP_CLAMP) == "succeeded"
+    assert loop.fsm.outcome(task, GraspMode.ENVELOP_CLAMP) == GoalOutcome.SUCCEEDED
     assert loop.fsm.object_held() and loop.fsm.state.object_size_m == 0.041
     loop.fsm.sensed(Detection(ObjectStatus.LOST, 0.9, "stepped +400 Pa", loop.now), loop.now)
     expected = {"hold": Phase.HOLDING, "release": Phase.RELEASING, "fault": Phase.FAULT}
@@ -428,7 +429,7 @@ def test_the_sensed_verdicts_end_the_goal_and_act_on_a_loss(kinematics, on_lost)
     nothing.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     nothing.fsm.sensed(Detection(ObjectStatus.NO_OBJECT, 0.99, "as if free", nothing.now, 0.0),
                        nothing.now)
-    assert nothing.fsm.outcome(nothing.fsm.task, GraspMode.ENVELOP_CLAMP) == "failed"
+    assert nothing.fsm.outcome(nothing.fsm.task, GraspMode.ENVELOP_CLAMP) == GoalOutcome.FAILED
     assert nothing.fsm.state.message.startswith("closed on nothing")
     assert nothing.fsm.state.phase == Phase.HOLDING
 
@@ -440,7 +441,7 @@ def test_a_goal_stops_waiting_for_a_verdict_that_never_comes(kinematics):
                               object_mass_kg=0.02))
     loop.run_until(lambda s: s.phase == Phase.HOLDING, 5.0)
     loop.run_for(0.4)
-    assert loop.fsm.outcome(loop.fsm.task, GraspMode.ENVELOP_CLAMP) == "succeeded"
+    assert loop.fsm.outcome(loop.fsm.task, GraspMode.ENVELOP_CLAMP) == GoalOutcome.SUCCEEDED
 
 
 def test_bad_sensing_configuration_is_refused():

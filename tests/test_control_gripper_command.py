@@ -4,7 +4,8 @@ import math
 
 import pytest
 
-from softgrip_ros.control.grasp_fsm import GraspConfig, GraspMode, GraspRequest, Phase
+from softgrip_ros.control.grasp_fsm import (GoalOutcome, GraspConfig, GraspMode, GraspRequest,
+                                            Phase, Rejection)
 from softgrip_ros.control.gripper_command import gripper_progress, start_gripper_goal
 from softgrip_ros.control.pressure import Source
 from softgrip_ros.model.calibration import build_kinematics
@@ -28,7 +29,7 @@ def start(loop, position_m, max_effort_n=0.0):
 
 
 def run_to_end(loop, goal, timeout=5.0):
-    loop.run_until(lambda s: gripper_progress(loop.fsm, goal, TOLERANCE_M).outcome, timeout)
+    loop.run_until(lambda s: gripper_progress(loop.fsm, goal, TOLERANCE_M).outcome.ended, timeout)
     return gripper_progress(loop.fsm, goal, TOLERANCE_M)
 
 
@@ -39,7 +40,8 @@ def test_an_opening_goal_opens_to_its_tip_spacing_and_reports_reaching_it(kinema
     assert not isinstance(goal, str) and not goal.closing
     assert loop.fsm.request.source == Source.SUPPLY
     progress = run_to_end(loop, goal)
-    assert progress.outcome == "succeeded" and progress.reached_goal and not progress.stalled
+    assert progress.outcome == GoalOutcome.SUCCEEDED
+    assert progress.reached_goal and not progress.stalled
     assert loop.fsm.state.phase == Phase.ENVELOPED
     # the modelled D2: the opening aims at the goal's pressure
     assert progress.position_m == pytest.approx(0.05, abs=TOLERANCE_M)
@@ -59,7 +61,7 @@ def test_a_closing_goal_squeezes_with_its_effort_and_ends_holding(kinematics):
     target = law.pressure_for_force(0.8, 0.03, ObjectKind.ROUND)
     assert loop.fsm.request.target_gauge_pa == pytest.approx(target)
     progress = run_to_end(loop, goal)
-    assert progress.outcome == "succeeded" and loop.fsm.state.phase == Phase.HOLDING
+    assert progress.outcome == GoalOutcome.SUCCEEDED and loop.fsm.state.phase == Phase.HOLDING
     # the modelled force: the clamp force law at the estimate, within the pressure tolerance
     slope = (law.normal_force_n(target - 1.5e3, 0.03, ObjectKind.ROUND) -
              law.normal_force_n(target + 1.5e3, 0.03, ObjectKind.ROUND)) / 3e3
@@ -88,7 +90,7 @@ def test_a_goal_it_cannot_do_is_refused_with_its_reason_and_nothing_moves(
     loop.run_for(0.05)
     before = (loop.fsm.request, loop.fsm.state.phase, loop.fsm.task)
     refused = start(loop, position_m, effort_n)
-    assert isinstance(refused, str) and reason in refused
+    assert isinstance(refused, Rejection) and reason in refused.reason
     # control_msgs' results carry no text: grasp_state says why, as for a rejected GraspCommand
     assert loop.fsm.state.command_rejected and reason in loop.fsm.state.message
     assert (loop.fsm.request, loop.fsm.state.phase, loop.fsm.task) == before
@@ -104,7 +106,7 @@ def test_a_cancel_holds_the_present_pressure(kinematics):
     loop._forward()
     assert loop.fsm.request == type(loop.fsm.request)(pressure, Source.HOLD)
     assert loop.fsm.state.phase == Phase.ENVELOPED
-    assert gripper_progress(loop.fsm, goal, TOLERANCE_M).outcome == "superseded"
+    assert gripper_progress(loop.fsm, goal, TOLERANCE_M).outcome == GoalOutcome.SUPERSEDED
     held = loop.gauge()
     loop.run_for(0.5)
     assert loop.gauge() == pytest.approx(held, abs=1.5e3)  # valves closed: it stays
@@ -115,4 +117,4 @@ def test_another_command_supersedes_a_goal(kinematics):
     loop = GraspLoop(kinematics, GraspConfig())
     goal = start(loop, 0.05)
     loop.command(GraspRequest(GraspMode.STOP))
-    assert gripper_progress(loop.fsm, goal, TOLERANCE_M).outcome == "superseded"
+    assert gripper_progress(loop.fsm, goal, TOLERANCE_M).outcome == GoalOutcome.SUPERSEDED

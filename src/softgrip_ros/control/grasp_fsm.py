@@ -71,6 +71,41 @@ class GraspMode(enum.IntEnum):
     CLAMP = 5
 
 
+class ReleaseStep(enum.Enum):
+    """Where a RELEASING phase stands: STOP vents to IDLE; a RELEASE vents (VENT), then opens
+    past the object (OPEN) to IDLE."""
+
+    NONE = enum.auto()
+    STOP = enum.auto()
+    VENT = enum.auto()
+    OPEN = enum.auto()
+
+
+class GoalOutcome(enum.Enum):
+    """How a command's goal stands (:meth:`GraspStateMachine.outcome`)."""
+
+    RUNNING = "running"
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"  # FAULT, or closed on nothing
+    SUPERSEDED = "superseded"  # another command started a task of its own
+    CANCELED = "canceled"  # by its client (the action servers' outcome)
+
+    @property
+    def ended(self) -> bool:
+        return self is not GoalOutcome.RUNNING
+
+
+@dataclasses.dataclass(frozen=True)
+class Rejection:
+    """A command refused, and why (for a person: it goes into grasp_state.message); nothing
+    moved."""
+
+    reason: str
+
+    def __str__(self) -> str:
+        return self.reason
+
+
 @dataclasses.dataclass(frozen=True)
 class GraspRequest:
     """One command; NaN means "not given" (automatic)."""
@@ -107,7 +142,7 @@ class Plan:
     open_pa: float | None = None
     clamp_pa: float | None = None
     contact_pa: float | None = None
-    release_step: str = ""
+    release_step: ReleaseStep = ReleaseStep.NONE
     # the object the clamp force law reports the force on: (size m, ObjectKind)
     held: tuple | None = None
 
@@ -302,7 +337,7 @@ class GraspStateMachine:
         self._held = (0.0, ObjectKind.FLAT)
         self._open_pa = 0.0
         self._clamp_pa = 0.0
-        self._release_step = ""
+        self._release_step = ReleaseStep.NONE
         # the hold's air: trapped since (s; None while the regulated line is open)
         self.air_trapped_since: float | None = None
         self.top_ups = 0
@@ -322,9 +357,11 @@ class GraspStateMachine:
         return self._last_now
 
     # ---- commands -----------------------------------------------------------------------------
-    def command(self, request: GraspRequest, now: float, controller_fault: str = "") -> str:
-        """Accept ``request`` ('' returned) or reject it (the reason returned); nothing moves on a
-        rejection. Each mode has a planner that checks the command and works out what it does."""
+    def command(self, request: GraspRequest, now: float,
+                controller_fault: str = "") -> Rejection | None:
+        """Accept ``request`` (None returned) or reject it (its Rejection returned); nothing
+        moves on a rejection. Each mode has a planner that checks the command and works out what
+        it does."""
         self._last_now = now
         try:
             mode = GraspMode(request.mode)
@@ -336,10 +373,10 @@ class GraspStateMachine:
         return self._accept(request, self._planners[mode](request), now)
 
     def close_on(self, diameter_m: float, force_n: float, now: float, command_id: str = "",
-                 controller_fault: str = "") -> str:
+                 controller_fault: str = "") -> Rejection | None:
         """Close until the fingers press an object ``diameter_m`` wide with ``force_n`` each (the
         clamp force law inverted: the clamp pressure is the one at which that force comes out),
-        from any phase but FAULT; CLAMPING, then HOLDING. The gripper actions' closing goal: ''
+        from any phase but FAULT; CLAMPING, then HOLDING. The gripper actions' closing goal: None
         or why it is refused."""
         request = GraspRequest(GraspMode.PINCH if diameter_m <= self.config.pinch_max_diameter_m
                                else GraspMode.CLAMP, object_diameter_m=diameter_m,
@@ -386,7 +423,8 @@ class GraspStateMachine:
             self._clamp_pa = target
         self._enter(phase, PressureRequest(target, Source.HOLD), now, message)
 
-    def _accept(self, request: GraspRequest, plan: "Plan | str", now: float) -> str:
+    def _accept(self, request: GraspRequest, plan: "Plan | str",
+                now: float) -> Rejection | None:
         if isinstance(plan, str):
             return self._reject(request, plan)
         self.state.command_rejected = False
@@ -402,18 +440,18 @@ class GraspStateMachine:
         self._held = plan.held if plan.held is not None else self._held
         self._release_step = plan.release_step
         self._enter(plan.phase, plan.pressure, now, plan.message)
-        return ""
+        return None
 
-    def refuse(self, command_id: str, reason: str) -> str:
+    def refuse(self, command_id: str, reason: str) -> Rejection:
         """Say in the state why a command from elsewhere (a gripper goal) was refused, changing
-        nothing else, as a rejected GraspCommand does; ``reason``."""
+        nothing else, as a rejected GraspCommand does."""
         return self._reject(GraspRequest(GraspMode.STOP, command_id=command_id), reason)
 
-    def _reject(self, request: GraspRequest, reason: str) -> str:
+    def _reject(self, request: GraspRequest, reason: str) -> Rejection:
         self.state.command_rejected, self.state.message = True, f"rejected: {reason}"
         self.state.command_id = request.command_id
         self.changes += 1
-        return reason
+        return Rejection(reason)
 
     @property
     def _planners(self) -> dict:
@@ -425,11 +463,11 @@ class GraspStateMachine:
 
     def _plan_stop(self, r: GraspRequest) -> "Plan":
         return Plan(Phase.RELEASING, PressureRequest(0.0, Source.VENT), "stopping: venting",
-                    release_step="stop")
+                    release_step=ReleaseStep.STOP)
 
     def _plan_release(self, r: GraspRequest) -> "Plan":
         return Plan(Phase.RELEASING, PressureRequest(0.0, Source.VENT), "releasing: venting",
-                    release_step="vent")
+                    release_step=ReleaseStep.VENT)
 
     def _plan_clamp(self, r: GraspRequest) -> "Plan | str":
         """CLAMP goes on with the grasp the gripper holds open (ENVELOP_CLAMP, or OPEN with the
@@ -665,21 +703,21 @@ class GraspStateMachine:
         elif s.phase == Phase.RELEASING:
             vented = (math.isfinite(estimate_gauge_pa) and
                       abs(estimate_gauge_pa) < c.vented_below_pa)
-            if self._release_step == "stop" and vented:
+            if self._release_step == ReleaseStep.STOP and vented:
                 self._request = None
                 self._enter(Phase.IDLE, PressureRequest(0.0, Source.VENT), now,
                             f"stopped: vented ({estimate_gauge_pa / 1e3:.1f} kPa)")
-            elif self._release_step == "stop" and elapsed > c.releasing_timeout_s:
+            elif self._release_step == ReleaseStep.STOP and elapsed > c.releasing_timeout_s:
                 self._timeout(now, "stopping (the vent)")
-            elif self._release_step == "vent" and vented:
-                self._release_step = "open"
+            elif self._release_step == ReleaseStep.VENT and vented:
+                self._release_step = ReleaseStep.OPEN
                 spacing = c.release_tip_spacing_m
                 if self._request is not None and math.isfinite(self._request.object_diameter_m):
                     spacing = max(spacing, self._request.object_diameter_m + c.envelop_margin_m)
                 self._enter(Phase.RELEASING, self._pressure(self._open_pressure(spacing,
                                                                                 math.nan)), now,
                             "releasing: opening")
-            elif self._release_step == "open" and settled:
+            elif self._release_step == ReleaseStep.OPEN and settled:
                 self._request = None
                 self._enter(Phase.IDLE, PressureRequest(self.request.target_gauge_pa, Source.HOLD),
                             now, "released")
@@ -749,7 +787,7 @@ class GraspStateMachine:
                 self._enter(Phase.FAULT, PressureRequest(0.0, Source.VENT), now,
                             f"fault: object lost ({detection.evidence}); venting")
             elif c.on_object_lost == "release":
-                self._release_step = "vent"
+                self._release_step = ReleaseStep.VENT
                 self._enter(Phase.RELEASING, PressureRequest(0.0, Source.VENT), now,
                             f"object lost, releasing: {detection.evidence}")
             else:
@@ -842,23 +880,23 @@ class GraspStateMachine:
         return (self.state.phase == Phase.FAULT or
                 self.state.phase in TERMINAL.get(GraspMode(mode), ()))
 
-    def outcome(self, task: int, mode: int) -> str:
+    def outcome(self, task: int, mode: int) -> GoalOutcome:
         """How a goal stands: the command of ``mode`` that started or went on with ``task``.
-        '' while it runs; "succeeded" at its mode's end (HOLDING for ENVELOP_CLAMP, PINCH and
-        CLAMP; ENVELOPED for OPEN; IDLE for RELEASE and STOP), "failed" in FAULT, "superseded" once
-        another command started a task of its own (a CLAMP that goes on with it does not)."""
+        RUNNING until SUCCEEDED at its mode's end (HOLDING for ENVELOP_CLAMP, PINCH and CLAMP;
+        ENVELOPED for OPEN; IDLE for RELEASE and STOP), FAILED in FAULT or on nothing, SUPERSEDED
+        once another command started a task of its own (a CLAMP that goes on with it does not)."""
         if self.task != task:
-            return "superseded"
+            return GoalOutcome.SUPERSEDED
         if self.state.phase == Phase.FAULT:
-            return "failed"
+            return GoalOutcome.FAILED
         if self.state.phase not in TERMINAL.get(GraspMode(mode), ()):
-            return ""
+            return GoalOutcome.RUNNING
         if self.state.phase == Phase.HOLDING and self.sensing_enabled:
             if self.state.object_status == ObjectStatus.NO_OBJECT:
-                return "failed"
+                return GoalOutcome.FAILED
             if self.sensing_pending():
-                return ""
-        return "succeeded"
+                return GoalOutcome.RUNNING
+        return GoalOutcome.SUCCEEDED
 
     def sensing_pending(self) -> bool:
         """HOLDING, and the air's verdict on the closing is still to come (for at most

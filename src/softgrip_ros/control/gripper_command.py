@@ -27,8 +27,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from softgrip_ros.control.grasp_fsm import (HOLDING_STATUSES, GraspMode, GraspRequest,
-                                            GraspStateMachine, Phase)
+from softgrip_ros.control.grasp_fsm import (HOLDING_STATUSES, GoalOutcome, GraspMode,
+                                            GraspRequest, GraspStateMachine, Phase, Rejection)
 from softgrip_ros.estimation.grasp_sensing import ObjectStatus
 
 
@@ -42,10 +42,10 @@ class GripperGoal:
 
 @dataclasses.dataclass(frozen=True)
 class GripperProgress:
-    """Where a goal stands: ``outcome`` '' while it runs, else "succeeded", "failed" (FAULT) or
-    "superseded" (another command took over); the rest as control_msgs reports it."""
+    """Where a goal stands (``outcome``: FAILED in FAULT, SUPERSEDED once another command took
+    over); the rest as control_msgs reports it."""
 
-    outcome: str
+    outcome: GoalOutcome
     position_m: float
     effort_n: float
     stalled: bool
@@ -55,7 +55,8 @@ class GripperProgress:
 
 def start_gripper_goal(fsm: GraspStateMachine, position_m: float, max_effort_n: float,
                        default_effort_n: float, goal_tolerance_m: float, now: float,
-                       command_id: str = "", controller_fault: str = "") -> GripperGoal | str:
+                       command_id: str = "",
+                       controller_fault: str = "") -> GripperGoal | Rejection:
     """Start a goal on ``fsm``: its GripperGoal, or why it is refused (nothing moves then; the
     state's message says why, as for a rejected GraspCommand)."""
     problem = ""
@@ -90,15 +91,16 @@ def gripper_progress(fsm: GraspStateMachine, goal: GripperGoal,
     s = fsm.state
     position = s.tip_spacing_m if math.isfinite(s.tip_spacing_m) else 0.0
     reached = abs(position - goal.position_m) <= goal_tolerance_m
-    outcome = ""
+    outcome = GoalOutcome.RUNNING
     if fsm.task != goal.task:
-        outcome = "superseded"
+        outcome = GoalOutcome.SUPERSEDED
     elif s.phase == Phase.FAULT:
-        outcome = "failed"
+        outcome = GoalOutcome.FAILED
     elif s.phase == (Phase.HOLDING if goal.closing else Phase.ENVELOPED):
-        outcome = "" if fsm.sensing_pending() else "succeeded"
-    stalled = bool(outcome == "succeeded" and goal.closing and not reached)
-    if outcome == "succeeded" and goal.closing and fsm.sensing_enabled:
+        outcome = GoalOutcome.RUNNING if fsm.sensing_pending() else GoalOutcome.SUCCEEDED
+    succeeded = outcome == GoalOutcome.SUCCEEDED
+    stalled = bool(succeeded and goal.closing and not reached)
+    if succeeded and goal.closing and fsm.sensing_enabled:
         if s.object_status in HOLDING_STATUSES:
             if math.isfinite(s.object_size_m):
                 position = s.object_size_m
@@ -113,4 +115,5 @@ def present_progress(fsm: GraspStateMachine) -> GripperProgress:
     """The gripper as it is, for a goal refused before it began (nothing reached)."""
     s = fsm.state
     position = s.tip_spacing_m if math.isfinite(s.tip_spacing_m) else 0.0
-    return GripperProgress("failed", position, s.clamp_force_n, False, False, s.message)
+    return GripperProgress(GoalOutcome.FAILED, position, s.clamp_force_n, False, False,
+                           s.message)

@@ -13,7 +13,7 @@ from rclpy.task import Future
 from sensor_msgs.msg import JointState
 
 from softgrip_interfaces.action import Grasp
-from softgrip_ros.control.grasp_fsm import GraspMode, GraspRequest
+from softgrip_ros.control.grasp_fsm import GoalOutcome, GraspMode, GraspRequest, Rejection
 from softgrip_ros.control.gripper_command import (gripper_progress, present_progress,
                                                   start_gripper_goal)
 from softgrip_ros.nodes import messages
@@ -80,10 +80,10 @@ class GraspActions:
         timer = m.create_timer(0.001, fire)
         return done
 
-    async def _follow(self, goal_handle, outcome_of, feedback_of, cancel) -> str:
-        """Wait, a state change at a time, until ``outcome_of()`` names the goal's end, or a
-        cancel (``cancel()`` runs, once, in the cancel's callback or here): "succeeded",
-        "failed", "superseded" or "canceled", with the goal handle ended to match. Each check
+    async def _follow(self, goal_handle, outcome_of, feedback_of, cancel) -> GoalOutcome:
+        """Wait, a state change at a time, until ``outcome_of()`` says the goal ended, or a
+        cancel (``cancel()`` runs, once, in the cancel's callback or here): the GoalOutcome, with
+        the goal handle ended to match. Each check
         registers its waiter under the lock, so that no change slips between."""
         m, goal = self.manager, _goal_id(goal_handle)
         with m._lock:
@@ -97,11 +97,11 @@ class GraspActions:
                         if not early:
                             cancel()
                         goal_handle.canceled()
-                        return "canceled"
+                        return GoalOutcome.CANCELED
                     if not early:
                         outcome = outcome_of()
-                        if outcome:
-                            (goal_handle.succeed if outcome == "succeeded"
+                        if outcome.ended:
+                            (goal_handle.succeed if outcome == GoalOutcome.SUCCEEDED
                              else goal_handle.abort)()
                             return outcome
                         feedback = feedback_of()
@@ -112,7 +112,7 @@ class GraspActions:
                     if polls > CANCEL_MARK_POLLS:  # it never did: end the goal all the same
                         with m._lock:
                             goal_handle.abort()
-                        return "canceled"
+                        return GoalOutcome.CANCELED
                     await self._shortly()
                     continue
                 goal_handle.publish_feedback(feedback)
@@ -130,19 +130,19 @@ class GraspActions:
         m = self.manager
         request = messages.grasp_request(goal_handle.request.command)
         with m._lock:  # the task is the one this goal's command started or went on with
-            reason = m.submit(request)
+            rejection = m.submit(request)
             task = m.fsm.task
-        if reason:
+        if rejection is not None:
             goal_handle.abort()
-            return self._grasp_result(False, f"rejected: {reason}")
+            return self._grasp_result(False, f"rejected: {rejection}")
         outcome = await self._follow(
             goal_handle, lambda: m.fsm.outcome(task, request.mode),
             lambda: Grasp.Feedback(state=m.state_message()),
             lambda: m.submit(GraspRequest(GraspMode.STOP, command_id=request.command_id)))
         with m._lock:
-            if outcome == "canceled":
+            if outcome == GoalOutcome.CANCELED:
                 return self._grasp_result(False, "canceled: venting")
-            if outcome == "superseded":
+            if outcome == GoalOutcome.SUPERSEDED:
                 return self._grasp_result(
                     False, f"superseded by command {m.fsm.state.command_id!r}")
             return self._grasp_result(m.fsm.object_held(), m.fsm.state.message)
@@ -213,7 +213,7 @@ class GraspActions:
                                       v["default_effort_n"], v["goal_tolerance_m"], now, action,
                                       m._controller_fault(now))
             m._after_change(now)
-        if isinstance(goal, str):
+        if isinstance(goal, Rejection):
             m.get_logger().warn(f"{action} goal refused: {goal}")
             goal_handle.abort()
             return self._present()

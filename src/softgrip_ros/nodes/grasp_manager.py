@@ -26,7 +26,7 @@ from std_msgs.msg import Header
 from softgrip_interfaces.msg import (ControllerStatus, GraspCommand, GraspScene, GripperState,
                                      PressureCommand)
 from softgrip_ros.control.grasp_fsm import (ControllerFeedback, GraspMode, GraspRequest,
-                                            GraspStateMachine, Phase)
+                                            GraspStateMachine, Phase, Rejection)
 from softgrip_ros.control.object_sensing import ObjectSensingLink
 from softgrip_ros.control.reports import grasp_report, outputs_changed_at, sensing_report
 from softgrip_ros.estimation.grasp_sensing import GraspSensing, contact_model_for
@@ -170,17 +170,17 @@ class GraspManagerNode(Node):
     def _controller_fault(self, now: float) -> str:
         return self.feedback.fault(now, idle=self.fsm.state.phase == Phase.IDLE)
 
-    def submit(self, request: GraspRequest) -> str:
-        """Apply a command from the topic or the action; '' or the rejection reason."""
+    def submit(self, request: GraspRequest) -> Rejection | None:
+        """Apply a command from the topic or the action; its Rejection, or None."""
         with self._lock:
             now = self._now()
             fault = self._controller_fault(now)
-            reason = self.fsm.command(request, now, fault)
+            rejection = self.fsm.command(request, now, fault)
             self._sense(now, fault)
             self._after_change(now)
-        if reason:
-            self.get_logger().warn(f"grasp command {request.command_id!r} rejected: {reason}")
-        return reason
+        if rejection is not None:
+            self.get_logger().warn(f"grasp command {request.command_id!r} rejected: {rejection}")
+        return rejection
 
     def _on_command(self, msg: GraspCommand) -> None:
         self.submit(messages.grasp_request(msg))
