@@ -275,3 +275,17 @@ def test_messages_stamped_far_ahead_are_ignored_and_the_estimates_go_on(wired):
     assert all(m.header.stamp.sec < ahead.sec - 1000 for m in estimates[count:])
     wait_for(lambda: any("in the future" in d.message for d in diagnostics),
              message="the refusal reported")
+
+
+def test_the_nis_evidence_is_published_typed_for_a_lone_pressure_controller(wired):
+    from softgrip_interfaces.msg import EstimatorConsistency
+    feeder, publishers, _, _, _ = wired
+    evidence = []
+    feeder.create_subscription(EstimatorConsistency, "estimator/consistency", evidence.append, 10)
+    _feed(feeder, publishers, ("chamber_a", "chamber_b"), 0.0, 1.5, np.random.default_rng(5))
+    wait_for(lambda: evidence, message="estimator/consistency")
+    last = evidence[-1]
+    assert sorted(last.sensor_names) == ["chamber_a", "chamber_b"]
+    assert len(last.mean_nis) == 2 and last.nis_upper_bound > 1.0
+    # consistent noise: each sensor's windowed NIS well under its bound
+    assert all(0.0 < nis < last.nis_upper_bound for nis in last.mean_nis), last

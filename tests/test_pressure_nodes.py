@@ -644,3 +644,36 @@ def test_the_plant_file_is_the_devices_truth_and_the_controllers_model(rclpy_con
 def plant_file_path():
     from softgrip_ros.config_paths import config_file
     return config_file("plant.yaml")
+
+
+def test_the_estimators_typed_nis_evidence_reaches_the_safety_checks_of_a_lone_controller(nodes):
+    """Run apart, the controller reads the estimator's NIS from estimator/consistency (typed),
+    not from strings in /diagnostics; a message whose lists disagree is ignored."""
+    from softgrip_interfaces.msg import ControllerStatus, EstimatorConsistency
+    from softgrip_ros.control.faults import Fault
+
+    controller, device, client = nodes
+    statuses = []
+    client.create_subscription(ControllerStatus, "controller/status", statuses.append, 50)
+    evidence = client.create_publisher(EstimatorConsistency, "estimator/consistency", 10)
+    wait_for(lambda: evidence.get_subscription_count() > 0 and statuses,
+             message="the controller's subscription")
+
+    def inconsistent():
+        return [s for s in statuses if s.fault_flags & int(Fault.SENSOR_INCONSISTENT)]
+
+    mismatched = EstimatorConsistency(sensor_names=["chamber_a", "chamber_b"], mean_nis=[6e4],
+                                      nis_upper_bound=1.36)
+    deadline = time.monotonic() + 1.0
+    while time.monotonic() < deadline:
+        evidence.publish(mismatched)
+        time.sleep(0.05)
+    assert not inconsistent()
+    far_off = EstimatorConsistency(sensor_names=["chamber_a", "chamber_b"],
+                                   mean_nis=[6e4, 1.0], nis_upper_bound=1.36)
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline and not inconsistent():
+        evidence.publish(far_off)
+        time.sleep(0.05)
+    assert inconsistent(), "no SENSOR_INCONSISTENT within 5 s of a NIS 44000x its bound"
+    assert "chamber_a inconsistent" in inconsistent()[0].message

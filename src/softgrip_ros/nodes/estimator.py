@@ -25,7 +25,8 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from sensor_msgs.msg import FluidPressure
 
-from softgrip_interfaces.msg import ControllerStatus, EstimatorInput, PressureCommand
+from softgrip_interfaces.msg import (ControllerStatus, EstimatorConsistency, EstimatorInput,
+                                     PressureCommand)
 from softgrip_ros.control.reports import outputs_changed_at
 from softgrip_ros.estimation.estimator import PressureEstimator
 from softgrip_ros.estimation.runner import (JOURNAL_HISTORY, JOURNAL_STARTUP_S, JOURNAL_TOPIC,
@@ -41,10 +42,10 @@ from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import ESTIMATOR_SPECS as SPECS
 from softgrip_ros.nodes.specs import estimator_config, load_plant
 
-# its /diagnostics status (the pressure controller reads its NIS)
-ESTIMATOR_STATUS = "softgrip: estimator"
-# the NIS evidence handed to the composed pressure controller this often
+ESTIMATOR_STATUS = "softgrip: estimator"  # its /diagnostics status
+# the NIS evidence for the pressure controller's safety checks, this often
 EVIDENCE_PERIOD_S = 0.1
+CONSISTENCY_TOPIC = "estimator/consistency"
 REFUSAL_REPORTED_S = 5.0  # a refused message keeps the diagnostics at WARN this long
 
 
@@ -88,6 +89,7 @@ class EstimatorNode(Node):
                                       journal=self._journal)
         self.estimate_pub = self.create_publisher(FluidPressure, "pressure/estimate", 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.consistency_pub = self.create_publisher(EstimatorConsistency, CONSISTENCY_TOPIC, 10)
         for name in [] if in_process else self.values["sensors.names"]:
             self.create_subscription(FluidPressure, f"pressure/sensor/{name}",
                                      lambda msg, name=name: self._on_sensor_message(name, msg), 50)
@@ -220,11 +222,19 @@ class EstimatorNode(Node):
         notify(self.estimate_listeners, estimate.stamp_s, estimate.gauge_pa, estimate.variance_pa2)
 
     def _share_evidence(self) -> None:
-        """The NIS of each sensor to the composed pressure controller's safety checks."""
-        if not self.consistency_listeners:
+        """The NIS of each sensor for the pressure controller's safety checks: to the composed
+        one directly, on estimator/consistency to any subscriber."""
+        published = listened(self, self.consistency_pub)
+        if not (self.consistency_listeners or published):
             return
         with self._lock:
             evidence, bound = self.estimator.nis_evidence(), self.estimator.nis_bounds[1]
+        if published:
+            message = EstimatorConsistency(sensor_names=list(evidence),
+                                           mean_nis=[float(v) for v in evidence.values()],
+                                           nis_upper_bound=float(bound))
+            message.header.stamp = self.get_clock().now().to_msg()
+            publish(self, self.consistency_pub, message)
         for name, mean_nis in evidence.items():
             notify(self.consistency_listeners, name, mean_nis, bound)
 

@@ -40,23 +40,6 @@ def diagnostics(report: Report, name: str, hardware_id: str, stamp) -> Diagnosti
     return DiagnosticArray(header=Header(stamp=stamp), status=[status])
 
 
-def estimator_nis(msg: DiagnosticArray, status_name: str, sensor_names) -> list:
-    """[(sensor, recent NIS, its upper bound)] from the estimator's /diagnostics status (its
-    ``<sensor>.recent_nis`` and ``nis_upper_bound`` values); [] when the array has none."""
-    evidence = []
-    for status in msg.status:
-        if status.name != status_name:
-            continue
-        values = {kv.key: kv.value for kv in status.values}
-        try:
-            bound = float(values["nis_upper_bound"])
-            evidence += [(name, float(values[f"{name}.recent_nis"]), bound)
-                         for name in sensor_names if f"{name}.recent_nis" in values]
-        except (KeyError, ValueError):
-            continue
-    return evidence
-
-
 def controller_status(output, link, header: Header, note: str, now: float,
                       outputs_changed_s: float) -> ControllerStatus:
     """The ControllerStatus of a control ``output`` (a ControlOutput) and the ``link``'s counts;

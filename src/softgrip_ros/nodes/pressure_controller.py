@@ -17,7 +17,7 @@ from sensor_msgs.msg import FluidPressure
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
-from softgrip_interfaces.msg import ControllerStatus, PressureCommand
+from softgrip_interfaces.msg import ControllerStatus, EstimatorConsistency, PressureCommand
 from softgrip_ros.canbus.codec import FrameCodec
 from softgrip_ros.canbus.controller_link import (IGNORED_IN_IDENTIFICATION, ControllerLink,
                                                 SensorBinding, make_control_loop)
@@ -28,7 +28,7 @@ from softgrip_ros.nodes import messages
 from softgrip_ros.canbus import open_bus
 from softgrip_ros.nodes.common import (closed_if_cut_short, listened, notify, publish, run_node,
                                        stamp_msg, stamp_seconds)
-from softgrip_ros.nodes.estimator import ESTIMATOR_STATUS
+from softgrip_ros.nodes.estimator import CONSISTENCY_TOPIC
 from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import (PRESSURE_CONFIGURE_PREFIXES, check_rest_rate,
                                       frame_id_overrides, frame_id_specs, load_plant,
@@ -39,7 +39,7 @@ from softgrip_ros.realtime import clock_offset_s
 
 class PressureControllerNode(LifecycleNode):
     """in_process: composed with the estimator, which hands its NIS evidence over by direct calls
-    to :meth:`on_consistency`; alone, that evidence comes from the estimator's /diagnostics."""
+    to :meth:`on_consistency`; alone, that evidence comes on estimator/consistency."""
 
     def __init__(self, in_process: bool = False, **kwargs):
         super().__init__("pressure_controller", **kwargs)
@@ -67,7 +67,8 @@ class PressureControllerNode(LifecycleNode):
         self.create_subscription(PressureCommand, "~/identification_command",
                                  self._on_identification_command, 10)
         if not in_process:
-            self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
+            self.create_subscription(EstimatorConsistency, CONSISTENCY_TOPIC,
+                                     self._on_consistency_message, 10)
         self.estimate_subscription = None
         self._subscribe_estimate(self.values["use_estimate"])
         self.create_service(Trigger, "~/vent", self._on_vent)
@@ -239,11 +240,16 @@ class PressureControllerNode(LifecycleNode):
         if self.link is not None:
             self.link.update_consistency(name, mean_nis, bound)
 
-    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        """The estimator's NIS per sensor, from its /diagnostics (a separate estimator node)."""
-        for name, nis, bound in messages.estimator_nis(msg, ESTIMATOR_STATUS,
-                                                       self.values["sensors.names"]):
-            self.on_consistency(name, nis, bound)
+    def _on_consistency_message(self, msg: EstimatorConsistency) -> None:
+        """The estimator's NIS per sensor (a separate estimator node)."""
+        if len(msg.mean_nis) != len(msg.sensor_names):
+            self.get_logger().warn(
+                f"{CONSISTENCY_TOPIC} ignored: {len(msg.sensor_names)} sensor names, "
+                f"{len(msg.mean_nis)} values", throttle_duration_sec=5.0)
+            return
+        for name, mean_nis in zip(msg.sensor_names, msg.mean_nis):
+            if name in self.values["sensors.names"]:
+                self.on_consistency(name, mean_nis, msg.nis_upper_bound)
 
     def _set_note(self, note: str) -> None:
         self.last_note = note  # before the step the command triggers publishes the status
