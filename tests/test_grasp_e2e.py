@@ -404,7 +404,8 @@ def test_object_sensing_reports_through_the_state_the_action_and_diagnostics(rcl
     """object_sensing on, hold_air trap, on the simulated gripper without a world: a pinch's
     closing is judged (MOVING_NO_CONTACT while it moves); for a 0.1 mm sheet the air cannot
     tell, so the goal succeeds at HOLDING with object_held false, the status UNKNOWN, its
-    evidence in the grasp-sensing entry of /diagnostics; the hold's air is then trapped."""
+    evidence in the grasp-sensing entry of /diagnostics; the hold's air is then trapped. The
+    verdict is awaited, not asserted at the result: no test may depend on an idle host."""
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.node import Node
     from rclpy.parameter import Parameter
@@ -439,7 +440,10 @@ def test_object_sensing_reports_through_the_state_the_action_and_diagnostics(rcl
             assert result.final_phase == S.HOLDING and not result.object_held
             seen = {s.object_status for s in states}
             assert S.OBJECT_MOVING_NO_CONTACT in seen
-            assert states[-1].object_status == S.OBJECT_UNKNOWN
+            # the verdict: on a busy host the judge (a niced child) may give it after the goal
+            # stopped waiting (sensing_wait), which then succeeds without it, as designed
+            wait_for(lambda: states[-1].object_status == S.OBJECT_UNKNOWN, timeout=10.0,
+                     message="the closing's verdict: UNKNOWN")
 
             def evidence():
                 for array in diagnostics:
