@@ -402,21 +402,21 @@ def test_readings_are_as_old_as_their_frames_not_their_late_processing():
         receiver.shutdown()
 
 
-def test_a_copy_of_an_applied_command_is_ignored_and_no_stamp_locks_out_the_next(rig):
-    """#20: a command stamped far ahead used to lock out every later one. Now only a copy (the same
-    stamp and content: the composed controller's DDS copy of a direct call) is ignored; every
-    other command applies in the order it comes, whatever its stamp."""
+def test_commands_apply_in_the_order_they_come_and_no_stamp_locks_out_the_next(rig):
+    """#20: a command stamped far ahead used to lock out every later one. Commands apply in the
+    order they come, whatever their stamps; one stamped too far ahead is refused and locks
+    nothing out."""
     _, link = rig
-    assert link.command(10e3, Source.SUPPLY, math.nan, stamp_s=5.0) == ""
-    assert link.command(20e3, Source.SUPPLY, math.nan, stamp_s=5.1) == ""
-    assert link.command(10e3, Source.SUPPLY, math.nan, stamp_s=5.0) is None  # a late copy
+    now_s, tolerance_s = 5.0, 0.5
+    assert link.take(10e3, Source.SUPPLY, math.nan, 5.0, now_s, tolerance_s) == ""
+    assert link.take(20e3, Source.SUPPLY, math.nan, 4.0, now_s, tolerance_s) == ""  # older
     assert link.controller._target == 20e3
-    assert link.command(30e3, Source.SUPPLY, math.nan, stamp_s=3600.0) == ""  # far ahead ...
-    # ... locks nothing out
-    assert link.command(15e3, Source.SUPPLY, math.nan, stamp_s=5.2) == ""
+    refused = link.take(30e3, Source.SUPPLY, math.nan, 3600.0, now_s, tolerance_s)
+    assert "in the future" in refused and link.controller._target == 20e3
+    assert link.take(15e3, Source.SUPPLY, math.nan, 5.2, now_s, tolerance_s) == ""
     assert link.controller._target == 15e3
     # unstamped: applies
-    assert link.command(5e3, Source.SUPPLY, math.nan) == ""
+    assert link.take(5e3, Source.SUPPLY, math.nan, 0.0, now_s, tolerance_s) == ""
     assert link.controller._target == 5e3
 
 

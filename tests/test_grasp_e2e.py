@@ -139,6 +139,19 @@ def test_the_composed_nodes_keep_fast_work_off_the_executor_and_serialise_only_w
         assert published
 
 
+def test_the_grasp_manager_owns_the_pressure_in_the_composed_controller(suite):
+    """Composed, no node of the suite subscribes to pressure/command: the grasp manager's
+    commands reach the pressure controller and the estimator by direct call only, so there is no
+    DDS copy to recognise. The grasp manager still publishes them for observers."""
+    from softgrip_interfaces.msg import PressureCommand
+    nodes, user, _, _ = suite
+    topic = nodes["grasp_manager"].resolve_topic_name("pressure/command")
+    assert user.get_subscriptions_info_by_topic(topic) == []
+    received = []
+    user.create_subscription(PressureCommand, "pressure/command", received.append, 10)
+    wait_for(lambda: received, timeout=3.0, message="the grasp manager's refreshed command")
+
+
 def test_pinch_a_sheet_by_action_with_feedback_and_result(suite):
     from softgrip_ros.client import serial_action_client
     from softgrip_interfaces.action import Grasp

@@ -1,5 +1,6 @@
 """The installed ``controller`` as a process (#20): Ctrl-C to its process group, SIGKILL, and a
 command stamped an hour ahead; what a user and a supervisor see."""
+import math
 import os
 import signal
 import subprocess
@@ -8,8 +9,9 @@ import time
 import pytest
 
 from softgrip_ros.devtools.processes import installed_executable, stop_process
+from softgrip_ros.nodes.common import stamp_msg
 
-from tests.helpers.ros import send_future_command, spinning, unique, wait_for
+from tests.helpers.ros import spinning, unique, wait_for
 
 pytestmark = pytest.mark.ros
 
@@ -218,9 +220,12 @@ def test_the_l2_child_does_not_outlive_a_killed_controller(controller):
 
 
 def test_a_command_stamped_an_hour_ahead_freezes_nothing(controller, ros_node):
-    """#20.5: a stamp 1 h ahead froze the all-in-one controller (the estimator predicted up to it
-    in 5 ms steps under a lock the CAN and control threads need); controller/status and every CAN
-    frame stopped, and SIGTERM took 7-18 s. Now it is refused, and everything keeps flowing."""
+    """#20.5: a pressure/command stamped 1 h ahead froze the all-in-one controller (the estimator
+    predicted up to it in 5 ms steps under a lock the CAN and control threads need); every frame
+    stopped, and SIGTERM took 7-18 s. The composed controller now takes no pressure/command from
+    DDS at all (its grasp manager owns the pressure; a lone node refuses such a stamp, see
+    test_pressure_nodes and test_estimator_node): the command reaches nothing, and everything
+    keeps flowing."""
     from sensor_msgs.msg import FluidPressure
     from softgrip_interfaces.msg import ControllerStatus, PressureCommand
 
@@ -230,15 +235,19 @@ def test_a_command_stamped_an_hour_ahead_freezes_nothing(controller, ros_node):
     ros_node.create_subscription(FluidPressure, "pressure/estimate", estimates.append, 100)
     publisher = ros_node.create_publisher(PressureCommand, "pressure/command", 10)
     with spinning(ros_node.context, ros_node, threads=1):
-        wait_for(lambda: statuses and estimates and publisher.get_subscription_count() >= 2,
-                 timeout=30.0, message="the controller's status and estimates")
-        refused = send_future_command(ros_node, publisher, statuses, 0.0, PressureCommand.VENT,
-                                      ahead_s=3600.0)
-        assert "in the future" in refused.message
+        wait_for(lambda: statuses and estimates, timeout=30.0,
+                 message="the controller's status and estimates")
+        assert publisher.get_subscription_count() == 0
+        message = PressureCommand(target_gauge_pressure_pa=0.0, max_rate_pa_per_s=math.nan,
+                                  source=PressureCommand.VENT)
+        message.header.stamp = stamp_msg(
+            ros_node.get_clock().now().nanoseconds * 1e-9 + 3600.0)
+        publisher.publish(message)
         counts = len(statuses), len(estimates)
         time.sleep(1.0)
         # 50 Hz and >= 20 Hz, still
         assert len(statuses) - counts[0] >= 20 and len(estimates) - counts[1] >= 10
+        assert not any("in the future" in s.message for s in statuses)
     started = time.monotonic()
     process.send_signal(signal.SIGTERM)
     process.wait(timeout=10)

@@ -20,7 +20,6 @@ sent after such a lapse reopens them; the status reports the lapse (see
 """
 from __future__ import annotations
 
-import collections
 import dataclasses
 import math
 import threading
@@ -52,11 +51,6 @@ def acting(output) -> bool:
     return output.mode == PressureMode.REGULATE or (
         output.mode == PressureMode.IDENTIFY and
         any(v in (Valve.SUPPLY, Valve.VACUUM) for v in output.valves))
-
-
-def _same(value: float):
-    """A float as a key that equals itself when NaN."""
-    return None if math.isnan(value) else float(value)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,8 +95,6 @@ class ControllerLink:
         self.regulator_report_time = -math.inf  # when the device sent it, on ``clock``
         self.last_frame_time = -math.inf
         self._last_heartbeat = -math.inf
-        # recent commands applied, to know their copies
-        self._applied = collections.deque(maxlen=64)
         self._rejected_total, self._rejected_at = 0, -math.inf
         if not 0.0 <= command_frame_period_s <= 0.1:
             raise ValueError(
@@ -189,23 +181,14 @@ class ControllerLink:
 
     # ---- the control period ---------------------------------------------------------------------
     def command(self, target_gauge_pa: float, source: Source, max_rate_pa_per_s: float,
-                stamp_s: float = 0.0, on_applied=None) -> str | None:
-        """Apply a command; None when it is a copy of one already applied. In the composed
-        controller each command comes both directly and by DDS: a stamped command (``stamp_s`` > 0)
-        equal, stamp and content, to one of the last 64 applied is that copy, and must not undo a
-        newer one. Any other command applies, in the order it arrives: no stamp can lock out the
-        ones after it (a stamp in the future is for the caller to refuse, see
-        :meth:`reject_command`). An unstamped command always applies. ``on_applied(note)`` runs
-        once it has applied, before any step reports on it (so that a status can carry the
-        note)."""
-        key = (float(stamp_s), _same(target_gauge_pa), int(source), _same(max_rate_pa_per_s))
+                on_applied=None) -> str:
+        """Apply a command, in the order commands arrive: no stamp can lock out the ones after it
+        (a stamp in the future is for the caller to refuse, see :meth:`reject_command`). What
+        the controller says of it ('' for nothing); ``on_applied(note)`` runs once it has
+        applied, before any step reports on it (so that a status can carry the note)."""
         with self._lock:
-            if stamp_s and key in self._applied:
-                return None
             note = self.controller.command(target_gauge_pa, source, max_rate_pa_per_s,
                                            self.clock())
-            if stamp_s:
-                self._applied.append(key)
             active = self.controller.active
             if on_applied is not None:
                 on_applied(note)
@@ -221,8 +204,8 @@ class ControllerLink:
     def take(self, target_gauge_pa: float, source: Source, max_rate_pa_per_s: float,
              stamp_s: float, now_s: float, tolerance_s: float, identification_topic: bool = False,
              on_applied=None) -> str:
-        """A command as it arrives (a topic's, or the composed grasp manager's by direct call):
-        what to tell the user ('' for nothing). ``identification_topic``: it came on
+        """A command as it arrives (the topic's, or the composed grasp manager's): what to tell
+        the user ('' for nothing). ``identification_topic``: it came on
         ~/identification_command, which alone applies in identification mode, and only there.
         One stamped more than ``tolerance_s`` ahead of ``now_s`` is refused, and the status
         carries why until a command applies; an invalid one is refused with its reason."""
@@ -234,8 +217,8 @@ class ControllerLink:
             self.reject_command(f"pressure command {refused}")
             return f"pressure command {refused}"
         try:
-            return self.command(target_gauge_pa, source, max_rate_pa_per_s, stamp_s,
-                                on_applied=on_applied) or ""
+            return self.command(target_gauge_pa, source, max_rate_pa_per_s,
+                                on_applied=on_applied)
         except ValueError as error:
             note = f"command rejected: {error}"
             if on_applied is not None:

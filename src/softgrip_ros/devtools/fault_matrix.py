@@ -150,8 +150,7 @@ class Rig:
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.node import Node
         from rclpy.parameter import Parameter
-        from softgrip_interfaces.msg import (ControllerStatus, GraspCommand, GripperState,
-                                             PressureCommand)
+        from softgrip_interfaces.msg import ControllerStatus, GraspCommand, GripperState
         from softgrip_ros.nodes.common import spinning
         from softgrip_ros.nodes.controller import make_nodes
 
@@ -172,7 +171,6 @@ class Rig:
             DiagnosticArray, "/diagnostics",
             lambda m: [self._keep(self.diagnostics, s, now()) for s in m.status], 200)
         self.grasp = self.user.create_publisher(GraspCommand, "grasp_command", 10)
-        self.pressure = self.user.create_publisher(PressureCommand, "pressure/command", 10)
         self._spin = spinning(*self.nodes.values(), self.user, context=self.context, threads=2)
         self._spin.__enter__()
         deadline = now() + 30.0
@@ -311,7 +309,8 @@ def _inject(rig: Rig, case: FaultCase) -> None:
         message = PressureCommand(target_gauge_pressure_pa=0.0, max_rate_pa_per_s=NAN,
                                   source=PressureCommand.VENT)
         message.header.stamp = stamp_msg(rig.user.get_clock().now().nanoseconds * 1e-9 + 30.0)
-        rig.pressure.publish(message)
+        # at the controller's command input: composed, it takes no pressure/command from DDS
+        rig.nodes["pressure_controller"].on_command(message)
         return
     for name, value in case.inject.items():
         rig.device.set_fault(name, value)

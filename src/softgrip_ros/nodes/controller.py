@@ -12,8 +12,10 @@ the kinematics and the grasp manager. rclpy has no intra-process transport, and 
 the executor takes costs a few hundred microseconds of Python: at 700 readings, 200 estimates
 and 50 statuses a second, that saturated a core (docs/benchmarks.md, bench_e2e). So is the
 latency-critical one, each pressure command from the grasp manager to the pressure controller
-(its later DDS copy is recognised by its stamp and ignored). The topics are still published for
-every other subscriber; grasp commands still go through DDS.
+and the estimator. The grasp manager owns the pressure here: pressure/command is published for
+other subscribers but not subscribed (a command from elsewhere would be overridden by its next
+refresh anyway). The other topics are still published for every subscriber; grasp commands
+still go through DDS.
 """
 from __future__ import annotations
 
@@ -75,7 +77,7 @@ def make_nodes(context=None, overrides: dict | None = None) -> list:
                                         grasp_manager.on_sensor_samples]
         controller.status_listeners += [estimator.on_status, grasp_manager.on_status]
         grasp_manager.scene_listeners.append(kinematics.on_scene)
-        grasp_manager.command_listeners.append(controller.on_command)
+        grasp_manager.command_listeners += [controller.on_command, estimator.on_command]
         estimator.estimate_listeners += [kinematics.on_estimate, grasp_manager.on_estimate]
         estimator.consistency_listeners.append(controller.on_consistency)
     except BaseException:  # a Ctrl-C too: their threads must not run into the interpreter's exit

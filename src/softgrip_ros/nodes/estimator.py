@@ -52,7 +52,8 @@ REFUSAL_REPORTED_S = 5.0  # a refused message keeps the diagnostics at WARN this
 class EstimatorNode(Node):
     """in_process: the readings and the controller status come by direct calls to
     :meth:`on_sensor_samples` and :meth:`on_status` from the composed controller's pressure
-    controller, instead of through their topics (see nodes.controller).
+    controller, and the pressure commands to :meth:`on_command` from its grasp manager, instead
+    of through their topics (see nodes.controller).
     ``estimate_listeners``: in-process consumers of each published estimate,
     f(stamp_s, gauge_pa, variance_pa2); called outside the estimator's lock, which is never held
     while calling out (so that no two nodes' locks can wait on each other).
@@ -69,7 +70,7 @@ class EstimatorNode(Node):
         self.last_refusal, self.last_refusal_at = "", -float("inf")
         self.status_received_s = None  # when the last controller/status reached this node
         self.in_process = in_process
-        # in-process statuses not yet taken (see on_status)
+        # in-process statuses and commands not yet taken, each a call (see on_status)
         self._pending_inputs = collections.deque()
         self.closed = False
         specs = {s.name: s for s in SPECS}
@@ -95,7 +96,8 @@ class EstimatorNode(Node):
                                      lambda msg, name=name: self._on_sensor_message(name, msg), 50)
         if not in_process:
             self.create_subscription(ControllerStatus, "controller/status", self.on_status, 10)
-        self.create_subscription(PressureCommand, "pressure/command", self._on_command, 10)
+        if not in_process:
+            self.create_subscription(PressureCommand, "pressure/command", self.on_command, 10)
         self.periodic = NodeTimers(self, in_process)
         self.periodic.every(max(self.period_s, 1.0 / PREDICTION_RATE_LIMIT_HZ), self._on_timer)
         self.periodic.every(0.5, self._publish_diagnostics)
@@ -156,15 +158,16 @@ class EstimatorNode(Node):
                   msg.valve_states[0], outputs_changed_at(stamp_seconds(msg.header.stamp),
                                                           msg.output_change_age_s))
         if self.in_process:
-            self._pending_inputs.append(inputs)
+            self._pending_inputs.append(lambda: self._take_inputs(*inputs))
             return
         with self._lock:
             self._take_inputs(*inputs)
 
     def _take_pending_inputs(self) -> None:
-        """The in-process statuses that came since (with the lock held)."""
+        """The in-process statuses and commands that came since, in order (with the lock
+        held)."""
         while self._pending_inputs:
-            self._take_inputs(*self._pending_inputs.popleft())
+            self._pending_inputs.popleft()()
 
     def _take_inputs(self, command_gauge_pa: float, enabled: bool, valve: int,
                      stamp_s: float) -> None:
@@ -175,16 +178,27 @@ class EstimatorNode(Node):
             self.get_logger().warn(f"controller/status ignored: {error}",
                                    throttle_duration_sec=5.0)
 
-    def _on_command(self, msg: PressureCommand) -> None:
+    def on_command(self, msg: PressureCommand) -> None:
+        """A pressure command (the topic's; composed, the grasp manager's by direct call, which
+        waits with the statuses for this node's own threads, as :meth:`on_status` says): a VENT
+        or HOLD is applied to the process model at once, ahead of the status that confirms
+        it."""
         valve = {PressureCommand.VENT: Valve.VENT,
                  PressureCommand.HOLD: Valve.CLOSED}.get(msg.source)
-        if valve is not None and not self._refused("pressure/command",
-                                                   stamp_seconds(msg.header.stamp)):
-            with self._lock:
-                self._take_pending_inputs()
-                inputs = self.estimator.inputs
-                self.runner.inputs(inputs.regulator_setpoint_gauge_pa, inputs.regulator_enabled,
-                                   valve, stamp_seconds(msg.header.stamp) or self._now())
+        if valve is None or self._refused("pressure/command", stamp_seconds(msg.header.stamp)):
+            return
+        stamp_s = stamp_seconds(msg.header.stamp) or self._now()
+        if self.in_process:
+            self._pending_inputs.append(lambda: self._take_valve(valve, stamp_s))
+            return
+        with self._lock:
+            self._take_pending_inputs()
+            self._take_valve(valve, stamp_s)
+
+    def _take_valve(self, valve: Valve, stamp_s: float) -> None:
+        inputs = self.estimator.inputs
+        self.runner.inputs(inputs.regulator_setpoint_gauge_pa, inputs.regulator_enabled, valve,
+                           stamp_s)
 
     def _on_timer(self) -> None:
         """While no sample has come (and no estimate gone out) for two timer periods, publish the

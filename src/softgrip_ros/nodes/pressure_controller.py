@@ -39,7 +39,9 @@ from softgrip_ros.realtime import clock_offset_s
 
 class PressureControllerNode(LifecycleNode):
     """in_process: composed with the estimator, which hands its NIS evidence over by direct calls
-    to :meth:`on_consistency`; alone, that evidence comes on estimator/consistency."""
+    to :meth:`on_consistency`, and the grasp manager, whose pressure commands come by direct
+    calls to :meth:`on_command` (pressure/command is not subscribed: the grasp manager owns the
+    pressure); alone, they come on estimator/consistency and pressure/command."""
 
     def __init__(self, in_process: bool = False, **kwargs):
         super().__init__("pressure_controller", **kwargs)
@@ -63,7 +65,8 @@ class PressureControllerNode(LifecycleNode):
         self.sensor_listeners = []
         # in-process consumers of each controller/status: f(ControllerStatus)
         self.status_listeners = []
-        self.create_subscription(PressureCommand, "pressure/command", self.on_command, 10)
+        if not in_process:  # composed, the grasp manager's commands come by direct call only
+            self.create_subscription(PressureCommand, "pressure/command", self.on_command, 10)
         self.create_subscription(PressureCommand, "~/identification_command",
                                  self._on_identification_command, 10)
         if not in_process:
@@ -209,9 +212,9 @@ class PressureControllerNode(LifecycleNode):
         self._take(msg, identification_topic=True)
 
     def on_command(self, msg: PressureCommand):
-        """A pressure command, from the topic or (composed) by a direct call from the grasp
-        manager, which saves a trip through DDS and the executor; its later DDS copy is recognised
-        and ignored (see :meth:`ControllerLink.command`; refusals: :meth:`ControllerLink.take`)."""
+        """A pressure command: from the topic when the node runs alone; composed, by a direct
+        call from the grasp manager only, which owns the pressure there (refusals:
+        :meth:`ControllerLink.take`)."""
         self._take(msg)
 
     def _take(self, msg: PressureCommand, identification_topic: bool = False):
