@@ -7,6 +7,7 @@ import pytest
 
 from softgrip_ros.devtools.processes import installed_executable
 from softgrip_ros.model.pneumatics import Valve
+from softgrip_ros.nodes import messages
 
 from tests.helpers.ros import spinning, wait_for
 
@@ -126,17 +127,16 @@ def test_a_batch_of_readings_gives_one_estimate_at_its_newest_and_an_unknown_sen
     from softgrip_ros.nodes.estimator import EstimatorNode
     estimator = EstimatorNode(in_process=True, context=rclpy_context)
     published = []
-    estimator.estimate_listeners.append(
-        lambda stamp_s, gauge_pa, variance_pa2: published.append((stamp_s, gauge_pa)))
+    estimator.estimates.connect(lambda e: published.append((e.stamp_s, e.gauge_pa)))
     try:
         t0 = estimator._now()
-        estimator.on_sensor_samples([("chamber_a", 10e3, t0)])
+        estimator.take_readings([("chamber_a", 10e3, t0)])
         assert [stamp for stamp, _ in published] == [t0]
-        estimator.on_sensor_samples([("chamber_b" if k % 2 else "chamber_a", 10e3, t0 + 0.006 * k)
+        estimator.take_readings([("chamber_b" if k % 2 else "chamber_a", 10e3, t0 + 0.006 * k)
                                      for k in range(1, 11)])
         assert len(published) == 2 and published[-1][0] == pytest.approx(t0 + 0.06)
         with pytest.raises(ValueError, match=r"unknown sensor 'chamber_z'"):
-            estimator.on_sensor_samples([("chamber_z", 1.0, t0 + 0.061),
+            estimator.take_readings([("chamber_z", 1.0, t0 + 0.061),
                                          ("chamber_a", 10e3, t0 + 0.062)])
         assert estimator.estimator.stats["chamber_a"].last_stamp_s == pytest.approx(t0 + 0.062)
     finally:
@@ -159,10 +159,10 @@ def test_a_status_switches_the_process_model_from_when_its_outputs_went_out(rclp
     try:
         t0 = estimator._now()
         for stamp, valve, age in ((t0, 0, math.inf), (t0 + 0.1, 1, 0.04)):
-            estimator.on_status(ControllerStatus(
+            estimator.take_report(messages.controller_report(ControllerStatus(
                 header=_header(stamp_msg(stamp), ""), valve_states=[valve],
                 regulator_command_gauge_pressure_pa=30e3, regulator_enabled=True,
-                output_change_age_s=age))
+                output_change_age_s=age)))
         estimator._on_timer()  # in process, its timer takes them
         assert taken == [pytest.approx(t0, abs=1e-6), pytest.approx(t0 + 0.06, abs=1e-6)]
     finally:
@@ -171,7 +171,7 @@ def test_a_status_switches_the_process_model_from_when_its_outputs_went_out(rclp
 
 
 def test_an_in_process_status_leaves_the_work_to_the_estimators_own_threads(rclpy_context):
-    """The composed controller calls on_status from its control loop: it returns at once, even
+    """The composed controller calls take_report from its control loop: it returns at once, even
     while a batch of readings holds the estimator's lock, and the readings that come next take
     its inputs first (a rewind in the loop's thread held the loop up past the valves' lifetime:
     17-29 lapses in two idle grasps)."""
@@ -182,17 +182,18 @@ def test_an_in_process_status_leaves_the_work_to_the_estimators_own_threads(rclp
     estimator = EstimatorNode(in_process=True, context=rclpy_context)
     try:
         t0 = estimator._now()
-        estimator.on_sensor_samples([("chamber_a", 0.0, t0), ("chamber_b", 0.0, t0)])
-        status = ControllerStatus(header=_header(stamp_msg(t0 + 0.01), ""), valve_states=[1],
-                                  regulator_command_gauge_pressure_pa=30e3,
-                                  regulator_enabled=True, output_change_age_s=0.0)
+        estimator.take_readings([("chamber_a", 0.0, t0), ("chamber_b", 0.0, t0)])
+        status = messages.controller_report(ControllerStatus(
+            header=_header(stamp_msg(t0 + 0.01), ""), valve_states=[1],
+            regulator_command_gauge_pressure_pa=30e3, regulator_enabled=True,
+            output_change_age_s=0.0))
         with estimator._lock:  # a batch being fused
-            caller = threading.Thread(target=estimator.on_status, args=(status,))
+            caller = threading.Thread(target=estimator.take_report, args=(status,))
             caller.start()
             caller.join(timeout=5.0)
             assert not caller.is_alive()
         assert estimator.estimator.inputs.valves == (Valve.CLOSED,)
-        estimator.on_sensor_samples([("chamber_a", 0.0, t0 + 0.02)])
+        estimator.take_readings([("chamber_a", 0.0, t0 + 0.02)])
         assert estimator.estimator.inputs.valves == (Valve.SUPPLY,)
         assert estimator.estimator.inputs.regulator_setpoint_gauge_pa == 30e3
     finally:

@@ -120,17 +120,16 @@ def test_the_composed_nodes_keep_fast_work_off_the_executor_and_serialise_only_w
     assert all(nodes[name].periodic.thread is not None
                for name in ("estimator", "kinematics", "grasp_manager"))
     controller = nodes["pressure_controller"]
-    for publisher, listeners, message_type, topic in ((controller.sensor_pubs["chamber_a"],
-                                                       controller.sensor_listeners, FluidPressure,
-                                                       "pressure/sensor/chamber_a"),
-                                                      (controller.status_pub,
-                                                       controller.status_listeners,
-                                                       ControllerStatus, "controller/status")):
+    for publisher, port, message_type, topic in ((controller.sensor_pubs["chamber_a"],
+                                                  controller.readings, FluidPressure,
+                                                  "pressure/sensor/chamber_a"),
+                                                 (controller.status_pub, controller.reports,
+                                                  ControllerStatus, "controller/status")):
         published, taken = [], []
         real_publish = publisher.publish
         publisher.publish = (lambda message, real=real_publish, out=published:
                              out.append(message) or real(message))
-        listeners.append(lambda *args, out=taken: out.append(args))
+        port.connect(taken.append)
         wait_for(lambda: len(taken) >= 20, message=f"{topic} taken in-process")
         assert not published, topic
         received = []

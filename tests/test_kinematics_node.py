@@ -5,6 +5,8 @@ import math
 
 import pytest
 
+from softgrip_ros.runtime.core import Estimate
+
 from tests.helpers.ros import spinning, wait_for
 
 pytestmark = pytest.mark.ros
@@ -116,7 +118,7 @@ def test_stamps_go_forward_on_every_stream_under_concurrent_estimates(wired, rcl
             with lock:
                 counter[0] += node.period_s
                 stamp = counter[0]
-            node.on_estimate(stamp, 20e3, 100.0)
+            node.take_estimate(Estimate(stamp, 20e3, 100.0))
 
     try:
         with spinning(rclpy_context, listener):

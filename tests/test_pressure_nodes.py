@@ -11,7 +11,6 @@ import can
 import pytest
 
 from softgrip_ros.devtools.processes import installed_executable, stop_process
-from softgrip_ros.nodes.common import stamp_seconds
 
 from tests.helpers.ros import send_future_command, spinning, unique, wait_for
 
@@ -204,8 +203,9 @@ def test_a_failing_in_process_consumer_is_reported_and_control_goes_on(nodes):
         raise RuntimeError("consumer bug")
 
     after = []
-    controller.sensor_listeners += [broken, lambda *args: after.append(args)]
-    controller.status_listeners.append(broken)
+    controller.readings.connect(broken)
+    controller.readings.connect(after.append)
+    controller.reports.connect(broken)
     wait_for(
         lambda: any(s.level == DiagnosticStatus.WARN and "RuntimeError: consumer bug" in s.message
                     for d in diagnostics for s in d.status
@@ -236,13 +236,12 @@ def test_a_status_is_stamped_at_the_instant_its_ages_are_read(nodes, monkeypatch
 
     monkeypatch.setattr(controller, "get_clock", PausingClock)
     seen = []
-    controller.status_listeners.append(
-        lambda status: seen.append(status) if threading.get_ident() == here else None)
+    controller.reports.connect(
+        lambda report: seen.append(report) if threading.get_ident() == here else None)
     link.output_changed_time = link.clock() - 0.5
     ros_minus_link_s = time.time() - time.monotonic()
     controller._publish_status()
-    status = seen[-1]
-    changed = stamp_seconds(status.header.stamp) - status.output_change_age_s
+    changed = seen[-1].outputs_changed_s
     assert paused and changed == pytest.approx(link.output_changed_time + ros_minus_link_s,
                                                abs=2e-3)
 
@@ -266,8 +265,8 @@ def test_a_batch_of_readings_asks_once_per_sensor_whether_its_topic_is_subscribe
     monkeypatch.setattr(pressure_controller, "listened", counting)
     now = controller.link.clock()
     seen = []
-    controller.sensor_listeners.append(lambda samples: seen.append(samples)
-                                       if threading.get_ident() == here else None)
+    controller.readings.connect(lambda samples: seen.append(samples)
+                                if threading.get_ident() == here else None)
     controller._publish_readings([(name, 1e3 * i, now) for i in range(6)
                                   for name in ("chamber_a", "chamber_b")])
     assert sorted(asked) == ["/pressure/sensor/chamber_a", "/pressure/sensor/chamber_b"]

@@ -118,19 +118,6 @@ def listened(node, publisher) -> bool:
         return False
 
 
-def notify(listeners, *args) -> None:
-    """Call every in-process listener with ``args``; one that raises does not starve the ones after
-    it. The first error is raised once all have run, for the caller to count and report."""
-    first = None
-    for listener in listeners:
-        try:
-            listener(*args)
-        except Exception as error:
-            first = first or error
-    if first is not None:
-        raise first
-
-
 class NodeTimers:
     """A node's periodic callbacks: rclpy timers when the node runs on its own; for a node composed
     in one process (``in_process``), one :class:`TimerThread` (``thread``), which the node starts

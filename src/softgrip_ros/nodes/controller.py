@@ -6,16 +6,15 @@ virtual channel. Parameters come from config/softgrip.yaml in the package share 
 ``--params-file`` is given; ``--ros-args -r __ns:=/softgrip`` puts everything in a namespace.
 SIGINT or SIGTERM: the grasp manager stops, the pressure controller vents, exit 0.
 
-The busy links between these nodes are direct calls, not DDS: each sensor reading to the
-estimator, each controller status to the estimator and the grasp manager, each estimate to
-the kinematics and the grasp manager. rclpy has no intra-process transport, and each message
-the executor takes costs a few hundred microseconds of Python: at 700 readings, 200 estimates
-and 50 statuses a second, that saturated a core (docs/benchmarks.md, bench_e2e). So is the
-latency-critical one, each pressure command from the grasp manager to the pressure controller
-and the estimator. The grasp manager owns the pressure here: pressure/command is published for
-other subscribers but not subscribed (a command from elsewhere would be overridden by its next
-refresh anyway). The other topics are still published for every subscriber; grasp commands
-still go through DDS.
+The nodes are the parts of the runtime core (softgrip_ros.runtime.core), wired once by its
+``wire``: the busy links between them are direct calls over typed ports, not DDS (each reading
+batch, status report, estimate, NIS evidence, scene and pressure command). rclpy has no
+intra-process transport, and each message the executor takes costs a few hundred microseconds of
+Python: at 700 readings, 200 estimates and 50 statuses a second, that saturated a core
+(docs/benchmarks.md, bench_e2e). The grasp manager owns the pressure here: pressure/command is
+published for other subscribers but not subscribed (a command from elsewhere would be overridden
+by its next refresh anyway). The other topics are still published for every subscriber; grasp
+commands still go through DDS.
 """
 from __future__ import annotations
 
@@ -31,6 +30,7 @@ from softgrip_ros.nodes.grasp_manager import GraspManagerNode
 from softgrip_ros.nodes.kinematics import KinematicsNode
 from softgrip_ros.nodes.pressure_controller import PressureControllerNode
 from softgrip_ros.nodes.sim_device import SimDeviceNode
+from softgrip_ros.runtime.core import wire
 
 
 def with_default_params(args: list) -> list:
@@ -73,13 +73,7 @@ def make_nodes(context=None, overrides: dict | None = None) -> list:
         grasp_manager = GraspManagerNode(in_process=True, context=context,
                                          parameter_overrides=overrides.get("grasp_manager", []))
         nodes.append(grasp_manager)
-        controller.sensor_listeners += [estimator.on_sensor_samples,
-                                        grasp_manager.on_sensor_samples]
-        controller.status_listeners += [estimator.on_status, grasp_manager.on_status]
-        grasp_manager.scene_listeners.append(kinematics.on_scene)
-        grasp_manager.command_listeners += [controller.on_command, estimator.on_command]
-        estimator.estimate_listeners += [kinematics.on_estimate, grasp_manager.on_estimate]
-        estimator.consistency_listeners.append(controller.on_consistency)
+        wire(controller, estimator, kinematics, grasp_manager)
     except BaseException:  # a Ctrl-C too: their threads must not run into the interpreter's exit
         close_all(nodes)
         raise

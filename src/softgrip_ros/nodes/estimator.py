@@ -27,7 +27,7 @@ from sensor_msgs.msg import FluidPressure
 
 from softgrip_interfaces.msg import (ControllerStatus, EstimatorConsistency, EstimatorInput,
                                      PressureCommand)
-from softgrip_ros.control.reports import outputs_changed_at
+from softgrip_ros.control.pressure import Source
 from softgrip_ros.estimation.estimator import PressureEstimator
 from softgrip_ros.estimation.runner import (JOURNAL_HISTORY, JOURNAL_STARTUP_S, JOURNAL_TOPIC,
                                              PREDICTION_RATE_LIMIT_HZ, EstimatorRunner,
@@ -36,11 +36,12 @@ from softgrip_ros.health import Health
 from softgrip_ros.model.pneumatics import PneumaticPlant, Valve
 from softgrip_ros.checks import future_stamp_reason
 from softgrip_ros.nodes import messages
-from softgrip_ros.nodes.common import (NodeTimers, listened, notify, publish,
-                                       run_node, stamp_seconds)
+from softgrip_ros.nodes.common import NodeTimers, listened, publish, run_node, stamp_seconds
 from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import ESTIMATOR_SPECS as SPECS
 from softgrip_ros.nodes.specs import estimator_config, load_plant
+from softgrip_ros.runtime.core import (Consistency, ControllerReport, Estimate, Port,
+                                       PressureOrder, Reading)
 
 ESTIMATOR_STATUS = "softgrip: estimator"  # its /diagnostics status
 # the NIS evidence for the pressure controller's safety checks, this often
@@ -50,22 +51,21 @@ REFUSAL_REPORTED_S = 5.0  # a refused message keeps the diagnostics at WARN this
 
 
 class EstimatorNode(Node):
-    """in_process: the readings and the controller status come by direct calls to
-    :meth:`on_sensor_samples` and :meth:`on_status` from the composed controller's pressure
-    controller, and the pressure commands to :meth:`on_command` from its grasp manager, instead
-    of through their topics (see nodes.controller).
-    ``estimate_listeners``: in-process consumers of each published estimate,
-    f(stamp_s, gauge_pa, variance_pa2); called outside the estimator's lock, which is never held
-    while calling out (so that no two nodes' locks can wait on each other).
+    """The estimator part of the runtime core (runtime.core): ports ``estimates`` and
+    ``consistency``, emitted outside the estimator's lock, which is never held while calling out
+    (so that no two parts' locks can wait on each other); inputs :meth:`take_readings`,
+    :meth:`take_report` and :meth:`take_order`. in_process: composed, the inputs come from the
+    pressure controller and the grasp manager by direct call (runtime.core.wire) instead of
+    through their topics.
     """
 
     def __init__(self, in_process: bool = False, **kwargs):
         super().__init__("estimator", **kwargs)
         # the in-process path calls in from the controller's CAN thread
         self._lock = threading.Lock()
-        self.estimate_listeners = []
-        # in-process: f(sensor, mean NIS, bound), every EVIDENCE_PERIOD_S
-        self.consistency_listeners = []
+        self.estimates: Port[Estimate] = Port("estimates")
+        # each sensor's NIS evidence, every EVIDENCE_PERIOD_S while connected
+        self.consistency: Port[Consistency] = Port("consistency")
         self.future_stamps = 0  # messages ignored for a stamp too far ahead
         self.last_refusal, self.last_refusal_at = "", -float("inf")
         self.status_received_s = None  # when the last controller/status reached this node
@@ -95,9 +95,11 @@ class EstimatorNode(Node):
             self.create_subscription(FluidPressure, f"pressure/sensor/{name}",
                                      lambda msg, name=name: self._on_sensor_message(name, msg), 50)
         if not in_process:
-            self.create_subscription(ControllerStatus, "controller/status", self.on_status, 10)
-        if not in_process:
-            self.create_subscription(PressureCommand, "pressure/command", self.on_command, 10)
+            self.create_subscription(ControllerStatus, "controller/status",
+                                     self._on_status_message, 10)
+            self.create_subscription(
+                PressureCommand, "pressure/command",
+                lambda msg: self.take_order(messages.pressure_order(msg)), 10)
         self.periodic = NodeTimers(self, in_process)
         self.periodic.every(max(self.period_s, 1.0 / PREDICTION_RATE_LIMIT_HZ), self._on_timer)
         self.periodic.every(0.5, self._publish_diagnostics)
@@ -122,8 +124,8 @@ class EstimatorNode(Node):
             self.get_logger().warn(self.last_refusal, throttle_duration_sec=5.0)
         return bool(reason)
 
-    def on_sensor_samples(self, samples: list) -> None:
-        """Readings [(sensor name, gauge Pa, stamp s)], oldest first (a batch of the bus's, or one
+    def take_readings(self, samples: list) -> None:
+        """Readings [Reading], oldest first (a batch of the bus's, or one
         from a topic); then at most one estimate, when one is due: the newest, not one of a
         batch's older samples. A sensor this estimator does not fuse raises the estimator's
         ValueError, after the others are taken."""
@@ -139,24 +141,27 @@ class EstimatorNode(Node):
     def _on_sensor_message(self, name: str, msg: FluidPressure) -> None:
         stamp_s = stamp_seconds(msg.header.stamp)
         if not self._refused(f"pressure/sensor/{name}", stamp_s):
-            self.on_sensor_samples([(name, messages.gauge_pa(msg), stamp_s)])
+            self.take_readings([Reading(name, messages.gauge_pa(msg), stamp_s)])
 
-    def on_status(self, msg: ControllerStatus) -> None:
+    def _on_status_message(self, msg: ControllerStatus) -> None:
+        report = messages.controller_report(msg)
+        if report is not None:
+            self.take_report(report)
+
+    def take_report(self, report: ControllerReport) -> None:
         """The process model's inputs: the regulator command and the valve state, from when the
         frames went out, not when the status was published.
 
         In process, the composed controller calls this from its control loop: the inputs wait
         for this node's next readings, timer or command, which take them first, in order. Taken
         here, a change stamped before the filter's time rewound the filter in the loop's thread
-        (a median 2.8 ms, up to 35 ms, behind this node's lock): the loop went 25-48 ms without
-        a ValveCommand, past the valves' lifetime, 17-29 times in two idle grasps."""
-        if not msg.valve_states or self._refused("controller/status",
-                                                 stamp_seconds(msg.header.stamp)):
+        behind this node's lock, and the loop went past the valves' lifetime without a
+        ValveCommand (docs/architecture.md)."""
+        if self._refused("controller/status", report.stamp_s):
             return
         self.status_received_s = self._now()
-        inputs = (msg.regulator_command_gauge_pressure_pa, msg.regulator_enabled,
-                  msg.valve_states[0], outputs_changed_at(stamp_seconds(msg.header.stamp),
-                                                          msg.output_change_age_s))
+        inputs = (report.regulator_command_gauge_pa, report.regulator_enabled, report.valve,
+                  report.outputs_changed_s)
         if self.in_process:
             self._pending_inputs.append(lambda: self._take_inputs(*inputs))
             return
@@ -178,16 +183,15 @@ class EstimatorNode(Node):
             self.get_logger().warn(f"controller/status ignored: {error}",
                                    throttle_duration_sec=5.0)
 
-    def on_command(self, msg: PressureCommand) -> None:
+    def take_order(self, order: PressureOrder) -> None:
         """A pressure command (the topic's; composed, the grasp manager's by direct call, which
-        waits with the statuses for this node's own threads, as :meth:`on_status` says): a VENT
-        or HOLD is applied to the process model at once, ahead of the status that confirms
+        waits with the statuses for this node's own threads, as :meth:`take_report` says): a
+        VENT or HOLD is applied to the process model at once, ahead of the status that confirms
         it."""
-        valve = {PressureCommand.VENT: Valve.VENT,
-                 PressureCommand.HOLD: Valve.CLOSED}.get(msg.source)
-        if valve is None or self._refused("pressure/command", stamp_seconds(msg.header.stamp)):
+        valve = {Source.VENT: Valve.VENT, Source.HOLD: Valve.CLOSED}.get(order.source)
+        if valve is None or self._refused("pressure/command", order.stamp_s):
             return
-        stamp_s = stamp_seconds(msg.header.stamp) or self._now()
+        stamp_s = order.stamp_s or self._now()
         if self.in_process:
             self._pending_inputs.append(lambda: self._take_valve(valve, stamp_s))
             return
@@ -233,13 +237,13 @@ class EstimatorNode(Node):
                 self, self.estimate_pub,
                 messages.fluid_pressure(estimate.gauge_pa, estimate.variance_pa2, estimate.stamp_s,
                                         "softgrip_chamber"))
-        notify(self.estimate_listeners, estimate.stamp_s, estimate.gauge_pa, estimate.variance_pa2)
+        self.estimates.emit(Estimate(estimate.stamp_s, estimate.gauge_pa, estimate.variance_pa2))
 
     def _share_evidence(self) -> None:
         """The NIS of each sensor for the pressure controller's safety checks: to the composed
         one directly, on estimator/consistency to any subscriber."""
         published = listened(self, self.consistency_pub)
-        if not (self.consistency_listeners or published):
+        if not (self.consistency.connected or published):
             return
         with self._lock:
             evidence, bound = self.estimator.nis_evidence(), self.estimator.nis_bounds[1]
@@ -250,7 +254,7 @@ class EstimatorNode(Node):
             message.header.stamp = self.get_clock().now().to_msg()
             publish(self, self.consistency_pub, message)
         for name, mean_nis in evidence.items():
-            notify(self.consistency_listeners, name, mean_nis, bound)
+            self.consistency.emit(Consistency(name, mean_nis, bound))
 
     def _publish_diagnostics(self) -> None:
         with self._lock:

@@ -28,25 +28,27 @@ from softgrip_interfaces.msg import (ControllerStatus, GraspCommand, GraspScene,
 from softgrip_ros.control.grasp_fsm import (ControllerFeedback, GraspMode, GraspRequest,
                                             GraspStateMachine, Phase, Rejection)
 from softgrip_ros.control.object_sensing import ObjectSensingLink
-from softgrip_ros.control.reports import grasp_report, outputs_changed_at, sensing_report
+from softgrip_ros.control.reports import grasp_report, sensing_report
 from softgrip_ros.estimation.grasp_sensing import GraspSensing, contact_model_for
 from softgrip_ros.model.calibration import build_kinematics
-from softgrip_ros.model.fidelity import FREE, SceneModel
+from softgrip_ros.model.fidelity import FREE, Scene, SceneModel
 from softgrip_ros.nodes import messages
 from softgrip_ros.nodes.grasp_actions import GraspActions
-from softgrip_ros.nodes.common import NodeTimers, notify, publish, run_node, stamp_seconds
+from softgrip_ros.nodes.common import NodeTimers, listened, publish, run_node, stamp_seconds
 from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import GRASP_MANAGER_SPECS as SPECS
 from softgrip_ros.nodes.specs import clamp_force_law, grasp_config, load_plant, sensing_sensors
+from softgrip_ros.runtime.core import ControllerReport, Estimate, Port, PressureOrder, Reading
 from softgrip_ros.runtime.motion_judge import MotionJudgeProcess
 
 
 
 class GraspManagerNode(Node):
-    """in_process: the estimate and the controller status come by direct calls to
-    :meth:`on_estimate` and :meth:`on_status` from the composed controller's nodes, instead of
-    through their topics (see nodes.controller). Every entry point holds ``_lock``, because those
-    calls come from the controller's threads."""
+    """The grasp part of the runtime core (runtime.core): ports ``orders`` (its pressure
+    commands) and ``scenes``; inputs :meth:`take_estimate`, :meth:`take_report` and
+    :meth:`take_readings`. in_process: composed, they come from the estimator and the pressure
+    controller by direct call (runtime.core.wire) instead of through their topics. Every entry
+    point holds ``_lock``, because those calls come from the controller's threads."""
 
     def __init__(self, in_process: bool = False, **kwargs):
         super().__init__("grasp_manager", **kwargs)
@@ -63,9 +65,9 @@ class GraspManagerNode(Node):
         scene_model = SceneModel(v["scene_fidelity"], v["tolerance_m"], v["gripper_model"])
         self.fsm = GraspStateMachine(kinematics, config, force_law, scene_model)
         self.scene = FREE
-        self.scene_listeners = []  # in-process: kinematics.on_scene
-        # in-process: pressure_controller.on_command (it takes no lock of ours)
-        self.command_listeners = []
+        self.scenes: Port[Scene] = Port("scenes")
+        # the pressure controller and the estimator take them without a lock of ours
+        self.orders: Port[PressureOrder] = Port("orders")
         self.scene_pub = self.create_publisher(
             GraspScene, "grasp_scene",
             QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
@@ -81,8 +83,10 @@ class GraspManagerNode(Node):
         if not in_process:
             self.create_subscription(
                 FluidPressure, "pressure/estimate",
-                lambda msg: self.on_estimate(None, messages.gauge_pa(msg), msg.variance), 10)
-            self.create_subscription(ControllerStatus, "controller/status", self.on_status, 10)
+                lambda msg: self.take_estimate(Estimate(stamp_seconds(msg.header.stamp),
+                                                        messages.gauge_pa(msg), msg.variance)), 10)
+            self.create_subscription(ControllerStatus, "controller/status",
+                                     self._on_status_message, 10)
         self.sensing: ObjectSensingLink | None = None
         self._worker = self._judge_process = None
         # checked whether or not the sensing runs: a bad value is refused at start-up
@@ -127,8 +131,9 @@ class GraspManagerNode(Node):
             for name in sensors:
                 self.create_subscription(
                     FluidPressure, f"pressure/sensor/{name}",
-                    lambda msg, name=name: self.on_sensor_samples(
-                        [(name, messages.gauge_pa(msg), stamp_seconds(msg.header.stamp))]), 100)
+                    lambda msg, name=name: self.take_readings(
+                        [Reading(name, messages.gauge_pa(msg), stamp_seconds(msg.header.stamp))]),
+                    100)
 
     def _sensing_ready(self, build, sensors: dict) -> None:
         try:
@@ -156,8 +161,8 @@ class GraspManagerNode(Node):
         except RuntimeError:  # shut down
             pass
 
-    def on_sensor_samples(self, samples: list) -> None:
-        """Readings [(sensor name, gauge Pa, stamp s)] for the object sensing."""
+    def take_readings(self, samples: list) -> None:
+        """Readings [Reading] for the object sensing."""
         with self._lock:
             if self.sensing is not None and not self.closed:
                 for name, gauge_pa, stamp_s in samples:
@@ -185,25 +190,31 @@ class GraspManagerNode(Node):
     def _on_command(self, msg: GraspCommand) -> None:
         self.submit(messages.grasp_request(msg))
 
-    def on_estimate(self, _stamp_s, gauge_pa: float, variance_pa2: float) -> None:
-        """The pressure estimate (gauge Pa, Pa^2); the state machine steps on each."""
+    def take_estimate(self, estimate: Estimate) -> None:
+        """The pressure estimate; the state machine steps on each."""
         with self._lock:
             if self.closed:
                 return
-            self.feedback.on_estimate(gauge_pa, math.sqrt(max(variance_pa2, 0.0)), self._now())
+            self.feedback.on_estimate(estimate.gauge_pa,
+                                      math.sqrt(max(estimate.variance_pa2, 0.0)), self._now())
             self._tick()
 
-    def on_status(self, msg: ControllerStatus) -> None:
+    def _on_status_message(self, msg: ControllerStatus) -> None:
+        report = messages.controller_report(msg)
+        if report is not None:
+            self.take_report(report)
+
+    def take_report(self, report: ControllerReport) -> None:
+        """The pressure controller's status: its faults and reading, and for the object sensing
+        the outputs it sent."""
         with self._lock:
             if not self.closed:
-                self.feedback.on_status(msg.fault_flags, msg.measured_gauge_pressure_pa,
-                                        self._now(), msg.message)
-                if self.sensing is not None and msg.valve_states:
+                self.feedback.on_status(report.fault_flags, report.measured_gauge_pa,
+                                        self._now(), report.message)
+                if self.sensing is not None:
                     self.sensing.controller_outputs(
-                        outputs_changed_at(stamp_seconds(msg.header.stamp),
-                                           msg.output_change_age_s),
-                        msg.regulator_command_gauge_pressure_pa, msg.regulator_enabled,
-                        msg.valve_states[0])
+                        report.outputs_changed_s, report.regulator_command_gauge_pa,
+                        report.regulator_enabled, report.valve)
 
     def _on_timer(self) -> None:
         with self._lock:
@@ -238,10 +249,12 @@ class GraspManagerNode(Node):
     # ---- outputs --------------------------------------------------------------------------------
     def _send(self, request, now: float) -> None:
         self.sent = (request, now)
-        message = messages.pressure_command(request.target_gauge_pa, request.source,
-                                            self._header())
-        notify(self.command_listeners, message)
-        publish(self, self.command_pub, message)
+        header = self._header()
+        self.orders.emit(PressureOrder(request.target_gauge_pa, request.source, math.nan,
+                                       stamp_seconds(header.stamp)))
+        if listened(self, self.command_pub):
+            publish(self, self.command_pub,
+                    messages.pressure_command(request.target_gauge_pa, request.source, header))
 
     def state_message(self) -> GripperState:
         return messages.gripper_state(self.fsm.state, self._header())
@@ -253,7 +266,7 @@ class GraspManagerNode(Node):
             message = messages.scene_message(scene)
             message.header = self._header()
             publish(self, self.scene_pub, message)
-            notify(self.scene_listeners, scene)
+            self.scenes.emit(scene)
 
     def _publish_state(self) -> None:
         publish(self, self.state_pub, self.state_message())

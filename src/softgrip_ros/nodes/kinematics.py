@@ -40,12 +40,14 @@ from softgrip_ros.nodes.common import (NodeTimers, closed_if_cut_short, listened
                                        run_node, stamp_msg, stamp_seconds)
 from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import KINEMATICS_SPECS as SPECS
+from softgrip_ros.runtime.core import Estimate
 from softgrip_ros.runtime.rod_solver import LatestSolveThread, RodSolverProcess
 
 
 class KinematicsNode(Node):
-    """in_process: the estimates come by direct calls to :meth:`on_estimate` from the composed
-    controller's estimator, instead of through pressure/estimate (see nodes.controller)."""
+    """The kinematics part of the runtime core (runtime.core): inputs :meth:`take_estimate` and
+    :meth:`take_scene`. in_process: composed, they come from the estimator and the grasp manager
+    by direct call (runtime.core.wire) instead of through pressure/estimate and grasp_scene."""
 
     def __init__(self, in_process: bool = False, **kwargs):
         super().__init__("kinematics", **kwargs)
@@ -110,7 +112,7 @@ class KinematicsNode(Node):
         if self.solver is not None:
             self.solver.close()
 
-    def on_scene(self, scene: Scene) -> None:
+    def take_scene(self, scene: Scene) -> None:
         """What the fingers meet from now on (the grasp manager's call)."""
         with self._lock:
             self.scene = scene
@@ -121,7 +123,7 @@ class KinematicsNode(Node):
         except ValueError as error:
             self.get_logger().error(f"grasp_scene refused, kept {self.scene.describe()}: {error}")
             return
-        self.on_scene(scene)
+        self.take_scene(scene)
 
     def _on_estimate_message(self, msg: FluidPressure) -> None:
         stamp_s = stamp_seconds(msg.header.stamp)
@@ -131,11 +133,12 @@ class KinematicsNode(Node):
         if refused:  # it would hold every later pose back until its stamp
             self.get_logger().warn(f"pressure/estimate {refused}", throttle_duration_sec=5.0)
             return
-        self.on_estimate(stamp_s, messages.gauge_pa(msg), msg.variance)
+        self.take_estimate(Estimate(stamp_s, messages.gauge_pa(msg), msg.variance))
 
-    def on_estimate(self, stamp_s: float, gauge_pa: float, variance_pa2: float) -> None:
-        """Publish both tip poses for the estimate at ``stamp_s``, unless one went out less than a
-        period ago."""
+    def take_estimate(self, estimate: Estimate) -> None:
+        """Publish both tip poses for the estimate, unless one went out less than a period
+        ago."""
+        stamp_s, gauge_pa, variance_pa2 = estimate
         with self._lock:
             if (self.closed or stamp_s - self.last_publish_s < 0.9 * self.period_s or
                     not math.isfinite(gauge_pa)):

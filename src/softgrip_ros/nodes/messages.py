@@ -15,11 +15,13 @@ from softgrip_interfaces.msg import (ControllerStatus, GraspCommand, GraspScene,
                                      GripperState, PressureCommand, SimContacts)
 from softgrip_ros.control.grasp_fsm import GraspRequest, GraspState
 from softgrip_ros.control.pressure import Source
+from softgrip_ros.control.reports import outputs_changed_at
 from softgrip_ros.health import Health, Report
 from softgrip_ros.model.fidelity import FREE, Scene
 from softgrip_ros.model.pneumatics import P_ATM_PA
 from softgrip_ros.model.rod import Circle, Sheet
-from softgrip_ros.nodes.common import stamp_msg
+from softgrip_ros.nodes.common import stamp_msg, stamp_seconds
+from softgrip_ros.runtime.core import ControllerReport, PressureOrder
 
 _SOURCES = {
     Source.SUPPLY: PressureCommand.SUPPLY, Source.VACUUM: PressureCommand.VACUUM,
@@ -74,6 +76,28 @@ def gauge_pa(msg: FluidPressure) -> float:
 def pressure_command(target_gauge_pa: float, source: Source, header: Header) -> PressureCommand:
     return PressureCommand(header=header, target_gauge_pressure_pa=target_gauge_pa,
                            max_rate_pa_per_s=math.nan, source=_SOURCES[source])
+
+
+def pressure_order(msg: PressureCommand) -> PressureOrder:
+    """A PressureCommand as the runtime core's value; ValueError for an unknown source is left to
+    the controller, which refuses it with its reason (so the source passes as it came)."""
+    try:
+        source = Source(msg.source)
+    except ValueError:
+        source = msg.source
+    return PressureOrder(msg.target_gauge_pressure_pa, source, msg.max_rate_pa_per_s,
+                         stamp_seconds(msg.header.stamp))
+
+
+def controller_report(msg: ControllerStatus) -> ControllerReport | None:
+    """A ControllerStatus as the runtime core's value (None for one without valve states)."""
+    if not msg.valve_states:
+        return None
+    stamp_s = stamp_seconds(msg.header.stamp)
+    return ControllerReport(stamp_s, outputs_changed_at(stamp_s, msg.output_change_age_s),
+                            msg.fault_flags, msg.measured_gauge_pressure_pa,
+                            msg.regulator_command_gauge_pressure_pa, msg.regulator_enabled,
+                            msg.valve_states[0], msg.message)
 
 
 def grasp_request(msg: GraspCommand) -> GraspRequest:

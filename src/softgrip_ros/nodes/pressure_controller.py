@@ -26,8 +26,8 @@ from softgrip_ros.model.pneumatics import PneumaticPlant
 from softgrip_ros.control.reports import pressure_controller_report
 from softgrip_ros.nodes import messages
 from softgrip_ros.canbus import open_bus
-from softgrip_ros.nodes.common import (closed_if_cut_short, listened, notify, publish, run_node,
-                                       stamp_msg, stamp_seconds)
+from softgrip_ros.nodes.common import (closed_if_cut_short, listened, publish, run_node,
+                                       stamp_msg)
 from softgrip_ros.nodes.estimator import CONSISTENCY_TOPIC
 from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import (PRESSURE_CONFIGURE_PREFIXES, check_rest_rate,
@@ -35,13 +35,15 @@ from softgrip_ros.nodes.specs import (PRESSURE_CONFIGURE_PREFIXES, check_rest_ra
                                       pressure_control_config, sensor_settings)
 from softgrip_ros.nodes.specs import PRESSURE_CONTROLLER_SPECS as SPECS
 from softgrip_ros.realtime import clock_offset_s
+from softgrip_ros.runtime.core import Consistency, ControllerReport, Port, PressureOrder, Reading
 
 
 class PressureControllerNode(LifecycleNode):
-    """in_process: composed with the estimator, which hands its NIS evidence over by direct calls
-    to :meth:`on_consistency`, and the grasp manager, whose pressure commands come by direct
-    calls to :meth:`on_command` (pressure/command is not subscribed: the grasp manager owns the
-    pressure); alone, they come on estimator/consistency and pressure/command."""
+    """The pressure part of the runtime core (runtime.core): ports ``readings`` and ``reports``;
+    inputs :meth:`take_order` and :meth:`take_consistency`. in_process: composed, those inputs
+    come from the estimator and the grasp manager (runtime.core.wire), and pressure/command is
+    not subscribed (the grasp manager owns the pressure); alone, they come on
+    estimator/consistency and pressure/command."""
 
     def __init__(self, in_process: bool = False, **kwargs):
         super().__init__("pressure_controller", **kwargs)
@@ -61,10 +63,9 @@ class PressureControllerNode(LifecycleNode):
         self.status_pub = self.create_publisher(ControllerStatus, "controller/status", 100)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.sensor_pubs = {}
-        # in-process consumers of the readings: f([(name, gauge_pa, stamp_s)]) per batch
-        self.sensor_listeners = []
-        # in-process consumers of each controller/status: f(ControllerStatus)
-        self.status_listeners = []
+        # the runtime core's ports (runtime.core): each batch of readings, each status
+        self.readings: Port[list] = Port("readings")
+        self.reports: Port[ControllerReport] = Port("reports")
         if not in_process:  # composed, the grasp manager's commands come by direct call only
             self.create_subscription(PressureCommand, "pressure/command", self.on_command, 10)
         self.create_subscription(PressureCommand, "~/identification_command",
@@ -209,21 +210,23 @@ class PressureControllerNode(LifecycleNode):
         self._publish_status()
 
     def _on_identification_command(self, msg: PressureCommand):
-        self._take(msg, identification_topic=True)
+        self._take(messages.pressure_order(msg), identification_topic=True)
 
     def on_command(self, msg: PressureCommand):
-        """A pressure command: from the topic when the node runs alone; composed, by a direct
-        call from the grasp manager only, which owns the pressure there (refusals:
-        :meth:`ControllerLink.take`)."""
-        self._take(msg)
+        """A pressure command on the topic (the node alone)."""
+        self.take_order(messages.pressure_order(msg))
 
-    def _take(self, msg: PressureCommand, identification_topic: bool = False):
+    def take_order(self, order: PressureOrder) -> None:
+        """A pressure command: composed, the grasp manager's, which owns the pressure there
+        (refusals: :meth:`ControllerLink.take`)."""
+        self._take(order)
+
+    def _take(self, order: PressureOrder, identification_topic: bool = False):
         if self.link is None:
             self.get_logger().warn("pressure command ignored: the controller is not configured")
             return
-        note = self.link.take(msg.target_gauge_pressure_pa, msg.source, msg.max_rate_pa_per_s,
-                              stamp_seconds(msg.header.stamp),
-                              self.get_clock().now().nanoseconds * 1e-9,
+        note = self.link.take(order.target_gauge_pa, order.source, order.max_rate_pa_per_s,
+                              order.stamp_s, self.get_clock().now().nanoseconds * 1e-9,
                               self.values["stamp_tolerance"], identification_topic,
                               on_applied=self._set_note)
         if note == IGNORED_IN_IDENTIFICATION:
@@ -237,11 +240,11 @@ class PressureControllerNode(LifecycleNode):
         if note:
             self.get_logger().warn(note, throttle_duration_sec=1.0)
 
-    def on_consistency(self, name: str, mean_nis: float, bound: float) -> None:
+    def take_consistency(self, evidence: Consistency) -> None:
         """The estimator's evidence on a sensor (composed: a direct call; else from
-        /diagnostics)."""
+        estimator/consistency)."""
         if self.link is not None:
-            self.link.update_consistency(name, mean_nis, bound)
+            self.link.update_consistency(evidence.sensor, evidence.mean_nis, evidence.bound)
 
     def _on_consistency_message(self, msg: EstimatorConsistency) -> None:
         """The estimator's NIS per sensor (a separate estimator node)."""
@@ -252,7 +255,7 @@ class PressureControllerNode(LifecycleNode):
             return
         for name, mean_nis in zip(msg.sensor_names, msg.mean_nis):
             if name in self.values["sensors.names"]:
-                self.on_consistency(name, mean_nis, msg.nis_upper_bound)
+                self.take_consistency(Consistency(name, mean_nis, msg.nis_upper_bound))
 
     def _set_note(self, note: str) -> None:
         self.last_note = note  # before the step the command triggers publishes the status
@@ -276,7 +279,7 @@ class PressureControllerNode(LifecycleNode):
             return
         # stamped when measured, not when processed (they differ when this process is starved)
         link_now_s, ros_minus_link_s = link.clock(), self._ros_minus_link_s(link)
-        samples = [(name, gauge_pa, ros_minus_link_s + min(sent_at, link_now_s))
+        samples = [Reading(name, gauge_pa, ros_minus_link_s + min(sent_at, link_now_s))
                    for name, gauge_pa, sent_at in readings]
         # whether anyone subscribes: asked once per sensor and batch, not per reading
         wanted = {}
@@ -288,7 +291,7 @@ class PressureControllerNode(LifecycleNode):
                 publish(
                     self, publisher,
                     messages.fluid_pressure(gauge_pa, self.noise_variance[name], measured_s, name))
-        notify(self.sensor_listeners, samples)
+        self.readings.emit(samples)
 
     def _ros_minus_link_s(self, link) -> float:
         """ROS time less the link's clock, read at one instant."""
@@ -301,17 +304,24 @@ class PressureControllerNode(LifecycleNode):
         outputs = link.status_outputs()
         if not outputs:
             return
-        # their stamp and their ages (output_change_age_s: when the estimator's inputs change)
-        # at one instant of the link's clock
+        # their stamp and their ages (when the estimator's inputs change) at one instant of the
+        # link's clock
         now = link.clock()
-        header = Header(stamp=stamp_msg(now + self._ros_minus_link_s(link)),
-                        frame_id="softgrip_base")
+        ros_minus_link_s = self._ros_minus_link_s(link)
+        header = None
         for out, changed, note in outputs:
-            status = messages.controller_status(out, link, header, note or self.last_note, now,
-                                                changed)
-            if listened(self, self.status_pub):  # 50 Hz; the composed nodes take it directly
-                publish(self, self.status_pub, status)
-            notify(self.status_listeners, status)
+            note = note or self.last_note
+            if listened(self, self.status_pub):  # 50 Hz; the composed parts take the report
+                if header is None:
+                    header = Header(stamp=stamp_msg(now + ros_minus_link_s),
+                                    frame_id="softgrip_base")
+                publish(self, self.status_pub,
+                        messages.controller_status(out, link, header, note, now, changed))
+            self.reports.emit(ControllerReport(
+                now + ros_minus_link_s, changed + ros_minus_link_s, int(out.fault_flags),
+                link.controller.measured(now), out.regulator_setpoint_gauge_pa,
+                out.regulator_enabled, int(out.valves[0]),
+                "; ".join(m for m in (out.message, note) if m)))
 
     def _publish_diagnostics(self):
         link, loop = self.link, self.loop
