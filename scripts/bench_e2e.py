@@ -67,9 +67,9 @@ from sensor_msgs.msg import JointState
 from demo_grasp import wait_phase
 from softgrip_interfaces.msg import GraspCommand, GripperState
 from softgrip_ros.client import grasp_command as command
-from softgrip_ros.devtools.benchmarking import (benchmark_parser, figure_rows, machine_line,
-                                                paired_rows, reference_checkout, strict_json,
-                                                update_section, UnknownReference)
+from softgrip_ros.devtools.benchmarking import (benchmark_parser, figure_rows, host_load,
+                                                machine_line, paired_rows, reference_checkout,
+                                                strict_json, update_section, UnknownReference)
 from softgrip_ros.canbus.codec import FrameCodec
 from softgrip_ros.canbus.reader import BatchReader
 from softgrip_ros.nodes.common import spinning, stamp_seconds
@@ -533,7 +533,8 @@ def against(args) -> int:
 
 
 def main(argv=None) -> int:
-    parser = benchmark_parser(__doc__, "one short run (2 s idle, 6 s of grasps); writes nothing")
+    parser = benchmark_parser(__doc__, "one short run (2 s idle, 6 s of grasps); writes nothing",
+                              load=True)
     parser.add_argument("--idle-s", type=float, default=10.0,
                         help="seconds of idle CPU measurement")
     parser.add_argument("--grasp-s", type=float, default=30.0, help="seconds of grasp cycles")
@@ -560,18 +561,20 @@ def main(argv=None) -> int:
     if args.runs < 1 or args.open_pairs < 1 or args.cancels < 1:
         parser.error("need --runs >= 1, --open-pairs >= 1 and --cancels >= 1")
     started = time.perf_counter()
-    if args.against:
-        return against(args)
-    runs = []
-    for run in range(args.runs):
-        progress(f"run {run + 1} of {args.runs}")
-        runs.append(measure(args.idle_s, args.grasp_s, args.window_s, args.open_pairs,
-                            args.cancels))
+    with host_load(args.load):
+        if args.against:
+            return against(args)
+        runs = []
+        for run in range(args.runs):
+            progress(f"run {run + 1} of {args.runs}")
+            runs.append(measure(args.idle_s, args.grasp_s, args.window_s, args.open_pairs,
+                                args.cancels))
     # a p99 of one run on a shared 2-core VM moves by a millisecond from run to run: the median of
     # runs
     figures = {key: statistics.median(f[key] for f, _ in runs) for key in runs[0][0]}
-    details = {**runs[-1][1], "runs": {key: [f[key] for f, _ in runs] for key in runs[0][0]}}
-    if args.json or args.quick:
+    details = {**runs[-1][1], "runs": {key: [f[key] for f, _ in runs] for key in runs[0][0]},
+               "load_processes": args.load}
+    if args.json or args.quick or args.load:
         print(
             strict_json({**figures, "details": details}) if args.json else "\n".
             join(figure_rows(figures, TARGETS)))

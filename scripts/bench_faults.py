@@ -26,8 +26,8 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 40))  # not the de
 
 import rclpy
 
-from softgrip_ros.devtools.benchmarking import (benchmark_parser, machine_line, strict_json,
-                                                update_section)
+from softgrip_ros.devtools.benchmarking import (benchmark_parser, host_load, machine_line,
+                                                strict_json, update_section)
 from softgrip_ros.devtools.fault_matrix import (FAULTS, FAULTS_BY_NAME, PHASES, Rig,
                                                 fault_free_grasps, run_case, summarise)
 
@@ -108,7 +108,8 @@ def markdown(results, summary, fault_free, grasps, retried, seconds, command) ->
 
 
 def main(argv=None) -> int:
-    parser = benchmark_parser(__doc__, "each fault once, phases rotating; 2 fault-free grasps")
+    parser = benchmark_parser(__doc__, "each fault once, phases rotating; 2 fault-free grasps",
+                              load=True)
     parser.add_argument("--faults", nargs="+", choices=sorted(FAULTS_BY_NAME),
                         help="only these faults")
     parser.add_argument("--phases", nargs="+", choices=PHASES, help="only these phases")
@@ -129,7 +130,7 @@ def main(argv=None) -> int:
     results, retried = [], []
     rclpy.init()
     try:
-        with Rig() as rig:
+        with host_load(args.load), Rig() as rig:
             for index, (fault, phase) in enumerate(todo, 1):
                 result = run_case(rig, fault, phase)
                 for _ in range(args.retries):
@@ -164,7 +165,7 @@ def main(argv=None) -> int:
         "false_alarms_fault_free": fault_free.warnings, "fault_free_grasps": grasps,
         "fault_free_warnings": fault_free.texts[:20],
         "fault_free_valve_lapses": fault_free.valve_lapses,
-        "seconds": round(seconds, 1), "retried": retried,
+        "seconds": round(seconds, 1), "retried": retried, "load_processes": args.load,
         "failures": [{
             "fault": r.fault, "phase": r.phase, "problem": r.problem or r.end_state,
             "within_limits": r.within_limits, "detected": r.detected,
@@ -177,7 +178,7 @@ def main(argv=None) -> int:
         text = markdown(results, summary, fault_free, grasps, retried, seconds,
                         "python scripts/bench_faults.py" + (" --quick" if args.quick else ""))
         print(text)
-        if not args.quick and not args.faults and not args.phases:
+        if not (args.quick or args.faults or args.phases or args.load):
             update_section("bench_faults", "## Single-fault matrix (bench_faults)\n\n" + text)
     failed = figures["failures"] or fault_free.warnings
     return 1 if failed else 0

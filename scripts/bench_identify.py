@@ -44,7 +44,7 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(60 + os.getpid() % 40))
 
 import numpy as np
 
-from softgrip_ros.devtools.benchmarking import (benchmark_parser, machine_line,
+from softgrip_ros.devtools.benchmarking import (benchmark_parser, host_load, machine_line,
                                                 update_variant_section, strict_json)
 from softgrip_ros.devtools.closed_loop import step_figures
 from softgrip_ros.devtools.estimator_simulation import anees
@@ -210,7 +210,7 @@ def markdown(rows: list, command: str, seconds: float, pump_level_given: bool = 
 
 def main(argv=None) -> int:
     parser = benchmark_parser(__doc__, "one truth, the quick excitation, 5 NEES runs; writes "
-                              "nothing")
+                              "nothing", load=True)
     parser.add_argument("--truth", type=pathlib.Path, action="append",
                         help="a plant file to play the user's hardware (repeatable)")
     parser.add_argument("--pump-level-given", action="store_true",
@@ -228,6 +228,7 @@ def main(argv=None) -> int:
         else:
             workdir = pathlib.Path(
                 stack.enter_context(tempfile.TemporaryDirectory(prefix="bench_identify_")))
+        stack.enter_context(host_load(args.load))
         return run_benchmark(parser, args, workdir)
 
 
@@ -285,7 +286,8 @@ def run_benchmark(parser, args, workdir: pathlib.Path) -> int:
         "nees_default_in_bounds", "nees_identified_in_bounds", "excitation_s", "fit_s")}
     summary["flagged"] = first["flagged"]
     summary["truths"] = rows
-    if args.json or args.quick:
+    summary["load_processes"] = args.load
+    if args.json or args.quick or args.load:
         print(strict_json(summary))
         return 0
     command = "python scripts/bench_identify.py" + (

@@ -7,6 +7,7 @@ import pathlib
 import subprocess
 import sys
 import tempfile
+import time
 
 import pytest
 
@@ -494,3 +495,38 @@ def test_a_reference_checkout_runs_the_code_of_its_ref_and_leaves_nothing(tmp_pa
     with pytest.raises(UnknownReference, match="no-such-ref"):
         with reference_checkout("no-such-ref", REPO_ROOT):
             pass
+
+
+def test_host_load_runs_busy_processes_and_ends_them_by_pid():
+    from softgrip_ros.devtools.benchmarking import host_load
+
+    def cpu_ticks(pid):
+        with open(f"/proc/{pid}/stat") as stat:
+            fields = stat.read().rsplit(")", 1)[1].split()
+        return int(fields[11]) + int(fields[12])  # utime + stime
+
+    with host_load(2) as pids:
+        assert len(pids) == 2
+        time.sleep(0.5)
+        assert all(cpu_ticks(pid) > 0 for pid in pids)  # busy, not asleep
+    assert not any(os.path.exists(f"/proc/{pid}") for pid in pids)  # ended and reaped
+
+
+def test_a_load_spinner_ends_when_its_benchmark_dies_outright():
+    code = ("import os\nfrom softgrip_ros.devtools.benchmarking import host_load\n"
+            "print(host_load(1).__enter__()[0], flush=True)\nos._exit(0)\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            timeout=60, check=True)
+    pid = int(result.stdout)
+    deadline = time.monotonic() + 10.0
+    while os.path.exists(f"/proc/{pid}") and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not os.path.exists(f"/proc/{pid}")
+
+
+@pytest.mark.parametrize("script", ["scripts/bench_e2e.py", "scripts/bench_faults.py",
+                                    "scripts/bench_identify.py"])
+def test_a_bad_load_is_a_usage_error(script):
+    result = run(script, "--load", "-1", timeout=60)
+    assert result.returncode == 2 and "--load: must lie in [0, 64]" in result.stderr
+    assert "Traceback" not in result.stderr

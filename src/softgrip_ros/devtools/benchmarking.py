@@ -63,10 +63,11 @@ def repeat_count(text: str) -> int:
 
 def benchmark_parser(doc: str, quick_help: str, repeat_default: int | None = None,
                      repeat_help: str = "timed runs per figure (median)",
-                     json_help: str = "print the figures as JSON, write nothing"
-                     ) -> argparse.ArgumentParser:
+                     json_help: str = "print the figures as JSON, write nothing",
+                     load: bool = False) -> argparse.ArgumentParser:
     """The options every scripts/bench_*.py has: --json, --quick (``quick_help``: what it cuts;
-    quick writes nothing) and, with ``repeat_default``, --repeat."""
+    quick writes nothing), with ``repeat_default`` --repeat, and with ``load`` --load N (the
+    script runs under :func:`host_load`)."""
     parser = argparse.ArgumentParser(description=doc,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--json", action="store_true", help=json_help)
@@ -74,7 +75,54 @@ def benchmark_parser(doc: str, quick_help: str, repeat_default: int | None = Non
     if repeat_default is not None:
         parser.add_argument("--repeat", type=repeat_count, default=repeat_default,
                             help=repeat_help)
+    if load:
+        parser.add_argument(
+            "--load", type=load_count, default=0, metavar="N",
+            help=f"run beside N busy processes at nice 0 (0-{MAX_LOAD_PROCESSES}), as on a "
+            "robot's computer shared with perception and planning; prints, writes nothing")
     return parser
+
+
+MAX_LOAD_PROCESSES = 64
+# a busy loop that ends once its parent is gone (then its parent pid changes), so that a
+# benchmark killed outright leaves no spinner behind
+_SPINNER = "import os, sys\nparent = int(sys.argv[1])\nwhile os.getppid() == parent:\n    pass\n"
+
+
+def load_count(text: str) -> int:
+    """argparse type of --load: an integer in [0, MAX_LOAD_PROCESSES]."""
+    try:
+        count = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+    if not 0 <= count <= MAX_LOAD_PROCESSES:
+        raise argparse.ArgumentTypeError(
+            f"must lie in [0, {MAX_LOAD_PROCESSES}] processes, got {count}")
+    return count
+
+
+@contextlib.contextmanager
+def host_load(processes: int):
+    """``processes`` busy Python processes at this process's nice value for the block; yields
+    their PIDs. Each is ended by its PID on the way out, and ends by itself if this process dies
+    first."""
+    import sys
+
+    spinners = []
+    try:
+        for _ in range(processes):
+            spinners.append(subprocess.Popen([sys.executable, "-c", _SPINNER, str(os.getpid())],
+                                             stdin=subprocess.DEVNULL))
+        yield [spinner.pid for spinner in spinners]
+    finally:
+        for spinner in spinners:
+            spinner.terminate()
+        for spinner in spinners:
+            try:
+                spinner.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                spinner.kill()
+                spinner.wait()
 
 
 def machine_line() -> str:
