@@ -38,6 +38,10 @@ from here, as an arm would:
   here to the first ValveCommand frame after which channel 0 stays off the supply for 0.5 s
   (held, as ros2_controllers' gripper controllers stop where they are); ``--cancels`` of them
   per run.
+* ``safety_reaction_ms``: from the first PressureSensor frame past the overpressure limit (the
+  simulated device's readings biased by ``fault.sensor_bias_pa`` while the gripper is held open
+  at 40 mm) to the first ValveCommand frame that vents (both sender timestamps); ``--reactions``
+  of them per run.
 
 Each figure is the median over ``--runs`` whole measurements (3; fresh processes each): on a
 shared 2-core VM a p99 or a CPU median moves by about a millisecond or a percent from run to run.
@@ -80,8 +84,11 @@ TARGETS = {
     "cmd_to_valve_frame_ms_p99": (10.0, True), "sensor_to_tip_pose_ms_p99": (5.0, True),
     "controller_cpu_pct_idle": (15.0, True), "controller_cpu_pct_grasp": (40.0, True),
     "joint_states_p99_excess_ms": (0.5, True), "gripper_open_ratio": (1.2, True),
-    "cancel_to_valve_frame_ms_p99": (20.0, True),
+    "cancel_to_valve_frame_ms_p99": (20.0, True), "safety_reaction_ms_p99": (5.0, True),
 }
+VENT = 3  # ValveCommand's channel state
+REACTION_OPEN_M = 0.04  # held open at this D2 (about 20 kPa) when the readings jump
+REACTION_BIAS_PA = 45e3  # the readings' bias: past 50 kPa + the 5 kPa margin from 10 kPa up
 CANCEL_DELAY_S = (0.0, 0.15)  # after the goal's first valve frame: the opening under way
 CANCEL_WATCH_S = 0.5  # after a cancel, how long the supply must stay shut
 SUPPLY = 1  # ValveCommand's channel state
@@ -113,6 +120,7 @@ class BusWatch:
         self.valve_times: list = []  # sender time of each ValveCommand, and its channel-0 state
         self.valve_states: list = []
         self.sensor_times: list = []
+        self.kept_sensor_frames: list | None = None  # every sensor frame while a list
         self._reader = BatchReader(self.bus, self._on_frames, rest_period_s=WATCH_PERIOD_S,
                                    resting=lambda: True, name="bench-bus")
 
@@ -120,6 +128,8 @@ class BusWatch:
         for frame in frames:
             if frame.arbitration_id in self._sensor_ids:
                 self.sensor_times.append(frame.timestamp)
+                if self.kept_sensor_frames is not None:
+                    self.kept_sensor_frames.append(frame)
             elif frame.arbitration_id == self._valve_id and (decoded := self.codec.decode(frame)):
                 self.valve_times.append(frame.timestamp)
                 self.valve_states.append(int(decoded.signals["Channel0"]))
@@ -150,6 +160,16 @@ class BusWatch:
         first = bisect.bisect_right(self.valve_times, after_s, 0, count)
         last = bisect.bisect_right(self.valve_times, until_s, 0, count)
         return list(zip(self.valve_times[first:last], self.valve_states[first:last]))
+
+    def first_reading_above(self, limit_pa: float, after_s: float):
+        """Sender time of the first kept sensor frame after ``after_s`` that reads above
+        ``limit_pa`` (None if none)."""
+        for frame in list(self.kept_sensor_frames or ()):
+            if frame.timestamp > after_s:
+                decoded = self.codec.decode(frame)
+                if decoded is not None and decoded.signals["GaugePressure"] > limit_pa:
+                    return frame.timestamp
+        return None
 
     def sensor_frame_before(self, stamp_s: float):
         """Sender time of the newest sensor frame sent by ``stamp_s`` (None if none)."""
@@ -343,8 +363,84 @@ def matched_latencies(watch, samples) -> list:
     return [1e3 * (published_s - sent_s) for published_s, sent_s in matched if sent_s is not None]
 
 
+def safety_reactions(node, states, watch, count: int) -> dict:
+    """``count`` times: the gripper held open at REACTION_OPEN_M, then every reading biased by
+    REACTION_BIAS_PA at the simulated device: {"latencies_ms": [...], "failed": n, "why": [...]}
+    from the first sensor frame past the limit to the first venting ValveCommand; then the bias
+    is taken off, and a STOP after the safe state's clear time brings the gripper to IDLE."""
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    limit_pa = 50e3 + 5e3  # the default max_gauge_pressure_pa + overpressure_margin_pa
+    setter = node.create_client(SetParameters, "/sim_device/set_parameters")
+    commands = node.create_publisher(GraspCommand, "grasp_command", 10)
+    out = {"latencies_ms": [], "failed": 0, "why": []}
+
+    def set_bias(bias_pa: float) -> bool:
+        request = SetParameters.Request(parameters=[
+            Parameter("fault.sensor_bias_pa", value=bias_pa).to_parameter_msg()])
+        response = wait_future(setter.call_async(request), 5.0)
+        return bool(response and response.results and response.results[0].successful)
+
+    def stop() -> None:
+        # once the safe state's evidence has been gone for its clear time, a STOP clears it
+        time.sleep(0.6)
+        commands.publish(command(GraspCommand.STOP, "bench-reaction-stop"))
+        wait_phase(states, GripperState.IDLE, 5.0)
+        time.sleep(0.3)
+
+    def held_open(n: int) -> bool:
+        for _ in range(3):  # a command just after the safe state cleared may find it still set
+            commands.publish(command(GraspCommand.OPEN, f"bench-reaction-{n}",
+                                     target_tip_spacing_m=REACTION_OPEN_M))
+            if wait_phase(states, GripperState.ENVELOPED, 5.0) is not None:
+                return True
+            stop()
+        return False
+
+    try:
+        if not setter.wait_for_service(timeout_sec=10.0):
+            raise RuntimeError("no /sim_device/set_parameters service")
+        for n in range(count):
+            why = ""
+            if not held_open(n):
+                why = "the opening did not reach ENVELOPED"
+            else:
+                time.sleep(0.3)  # settled
+                watch.kept_sensor_frames = []
+                biased_from = time.time()
+                if not set_bias(REACTION_BIAS_PA):
+                    why = "the device refused the bias"
+                else:
+                    vented = None
+                    past = None
+                    deadline = time.monotonic() + 2.0
+                    while vented is None and time.monotonic() < deadline:
+                        time.sleep(2 * WATCH_PERIOD_S)
+                        past = past or watch.first_reading_above(limit_pa, biased_from)
+                        if past is not None:
+                            vented = next((t for t, state in watch.valve_frames(
+                                past - 1e-4, past + 1.0) if state == VENT), None)
+                    if past is None or vented is None:
+                        why = ("no reading past the limit" if past is None else
+                               "no venting ValveCommand within 1 s")
+                    else:
+                        out["latencies_ms"].append(1e3 * (vented - past))
+                watch.kept_sensor_frames = None
+                set_bias(0.0)
+            if why:
+                out["failed"] += 1
+                out["why"].append(why)
+            stop()
+    finally:
+        watch.kept_sensor_frames = None
+        node.destroy_client(setter)
+        node.destroy_publisher(commands)
+    return out
+
+
 def measure(idle_s: float, grasp_s: float, window_s: float, open_pairs: int, cancels: int,
-            controller_env: dict | None = None) -> tuple[dict, dict]:
+            reactions: int, controller_env: dict | None = None) -> tuple[dict, dict]:
     """One run; ``controller_env``: the controller's environment (None: this one's)."""
     channel = f"bench-e2e-{uuid.uuid4().hex[:8]}"
     ros_args = [
@@ -433,6 +529,8 @@ def measure(idle_s: float, grasp_s: float, window_s: float, open_pairs: int, can
             opens = open_goals(node, states, open_pairs)
             progress(f"{cancels} opening goals cancelled under way")
             cancelled = cancel_goals(node, states, watch, cancels)
+            progress(f"{reactions} safety reactions: readings past the limit")
+            reacted = safety_reactions(node, states, watch, reactions)
             poses.clear()
             joints.clear()
             arm_end = time.monotonic() + grasp_s / 2
@@ -457,9 +555,10 @@ def measure(idle_s: float, grasp_s: float, window_s: float, open_pairs: int, can
     to_joints, to_pose_arm = matched_latencies(watch, arm_joints), matched_latencies(
         watch, arm_poses)
     if not (to_joints and to_pose_arm and opens["gripper"] and opens["grasp"]
-            and cancelled["latencies_ms"]):
+            and cancelled["latencies_ms"] and reacted["latencies_ms"]):
         raise RuntimeError(f"as an arm stack: {len(to_joints)} joint_states, {len(to_pose_arm)} "
-                           f"poses, opening goals {opens}, cancels {cancelled}")
+                           f"poses, opening goals {opens}, cancels {cancelled}, safety "
+                           f"reactions {reacted}")
     to_pose = [1e3 * (published_s - sent_s) for published_s, _, sent_s in matched]
     to_received = [1e3 * (received_s - sent_s) for _, received_s, sent_s in matched]
     hops = [1e3 * (received_s - published_s) for published_s, received_s, _ in matched]
@@ -485,6 +584,8 @@ def measure(idle_s: float, grasp_s: float, window_s: float, open_pairs: int, can
         statistics.median(opens["grasp"]),
         "cancel_to_valve_frame_ms_median": statistics.median(cancelled["latencies_ms"]),
         "cancel_to_valve_frame_ms_p99": p99(cancelled["latencies_ms"]),
+        "safety_reaction_ms_median": statistics.median(reacted["latencies_ms"]),
+        "safety_reaction_ms_p99": p99(reacted["latencies_ms"]),
     }
     details = {
         "cmd_to_valve_frame_ms": {
@@ -500,6 +601,7 @@ def measure(idle_s: float, grasp_s: float, window_s: float, open_pairs: int, can
         "grasp_cycles": cycles,
         "open_goals_s": opens,
         "cancels": cancelled,
+        "safety_reactions": reacted,
         "arm_samples": {"joint_states": len(to_joints), "tip_pose": len(to_pose_arm)},
         "reception_clock_offset_ms_median": 1e3 *
         statistics.median(clock_offsets) if clock_offsets else None,
@@ -509,7 +611,8 @@ def measure(idle_s: float, grasp_s: float, window_s: float, open_pairs: int, can
 
 def against(args) -> int:
     """--against: interleaved pairs, the reference first in each; the table (or --json)."""
-    settings = (args.idle_s, args.grasp_s, args.window_s, args.open_pairs, args.cancels)
+    settings = (args.idle_s, args.grasp_s, args.window_s, args.open_pairs, args.cancels,
+                args.reactions)
     pairs = {}
     try:
         with reference_checkout(args.against, ROOT) as (commit, environment):
@@ -544,6 +647,8 @@ def main(argv=None) -> int:
                         help="pairs of gripper and grasp opening goals per spacing")
     parser.add_argument("--cancels", type=int, default=30,
                         help="opening goals cancelled under way, per run")
+    parser.add_argument("--reactions", type=int, default=10,
+                        help="safety reactions to readings past the limit, per run")
     parser.add_argument(
         "--runs", type=int, default=3,
         help="whole measurements, each with fresh processes; each figure is the median over them")
@@ -555,11 +660,11 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.quick:
         args.runs, args.idle_s, args.grasp_s, args.window_s, args.open_pairs = 1, 3.0, 6.0, 1.0, 1
-        args.cancels = 3
+        args.cancels, args.reactions = 3, 2
     if args.window_s <= 0 or args.idle_s < 3 * args.window_s or args.grasp_s < 3 * args.window_s:
         parser.error("need --window-s > 0 and at least three windows in --idle-s and --grasp-s")
-    if args.runs < 1 or args.open_pairs < 1 or args.cancels < 1:
-        parser.error("need --runs >= 1, --open-pairs >= 1 and --cancels >= 1")
+    if args.runs < 1 or args.open_pairs < 1 or args.cancels < 1 or args.reactions < 1:
+        parser.error("need --runs, --open-pairs, --cancels and --reactions >= 1")
     started = time.perf_counter()
     with host_load(args.load):
         if args.against:
@@ -568,7 +673,7 @@ def main(argv=None) -> int:
         for run in range(args.runs):
             progress(f"run {run + 1} of {args.runs}")
             runs.append(measure(args.idle_s, args.grasp_s, args.window_s, args.open_pairs,
-                                args.cancels))
+                                args.cancels, args.reactions))
     # a p99 of one run on a shared 2-core VM moves by a millisecond from run to run: the median of
     # runs
     figures = {key: statistics.median(f[key] for f, _ in runs) for key in runs[0][0]}

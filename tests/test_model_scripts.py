@@ -184,8 +184,12 @@ def test_bench_e2e_quick_json_reports_every_figure():
                 "controller_rss_mb", "sensor_to_joint_states_ms_p99",
                 "sensor_to_tip_pose_arm_ms_p99", "gripper_open_s", "grasp_open_s",
                 "gripper_open_ratio", "cancel_to_valve_frame_ms_median",
-                "cancel_to_valve_frame_ms_p99"):
+                "cancel_to_valve_frame_ms_p99", "safety_reaction_ms_median",
+                "safety_reaction_ms_p99"):
         assert figures[key] > 0, key
+    # every reading past the limit vented, within the second the bench waits
+    reactions = figures["details"]["safety_reactions"]
+    assert reactions["failed"] == 0 and len(reactions["latencies_ms"]) == 2, reactions
     assert "joint_states_p99_excess_ms" in figures
     assert figures["details"]["open_goals_s"]["failed"] == 0, figures["details"]["open_goals_s"]
     # every cancel of an opening under way closes the valves: it holds, as a STOP would not
