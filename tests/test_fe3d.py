@@ -92,9 +92,10 @@ def test_neighbouring_blocks_touch_and_do_not_pass_through_each_other():
 def test_a_rigid_obstacle_s_force_balances_the_reaction_at_the_clamp():
     """A plane 1 mm below the backbone, which the opening finger's tip presses: the obstacle's
     force on the finger and the clamp's reaction cancel along its normal within 1 % (the gas
-    loads a closed cavity with no net force). Measured: to 1e-9."""
-    case = contact_balance(GEOMETRY, element_size_m=6e-3)
-    assert case.reference[0] > 1e-3  # it presses (about 14 mN on this half model)
+    loads a closed cavity with no net force). Measured: to 1e-9. At 10 kPa, where it presses
+    less than at the benchmark's 20 kPa, to keep the test short."""
+    case = contact_balance(GEOMETRY, element_size_m=6e-3, pressure_pa=10e3)
+    assert case.reference[0] > 1e-3  # it presses (about 6 mN on this half model)
     assert case.worst_error_pct < 1.0, case
 
 
