@@ -186,8 +186,8 @@ def test_in_the_world_a_quiet_hold_is_held_with_its_air_trapped(model):
 def test_a_judgement_that_raises_leaves_the_status_unknown_and_says_why(model):
     """ObjectSensingLink through a pinch to HOLDING, its runner failing: the verdict is UNKNOWN
     with the error in its evidence, and the HOLDING goal is not held up for it."""
-    from softgrip_ros.control.grasp_fsm import (GraspMode, GraspRequest, GraspStateMachine,
-                                                Phase)
+    from softgrip_ros.control.grasp_fsm import (GoalOutcome, GraspMode, GraspRequest,
+                                                GraspStateMachine, Phase)
     from softgrip_ros.control.object_sensing import ObjectSensingLink
     from softgrip_ros.devtools.sensing_bench import sensor_noise
     from softgrip_ros.model.calibration import build_kinematics
@@ -204,7 +204,8 @@ def test_a_judgement_that_raises_leaves_the_status_unknown_and_says_why(model):
     assert fsm.state.phase == Phase.HOLDING
     assert fsm.state.object_status == gs.ObjectStatus.UNKNOWN
     assert "no CPU left" in fsm.state.object_evidence
-    assert fsm.outcome(fsm.task, GraspMode.PINCH) == "succeeded" and not fsm.object_held()
+    assert fsm.outcome(fsm.task, GraspMode.PINCH) == GoalOutcome.SUCCEEDED
+    assert not fsm.object_held()
 
 
 def test_the_judge_process_gives_the_verdict_of_an_in_process_judgement(model):
