@@ -146,6 +146,30 @@ def test_short_and_out_of_range_frames_fail_their_rows(device_and_bus):
     assert "RegulatorStatus.ActualGaugePressure" in rows["signals within their DBC ranges"].reason
 
 
+def test_a_rate_is_judged_by_the_cycle_not_by_frames_a_stalled_host_lost(device_and_bus):
+    """A host that stalls the reading thread (or a simulated device's sender) for 0.4 s of a 2 s
+    listen loses a fifth of the frames; the firmware's cycle is what the row judges, and it
+    still fails a 200 Hz sensor whose every spacing is 10 ms (on the frame count over the span,
+    the 500 Hz sensor measured ~400 Hz and failed: the check depended on an idle host)."""
+    _, bus = device_and_bus
+    database = cantools.database.load_file(str(config_file("softgrip.dbc")))
+    checker = DeviceChecker(bus, FrameCodec(), CheckConfig())
+    frames = []
+    for name, period_s in (("PressureSensor1", 0.002), ("PressureSensor2", 0.010)):
+        frame_id = database.get_message_by_name(name).frame_id
+        for k in range(int(2.0 / period_s)):
+            stamp = 1000.0 + k * period_s
+            if name == "PressureSensor1" and 1.0 <= stamp - 1000.0 < 1.4:
+                continue  # the stall
+            frames.append(checker.received(can.Message(
+                arbitration_id=frame_id, data=bytes(8), is_extended_id=False, timestamp=stamp)))
+    rows = {row.check: row for row in checker.passive_rows(frames)}
+    stalled, slow = rows["PressureSensor1 rate"], rows["PressureSensor2 rate"]
+    assert stalled.passed, stalled.reason
+    assert stalled.measured.startswith("500.0 Hz") and "longest gap 40" in stalled.measured
+    assert not slow.passed and "100.0 Hz is off the expected 200 Hz" in slow.reason
+
+
 def test_the_simulated_device_sends_at_the_dbc_cycle_times():
     """The DBC is the one source of the frame rates the checker expects; the simulated device's
     defaults are those rates."""

@@ -5,8 +5,8 @@ heartbeat, RegulatorSetpoint and ValveCommand frames (with their alive counters 
 every frame the device sends, and judges each requirement of the protocol as one :class:`Row`:
 
 - each cyclic device frame at its rate (the DBC's ``GenMsgCycleTime``, or an override), within
-  ``rate_tolerance``; the DeviceHeartbeat on its own row, with its state RUNNING and its uptime
-  counting;
+  ``rate_tolerance``, measured from the median spacing of its frames; the DeviceHeartbeat on its
+  own row, with its state RUNNING and its uptime counting;
 - every device frame 8 bytes long, its CRC-8 right, its alive counter stepping by one (mod 16)
   between consecutive frames with a right CRC, its signals within their DBC ranges;
 - the regulator's reported output following a RegulatorSetpoint;
@@ -232,11 +232,22 @@ class DeviceChecker:
         cycle_ms = self._device_messages[name].cycle_time
         return 1000.0 / cycle_ms if cycle_ms else 0.0
 
-    def _measured_hz(self, frames: list) -> float:
+    @staticmethod
+    def _measured_hz(frames: list) -> float:
+        """The frames' rate from their median cycle (their stamps' median spacing), 0.0 with fewer
+        than 3. A median, not the count over the span: a host that stalls the thread reading (or
+        a simulated device's sending) loses frames in a few long gaps, which say nothing of the
+        cycle the firmware keeps; a wrong cycle moves every spacing, and so the median."""
         stamps = sorted(f.stamp for f in frames)
         if len(stamps) < 3 or stamps[-1] <= stamps[0]:
             return 0.0
-        return (len(stamps) - 1) / (stamps[-1] - stamps[0])
+        cycle = statistics.median(b - a for a, b in zip(stamps, stamps[1:]))
+        return 1.0 / cycle if cycle > 0.0 else (len(stamps) - 1) / (stamps[-1] - stamps[0])
+
+    @staticmethod
+    def _longest_gap_ms(frames: list) -> float:
+        stamps = sorted(f.stamp for f in frames)
+        return 1e3 * max((b - a for a, b in zip(stamps, stamps[1:])), default=0.0)
 
     def _rate_row(self, name: str, frames: list) -> Row:
         expected, measured = self._expected_hz(name), self._measured_hz(frames)
@@ -244,7 +255,8 @@ class DeviceChecker:
         reason = "" if ok else (f"no {name} frame" if not frames else
                                 f"{measured:.1f} Hz is off the expected {expected:g} Hz by more "
                                 f"than {100 * self.config.rate_tolerance:.0f} %")
-        return Row(f"{name} rate", ok, f"{measured:.1f} Hz (expected {expected:g})", reason)
+        return Row(f"{name} rate", ok, f"{measured:.1f} Hz (expected {expected:g}; longest gap "
+                   f"{self._longest_gap_ms(frames):.0f} ms)", reason)
 
     def _heartbeat_row(self, frames: list) -> Row:
         expected, measured = self._expected_hz("DeviceHeartbeat"), self._measured_hz(frames)
