@@ -347,6 +347,11 @@ def test_tip_table_matches_its_model(model):
     kinematics = build_kinematics(model, max_pressure_pa=60e3)
     table = TipTable(kinematics)
     assert table.max_error_m < 1e-7 and table.max_angle_error_rad < 1e-6
+    # the build's self-check evaluates every midpoint at once: what a lookup there gives
+    cells = round((table.high_pa - table.low_pa) / table.step_pa)
+    midpoints = table.low_pa + (np.arange(cells) + 0.5) * table.step_pa
+    assert np.allclose(table._midpoint_values(table._values, table._slopes),
+                       [table.tip(p)[0] for p in midpoints], rtol=0.0, atol=1e-12)
     rng = np.random.default_rng(3)
     pressures = np.concatenate([
         rng.uniform(kinematics.contact_pressure_pa, 60e3, 300),
