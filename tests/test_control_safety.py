@@ -4,6 +4,7 @@ Every limit is judged on the plant's true pressure, not on what a sensor said. T
 the defaults: 50 kPa and -60 kPa, with a 5 kPa margin (LIMITS below). Each test names the
 defect of #20 it reproduces; with the code before #20 each of them failed.
 """
+import json
 import math
 
 import numpy as np
@@ -11,7 +12,7 @@ import pytest
 
 from softgrip_ros.control.faults import SAFETY_FAULTS, Fault
 from softgrip_ros.control.pressure import (PressureMode, PressureControlConfig, PressureController,
-                                           Source, boost_ceiling_pa)
+                                           Source, boost_ceiling_pa, boost_ceilings)
 from softgrip_ros.control.safety import SafetyConfig
 from softgrip_ros.model.pneumatics import PlantInputs, PneumaticPlant, Valve
 from softgrip_ros.devtools.identification_sim import SLOW_LARGE, scaled
@@ -203,6 +204,39 @@ def test_the_boost_ceiling_is_derived_from_the_plant():
         dataclasses_replace(PneumaticPlant().parameters, regulator_rate_limit_pa_per_s=0.5e6))
     # falls slower: a lower ceiling
     assert boost_ceiling_pa(slower.parameters, PressureControlConfig()) < ceiling
+
+
+def test_the_boost_ceilings_are_kept_between_runs_and_checked_when_read(tmp_path, monkeypatch):
+    """A controller's start computed them every time (a fifth of a second); they are kept in the
+    user's cache under a key of the plant, the configuration and the simulating code. A kept file
+    that does not parse, or holds a ceiling outside [limit, regulator maximum], is recomputed; a
+    cache that cannot be written costs only the time."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    plant, config = PneumaticPlant().parameters, PressureControlConfig()
+    kept = tmp_path / "softgrip_ros" / "boost_ceilings"
+
+    def fresh():  # no ceiling in the process's own memo: a simulation shows as its entries
+        boost_ceiling_pa.cache_clear()
+        ceilings = boost_ceilings(plant, config)
+        return ceilings, boost_ceiling_pa.cache_info().currsize > 0
+
+    computed, simulated = fresh()
+    assert simulated and len(list(kept.glob("*.json"))) == 1
+    (path,) = kept.glob("*.json")
+    assert fresh() == (computed, False)  # read back
+    assert computed[-1][0] == math.inf and computed[-1][1] < config.regulator_max_gauge_pa
+    boost_ceilings(plant, dataclasses_replace(config, max_gauge_pa=40e3))
+    assert len(list(kept.glob("*.json"))) == 2  # another configuration, another key
+    document = json.loads(path.read_text())
+    document["ceilings"][-1][1] = 1e6  # beyond the regulator
+    path.write_text(json.dumps(document))
+    assert fresh() == (computed, True)
+    assert json.loads(path.read_text())["ceilings"][-1][1] == computed[-1][1]
+    path.write_text("{")
+    assert fresh() == (computed, True)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "file"))
+    (tmp_path / "file").write_text("not a directory")
+    assert fresh() == (computed, True)
 
 
 def test_a_lower_target_may_boost_harder():

@@ -59,11 +59,14 @@ Safety (design.md), independent of the grasp manager:
 from __future__ import annotations
 
 import collections
+import contextlib
 import dataclasses
 import enum
 import functools
 import math
+import sys
 
+from softgrip_ros import cache
 from softgrip_ros.control.faults import SAFETY_FAULTS, Fault, fault_names
 from softgrip_ros.control.safety import SafetyConfig, SafetyMonitor
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
@@ -635,21 +638,70 @@ def _falls_to(error_pa: float, rate_pa_per_s: float, within_s: float) -> bool:
 BOOST_CEILING_TARGETS = 10  # the targets a ceiling is computed for: the upper limit's tenths
 
 
+BOOST_CEILINGS_CACHE = "boost_ceilings"  # softgrip_ros.cache's directory of them
+# whose code the ceilings' simulation runs: a change to any makes a new cache key
+_SIMULATING_MODULES = tuple(sys.modules[name] for name in (
+    __name__, SafetyMonitor.__module__, Fault.__module__, PneumaticPlant.__module__))
+
+
 def boost_ceilings(plant_parameters, config: PressureControlConfig) -> tuple:
     """((target, ceiling), ...) in Pa gauge, targets rising: the boost's ceiling for any target up
-    to each one. A finite ``config.boost_ceiling_pa`` is the ceiling for every target."""
+    to each one. A finite ``config.boost_ceiling_pa`` is the ceiling for every target.
+
+    Kept in :mod:`softgrip_ros.cache`, keyed by the plant, the configuration and the source of the
+    code that simulates them, so a controller computes them (a fifth of a second of CPU) once per
+    plant and configuration, not at every start; a cached file that is unreadable or holds a
+    ceiling outside [``max_gauge_pa``, ``regulator_max_gauge_pa``] is recomputed. A cache that
+    cannot be written costs the time, nothing else."""
     if math.isfinite(config.boost_ceiling_pa):
         return ((math.inf, config.boost_ceiling_pa),)
+    key = cache.key_of({"plant": dataclasses.asdict(plant_parameters),
+                        "config": dataclasses.asdict(config),
+                        "code": _simulating_code()})
+    ceilings = cache.read_cache(BOOST_CEILINGS_CACHE, key,
+                                lambda document: _parse_ceilings(document, config))
+    if ceilings is None:
+        ceilings = _computed_ceilings(plant_parameters, config)
+        with contextlib.suppress(OSError):
+            cache.write_cache(BOOST_CEILINGS_CACHE, key, {
+                "ceilings": [[None if math.isinf(t) else t, c] for t, c in ceilings]})
+    return ceilings
+
+
+@functools.lru_cache(maxsize=1)
+def _simulating_code() -> str:
+    return cache.source_digest(*_SIMULATING_MODULES)
+
+
+def _targets(config: PressureControlConfig) -> list:
+    """The targets a ceiling holds up to, rising; the last one inf (any target)."""
+    return [config.max_gauge_pa * k / BOOST_CEILING_TARGETS
+            for k in range(1, BOOST_CEILING_TARGETS)] + [math.inf]
+
+
+def _parse_ceilings(document: dict, config: PressureControlConfig) -> tuple:
+    """The ceilings of a cached ``document``; ValueError unless they are for this configuration's
+    targets and each lies within [the limit, the regulator's maximum]."""
+    pairs = tuple((math.inf if target is None else float(target), float(ceiling))
+                  for target, ceiling in document["ceilings"])
+    if [target for target, _ in pairs] != _targets(config) or not all(
+            config.max_gauge_pa <= ceiling <= config.regulator_max_gauge_pa
+            for _, ceiling in pairs):
+        raise ValueError("cached boost ceilings that do not fit this configuration")
+    return pairs
+
+
+def _computed_ceilings(plant_parameters, config: PressureControlConfig) -> tuple:
     ceilings = []
     # from the highest target down: the ceiling does not fall as the target does, so once one
     # is the regulator's maximum, so is every one below it
-    for k in range(BOOST_CEILING_TARGETS, 0, -1):
-        target = config.max_gauge_pa * k / BOOST_CEILING_TARGETS
+    for target in reversed(_targets(config)):
         if ceilings and ceilings[-1][1] >= config.regulator_max_gauge_pa:
             ceiling = config.regulator_max_gauge_pa
         else:
-            ceiling = boost_ceiling_pa(plant_parameters, config, target)
-        ceilings.append((math.inf if k == BOOST_CEILING_TARGETS else target, ceiling))
+            ceiling = boost_ceiling_pa(plant_parameters, config,
+                                       None if math.isinf(target) else target)
+        ceilings.append((target, ceiling))
     return tuple(reversed(ceilings))
 
 
@@ -671,13 +723,15 @@ def boost_ceiling_pa(plant_parameters, config: PressureControlConfig,
     limit = config.max_gauge_pa + config.overpressure_margin_pa - guard_pa
     target = config.max_gauge_pa if target_gauge_pa is None else target_gauge_pa
 
-    def peak(ceiling_pa: float) -> float:
+    def within_limit(ceiling_pa: float) -> bool:
+        """Whether the chamber's peak stays at or below ``limit`` (stops at the first step past
+        it: the peak's height beyond does not matter)."""
         controller = PressureController(dataclasses.replace(config, boost_ceiling_pa=ceiling_pa),
                                         plant)
         controller.active = True
         state = plant.initial_state()
         controller.command(target, Source.SUPPLY, math.nan, 0.0)
-        inputs, highest = PlantInputs(valves=(Valve.SUPPLY,)), -math.inf
+        inputs = PlantInputs(valves=(Valve.SUPPLY,))
         # 1.5 s at 1 kHz: the fill, the settle against the stuck valve, the trip, the fall
         for tick in range(1, 1500):
             now, gauge = tick * 1e-3, float(state.chamber_pa[0] - P_ATM_PA)
@@ -690,18 +744,19 @@ def boost_ceiling_pa(plant_parameters, config: PressureControlConfig,
                 inputs = PlantInputs(out.regulator_setpoint_gauge_pa, out.regulator_enabled,
                                      (Valve.SUPPLY,))
             state = plant.step(state, inputs, 1e-3)
-            highest = max(highest, float(state.chamber_pa[0] - P_ATM_PA))
+            if float(state.chamber_pa[0] - P_ATM_PA) > limit:
+                return False
             if (controller.last_output is not None and
                     controller.last_output.mode == PressureMode.FAULT and
                     state.regulator_gauge_pa < gauge):
                 # the regulator is below the chamber: it falls from here
                 break
-        return highest
+        return True
 
     low, high = config.max_gauge_pa, config.regulator_max_gauge_pa
-    if peak(high) <= limit:
+    if within_limit(high):
         return high
     while high - low > 1e3:
         middle = 0.5 * (low + high)
-        low, high = (middle, high) if peak(middle) <= limit else (low, middle)
+        low, high = (middle, high) if within_limit(middle) else (low, middle)
     return low

@@ -18,17 +18,14 @@ angle plus the turn between the root and the tip chamber faces (as in
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 import math
-import os
-import pathlib
 import sys
 import time
 
 import numpy as np
 
-from softgrip_ros.fileio import write_text_atomically
+from softgrip_ros import cache
+from softgrip_ros.cache import key_of
 from softgrip_ros.model.fe.mesh import CORNER_REFINEMENT, FingerLayout
 from softgrip_ros.model.fe.solver import HyperelasticSolid, NotConverged, YeohMaterial
 from softgrip_ros.model.fe_data import at_pressure
@@ -39,6 +36,7 @@ INSTALL_HINT = ("the FE reference needs scikit-fem and gmsh: bash scripts/setup.
 # bump when a change to the FE code changes its results, so that caches and the committed
 # config/fe_reference.yaml are recognised as stale
 FE_MODEL_VERSION = 2
+FE_CACHE_KIND = "fe"  # softgrip_ros.cache's directory of the sweeps
 # the paper's FEA pressures: 0 to 60 kPa in 5 kPa steps, 13 in all
 SWEEP_PRESSURES_PA = tuple(5e3 * k for k in range(13))
 # under vacuum the cavity walls move towards each other; without a contact model the sweep stops
@@ -331,35 +329,22 @@ def inputs_hash(geometry: FingerGeometry, material: YeohMaterial, element_size_m
 def hash_inputs(geometry: FingerGeometry, material: YeohMaterial, rest: dict) -> str:
     """16 hex digits of the SHA-256 of a sweep's inputs: the geometry, the material and ``rest``
     (plain values), so that any change to them makes a new cache key."""
-    document = {
+    return key_of({
         "geometry": {k: (list(v) if isinstance(v, tuple) else v)
                      for k, v in dataclasses.asdict(geometry).items()},
         "material": dataclasses.asdict(material), **rest,
-    }
-    text = json.dumps(document, sort_keys=True, default=str)
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def cache_dir() -> pathlib.Path:
-    root = os.environ.get("XDG_CACHE_HOME") or pathlib.Path.home() / ".cache"
-    return pathlib.Path(root) / "softgrip_ros" / "fe"
+    })
 
 
 def read_cache(key: str, parse):
-    """``parse(document)`` of the cached sweep ``key``, or None if there is none or it does not
-    parse (it is then recomputed and overwritten)."""
-    cached = cache_dir() / f"{key}.json"
-    if not cached.exists():
-        return None
-    try:
-        return parse(json.loads(cached.read_text()))
-    except (ValueError, KeyError, TypeError):
-        return None
+    """``parse(document)`` of the cached sweep ``key`` (see :mod:`softgrip_ros.cache`), or None
+    (it is then recomputed and overwritten)."""
+    return cache.read_cache(FE_CACHE_KIND, key, parse)
 
 
 def write_cache(key: str, document: dict) -> None:
     """Store ``document`` as sweep ``key``, whole or not at all."""
-    write_text_atomically(cache_dir() / f"{key}.json", json.dumps(document))
+    cache.write_cache(FE_CACHE_KIND, key, document)
 
 
 def _stderr_progress(message: str) -> None:
@@ -388,7 +373,8 @@ def sweep(geometry: FingerGeometry, material: YeohMaterial | None = None,
           element_size_m: float = SWEEP_ELEMENT_SIZE_M, pressures_pa=SWEEP_PRESSURES_PA,
           progress=_stderr_progress, use_cache: bool = True) -> FESweep:
     """The finger at +p and -p for every p of ``pressures_pa`` (>= 0, ascending), cached by
-    :func:`inputs_hash` under :func:`cache_dir`. ``progress(message)`` hears of each pressure."""
+    :func:`inputs_hash` in :func:`softgrip_ros.cache.cache_dir` ("fe"). ``progress(message)``
+    hears of each pressure."""
     material = material or YeohMaterial()
     pressures = [float(p) for p in pressures_pa]
     if not pressures or pressures[0] != 0.0 or any(
