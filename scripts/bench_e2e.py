@@ -20,6 +20,8 @@ from here, as an arm would:
   and its child (the L2 rod solver) over wall time (100 = one core), in windows while IDLE and
   while grasping at the default 500 Hz control rate; median over the windows. The device simulation
   runs in its own process and is not counted.
+* ``start_to_ready_s``: from the controller's exec to the first ``grasp_state`` received here
+  (this process already subscribed, the simulated device already running).
 * ``controller_rss_mb``: resident memory at the end (VmRSS), and its peak (VmHWM); the L2
   solver child's VmRSS separately (``controller_children_rss_mb``: summing shared pages twice
   would overstate the total).
@@ -84,7 +86,8 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 TARGETS = {
     "cmd_to_valve_frame_ms_p99": (5.0, True), "sensor_to_tip_pose_ms_p99": (3.0, True),
     "controller_cpu_pct_idle": (6.0, True), "controller_cpu_pct_grasp": (20.0, True),
-    "controller_rss_mb": (150.0, True), "joint_states_p99_excess_ms": (0.5, True),
+    "controller_rss_mb": (150.0, True), "start_to_ready_s": (1.5, True),
+    "joint_states_p99_excess_ms": (0.5, True),
     "gripper_open_ratio": (1.2, True), "cancel_to_valve_frame_ms_p99": (20.0, True),
     "safety_reaction_ms_p99": (5.0, True),
 }
@@ -460,8 +463,6 @@ def measure(idle_s: float, grasp_s: float, window_s: float, open_pairs: int, can
     ]
     watch = BusWatch(channel)
     device = subprocess.Popen([installed_executable("sim_device"), *ros_args])
-    controller = subprocess.Popen([installed_executable("controller"), *ros_args],
-                                  env=controller_env)
     rclpy.init()
     node = Node("softgrip_bench_e2e")
     # poses: (published, received, stamp), matched to their frames once the watch has read them
@@ -479,7 +480,14 @@ def measure(idle_s: float, grasp_s: float, window_s: float, open_pairs: int, can
     def on_joints(msg, info):
         joints.append((info["source_timestamp"] * 1e-9, 0.0, stamp_seconds(msg.header.stamp)))
 
-    node.create_subscription(GripperState, "grasp_state", states.append, 100)
+    ready_s = []
+
+    def on_state(msg):
+        if not ready_s:
+            ready_s.append(time.monotonic() - launched_s)
+        states.append(msg)
+
+    node.create_subscription(GripperState, "grasp_state", on_state, 100)
     node.create_subscription(PoseWithCovarianceStamped, "tip_pose/left", on_pose, 100)
     publisher = node.create_publisher(GraspCommand, "grasp_command", 10)
     command_latencies = {"ENVELOP_CLAMP": [], "CLAMP": [], "STOP": []}
@@ -507,6 +515,9 @@ def measure(idle_s: float, grasp_s: float, window_s: float, open_pairs: int, can
         time.sleep(0.3)  # vented before the next grasp
         cycles["done" if ok else "failed"] += 1
 
+    launched_s = time.monotonic()
+    controller = subprocess.Popen([installed_executable("controller"), *ros_args],
+                                  env=controller_env)
     try:
         with spinning(node, threads=1):
             deadline = time.monotonic() + 60.0
@@ -583,6 +594,7 @@ def measure(idle_s: float, grasp_s: float, window_s: float, open_pairs: int, can
         "controller_cpu_pct_idle": statistics.median(idle),
         "controller_cpu_pct_grasp": statistics.median(grasp),
         "controller_cpu_pct_device_paused": statistics.median(paused),
+        "start_to_ready_s": ready_s[0],
         "controller_rss_mb": memory.get("VmRSS", float("nan")),
         "controller_peak_rss_mb": memory.get("VmHWM", float("nan")),
         "controller_children_rss_mb": children_rss,
