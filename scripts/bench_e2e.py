@@ -21,7 +21,7 @@ from here, as an arm would:
   while grasping at the default 500 Hz control rate; median over the windows. The device simulation
   runs in its own process and is not counted.
 * ``start_to_ready_s``: from the controller's exec to the first ``grasp_state`` received here
-  (this process already subscribed, the simulated device already running).
+  (this process already subscribed, the simulated device already sending).
 * ``controller_rss_mb``: resident memory at the end (VmRSS), and its peak (VmHWM); the L2
   solver child's VmRSS separately (``controller_children_rss_mb``: summing shared pages twice
   would overstate the total).
@@ -515,6 +515,10 @@ def measure(idle_s: float, grasp_s: float, window_s: float, open_pairs: int, can
         time.sleep(0.3)  # vented before the next grasp
         cycles["done" if ok else "failed"] += 1
 
+    # the device up first: its start would otherwise share the host with the controller's
+    deadline = time.monotonic() + 60.0
+    while not watch.sensor_times and device.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
     launched_s = time.monotonic()
     controller = subprocess.Popen([installed_executable("controller"), *ros_args],
                                   env=controller_env)
