@@ -70,3 +70,20 @@ def test_the_core_imports_no_ros():
             "print(sorted(m for m in sys.modules if m.startswith(('rclpy', 'rcl_', 'std_msgs'))))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("module, absent", [
+    # run alone, the pressure controller needs neither the filter nor scipy (it once imported
+    # the estimator's node for a topic's name, and with it filterpy and scipy.stats)
+    ("softgrip_ros.nodes.pressure_controller", ("filterpy", "scipy.stats", "matplotlib")),
+    # the composed controller's default path: no plotting, no fitting, no FE, no world
+    ("softgrip_ros.nodes.controller", ("matplotlib", "softgrip_ros.estimation.identification",
+                                       "softgrip_ros.model.fe", "mujoco", "skfem")),
+])
+def test_a_node_imports_only_what_its_default_path_needs(module, absent):
+    import subprocess
+    import sys
+    code = (f"import sys, {module}; "
+            f"print(sorted(m for m in {list(absent)!r} if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

@@ -31,9 +31,9 @@ import numpy as np
 from filterpy.kalman import (ExtendedKalmanFilter, KalmanFilter, MerweScaledSigmaPoints,
                              UnscentedKalmanFilter)
 
+from softgrip_ros.estimation.config import FILTER_TYPES
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 
-FILTER_TYPES = ("kf", "ekf", "ukf")
 CHAMBER, REGULATOR = 0, 1
 _MIN_ABSOLUTE_PA = 1_000.0  # a sigma point or a wild estimate must not reach 0 Pa absolute
 _MAX_SECANT_RATE_PER_S = 1e5  # lambda near equilibrium, where the flow's slope is unbounded
@@ -282,7 +282,8 @@ class PlantUKF(PressureFilter):
 
 
 def make_filter(filter_type: str, plant: PneumaticPlant, x0, P0, q_continuous) -> PressureFilter:
-    classes = {"kf": LinearFilter, "ekf": PlantEKF, "ukf": PlantUKF}
+    """The filter of ``filter_type`` (one of config.FILTER_TYPES); ValueError for another."""
+    classes = dict(zip(FILTER_TYPES, (LinearFilter, PlantEKF, PlantUKF)))
     if filter_type not in classes:
         raise ValueError(f"filter_type must be one of {list(classes)}, got {filter_type!r}")
     return classes[filter_type](plant, x0, P0, q_continuous)

@@ -24,7 +24,6 @@ import math
 import pathlib
 
 import numpy as np
-from scipy import stats
 
 
 @dataclasses.dataclass(frozen=True)
@@ -168,6 +167,7 @@ def fit_yeoh(stretch, nominal_stress_pa, include_c30: bool = False,
     sigma2 = float(residuals @ residuals) / dof
     covariance = sigma2 * np.linalg.inv(design.T @ design)
     errors = np.sqrt(np.diag(covariance))
+    from scipy import stats  # only for a fit's interval: not on a node's path
     t_value = stats.t.ppf(0.5 + confidence_level / 2.0, dof)
     names = ["c10_pa", "c20_pa", "c30_pa"][:n_params]
     material = YeohMaterial(**dict(zip(names, (float(c) for c in coefficients))))

@@ -46,7 +46,6 @@ from softgrip_ros.runtime.core import (Consistency, ControllerReport, Estimate, 
 ESTIMATOR_STATUS = "softgrip: estimator"  # its /diagnostics status
 # the NIS evidence for the pressure controller's safety checks, this often
 EVIDENCE_PERIOD_S = 0.1
-CONSISTENCY_TOPIC = "estimator/consistency"
 REFUSAL_REPORTED_S = 5.0  # a refused message keeps the diagnostics at WARN this long
 
 
@@ -90,7 +89,8 @@ class EstimatorNode(Node):
                                       journal=self._journal)
         self.estimate_pub = self.create_publisher(FluidPressure, "pressure/estimate", 10)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.consistency_pub = self.create_publisher(EstimatorConsistency, CONSISTENCY_TOPIC, 10)
+        self.consistency_pub = self.create_publisher(EstimatorConsistency,
+                                                     messages.CONSISTENCY_TOPIC, 10)
         for name in [] if in_process else self.values["sensors.names"]:
             self.create_subscription(FluidPressure, f"pressure/sensor/{name}",
                                      lambda msg, name=name: self._on_sensor_message(name, msg), 50)

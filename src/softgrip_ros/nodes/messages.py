@@ -184,6 +184,8 @@ def finger_markers(backbone, header: Header) -> MarkerArray:
 
 SIDES = ("left", "right")
 TIP_SPACING_JOINT = "tip_spacing"
+# the estimator's NIS evidence (EstimatorConsistency) for a pressure controller run apart
+CONSISTENCY_TOPIC = "estimator/consistency"
 
 
 def joint_names(prefix: str) -> list:

@@ -28,7 +28,6 @@ from softgrip_ros.nodes import messages
 from softgrip_ros.canbus import open_bus
 from softgrip_ros.nodes.common import (closed_if_cut_short, listened, publish, run_node,
                                        stamp_msg)
-from softgrip_ros.nodes.estimator import CONSISTENCY_TOPIC
 from softgrip_ros.nodes.parameters import check_all, declare
 from softgrip_ros.nodes.specs import (PRESSURE_CONFIGURE_PREFIXES, check_rest_rate,
                                       frame_id_overrides, frame_id_specs, load_plant,
@@ -71,7 +70,7 @@ class PressureControllerNode(LifecycleNode):
         self.create_subscription(PressureCommand, "~/identification_command",
                                  self._on_identification_command, 10)
         if not in_process:
-            self.create_subscription(EstimatorConsistency, CONSISTENCY_TOPIC,
+            self.create_subscription(EstimatorConsistency, messages.CONSISTENCY_TOPIC,
                                      self._on_consistency_message, 10)
         self.estimate_subscription = None
         self._subscribe_estimate(self.values["use_estimate"])
@@ -250,7 +249,7 @@ class PressureControllerNode(LifecycleNode):
         """The estimator's NIS per sensor (a separate estimator node)."""
         if len(msg.mean_nis) != len(msg.sensor_names):
             self.get_logger().warn(
-                f"{CONSISTENCY_TOPIC} ignored: {len(msg.sensor_names)} sensor names, "
+                f"{messages.CONSISTENCY_TOPIC} ignored: {len(msg.sensor_names)} sensor names, "
                 f"{len(msg.mean_nis)} values", throttle_duration_sec=5.0)
             return
         for name, mean_nis in zip(msg.sensor_names, msg.mean_nis):

@@ -10,7 +10,7 @@ import math
 from softgrip_ros.control.grasp_fsm import GraspConfig
 from softgrip_ros.config_paths import config_file
 from softgrip_ros.control.pressure import PressureControlConfig
-from softgrip_ros.estimation.estimator import EstimatorConfig, SensorConfig
+from softgrip_ros.estimation.config import EstimatorConfig, SensorConfig
 from softgrip_ros.model.fidelity import CHOICES as FIDELITY_CHOICES
 from softgrip_ros.model import plant_file
 from softgrip_ros.model.force_law import ClampForceLaw, load_table
