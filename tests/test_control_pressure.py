@@ -6,7 +6,7 @@ import pytest
 
 from softgrip_ros.control.faults import Fault
 from softgrip_ros.control.pressure import (PressureMode, PressureControlConfig, PressureController,
-                                           Source)
+                                           RegulationPhase, Source)
 from softgrip_ros.model.pneumatics import PneumaticPlant, Valve
 from softgrip_ros.devtools.closed_loop import rise_time_s, step_figures, step_response
 from softgrip_ros.devtools.identification_sim import SLOW_LARGE, drawn, scaled
@@ -251,7 +251,8 @@ def test_a_clamp_during_the_settle_after_a_boost_evacuates_at_once():
     now += 0.002
     controller.update_sensor("s", 29.8e3, now)
     out = controller.step(now)
-    assert controller._phase == "settle" and out.valves == (Valve.CLOSED,)
+    assert controller.regulation_phase is RegulationPhase.SETTLE and out.message == "settle"
+    assert out.valves == (Valve.CLOSED,)
     controller.command(-20e3, Source.VACUUM, math.nan, now)
     valves = []
     for _ in range(10):  # 20 ms at 500 Hz

@@ -73,6 +73,15 @@ from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant,
 from softgrip_ros.settings import check_settings, setting
 
 
+class RegulationPhase(enum.Enum):
+    """The regulated line's sub-phase towards a target; its value is the output's message (none
+    while tracking)."""
+
+    TRACK = "track"  # the PI loop on the setpoint
+    BOOST = "boost"  # the regulator above the target with the valve open: a fast fill
+    SETTLE = "settle"  # the air held in while the regulator comes down to the setpoint
+
+
 class Source(enum.IntEnum):
     """PressureCommand.source (and the RegulatorSetpoint Source signal)."""
 
@@ -197,7 +206,7 @@ class PressureController:
         self._integral = 0.0
         self._last_step = None
         self._period_s = 0.0
-        self._phase = "track"  # track | boost | settle
+        self._phase = RegulationPhase.TRACK
         self._settle_started = 0.0
         self._regulator_actual = 0.0
         self._previous_feedback = None
@@ -224,6 +233,12 @@ class PressureController:
     @identification.setter
     def identification(self, on: bool) -> None:
         self.monitor.trust_model = not on
+
+    @property
+    def regulation_phase(self) -> RegulationPhase:
+        """The REGULATE mode's sub-phase (back to TRACK when no valid reading or a safe state
+        interrupts it)."""
+        return self._phase
 
     @property
     def config(self) -> PressureControlConfig:
@@ -386,7 +401,7 @@ class PressureController:
                                 self._latched, self.feedback(now), "inactive")
         regulating = self._source in (Source.SUPPLY, Source.VACUUM)
         for finding in self.monitor.check(now, c.sensor_timeout_s, regulating and
-                                          self._phase == "track"):
+                                          self._phase == RegulationPhase.TRACK):
             if finding.flag in SAFETY_FAULTS and not self._latched & SAFETY_FAULTS:
                 self._fault_message = finding.message  # the first evidence names the fault
             self._latched |= finding.flag & SAFETY_FAULTS
@@ -399,7 +414,7 @@ class PressureController:
             return self._safe_state(now, faults, feedback)
         if math.isnan(measured):
             self._integral = 0.0
-            self._phase = "track"
+            self._phase = RegulationPhase.TRACK
             # the first reading after recovery starts a new rate estimate
             self._previous_feedback = None
             # asked for explicitly: obeyed, but nothing can confirm it
@@ -458,7 +473,7 @@ class PressureController:
             valve = valve_override  # (Valve.CLOSED is 0: no "or")
         return self._output(regulator, True, self._regulator_source(), valve,
                             PressureMode.REGULATE, faults, feedback,
-                            self._phase if self._phase != "track" else "")
+                            "" if self._phase == RegulationPhase.TRACK else self._phase.value)
 
     def _open_loop(self, faults: Fault, feedback: float, measured_at: float,
                    now: float) -> ControlOutput:
@@ -491,7 +506,7 @@ class PressureController:
         """Valves VENT and the regulator disabled at 0 (the device cuts both sources), until a new
         command clears the fault."""
         self.vent(now)
-        self._phase = "track"
+        self._phase = RegulationPhase.TRACK
         return self._output(
             0.0, False, Source.VENT, Valve.VENT, PressureMode.FAULT, faults, feedback,
             f"fault: {fault_names(self._latched & SAFETY_FAULTS)}: {self._fault_message}; "
@@ -510,24 +525,24 @@ class PressureController:
         feedback, ``error_now`` carried to ``now`` at the feedback's rate."""
         c = self.config
         rate = self._rate_estimate
-        if (self._phase == "track" and self._setpoint > 0.0 and error > c.boost_band_pa and
-                self._target - feedback > c.boost_min_step_pa):
-            self._phase = "boost"
+        if (self._phase == RegulationPhase.TRACK and self._setpoint > 0.0 and
+                error > c.boost_band_pa and self._target - feedback > c.boost_min_step_pa):
+            self._phase = RegulationPhase.BOOST
             self._count_correction(now, "boosts")
-        if self._phase == "boost":
+        if self._phase == RegulationPhase.BOOST:
             time_to_setpoint = error_now / rate if rate > 0.0 else math.inf
             if error_now > 0.0 and time_to_setpoint > c.boost_lead_s:
                 # fill hard, but no harder than the headroom and the ceiling: a late or stuck
                 # valve then stays bounded
                 return min(c.regulator_max_gauge_pa, self._target + c.boost_headroom_pa,
                            self.boost_ceiling_gauge_pa(self._target)), Valve.SUPPLY
-            self._phase, self._settle_started = "settle", now
-        command = self._trimmed(error, dt, integrate=self._phase == "track")
-        if self._phase == "settle":
+            self._phase, self._settle_started = RegulationPhase.SETTLE, now
+        command = self._trimmed(error, dt, integrate=self._phase == RegulationPhase.TRACK)
+        if self._phase == RegulationPhase.SETTLE:
             # hold the air in while the regulator comes down from its maximum to the setpoint
             regulator_close = abs(self._regulator_actual - command) <= c.boost_band_pa
             if regulator_close or now - self._settle_started > c.settle_timeout_s:
-                self._phase = "track"
+                self._phase = RegulationPhase.TRACK
             else:
                 return command, self._top_up(error_now, feedback)
         return command, None
