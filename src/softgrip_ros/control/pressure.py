@@ -79,7 +79,8 @@ class RegulationPhase(enum.Enum):
 
     TRACK = "track"  # the PI loop on the setpoint
     BOOST = "boost"  # the regulator above the target with the valve open: a fast fill
-    SETTLE = "settle"  # the air held in while the regulator comes down to the setpoint
+    SETTLE = "settle"  # the air held in (topped up by single-period pulses) while the
+    # regulator comes down to the setpoint
 
 
 class Source(enum.IntEnum):
