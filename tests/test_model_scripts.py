@@ -107,6 +107,10 @@ def test_bench_fe_quick_runs_the_checks_and_a_coarse_sweep():
     assert figures["fe_mesh_change_pct"] < 1.0
     assert 20.0 < figures["fe_alpha_25kPa_deg"] < 60.0  # 29.6 deg on the 1 mm mesh
     assert figures["fe_vacuum_limit_kpa"] < 0.0
+    # the quick 2-D sweep ends at 25 kPa: what lies above it is null, not a guess
+    assert figures["fe_D2_50kPa_mm"] is None
+    assert figures["fe_compliance_45_50kPa_pct_per_kPa"] is None
+    assert figures["fe_compliance_20_25kPa_pct_per_kPa"] > 0.0
     assert "[fe]" in result.stderr or "sweep" in result.stderr  # progress on stderr
     # the 3-D FE: Lame, a two-mesh study at 2 kPa, a sweep at 2 and 10 kPa and -10 kPa
     assert figures["fe3d_verification_error_pct"] < 1.0
