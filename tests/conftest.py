@@ -18,8 +18,12 @@ os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 if "SOFTGRIP_TEST_DOMAIN_ID" in os.environ:
     os.environ["ROS_DOMAIN_ID"] = os.environ["SOFTGRIP_TEST_DOMAIN_ID"]
 else:
-    # 1..100 stays inside the port range every RMW accepts on Linux.
-    os.environ["ROS_DOMAIN_ID"] = str(random.Random(os.getpid()).randint(1, 100))
+    # 1..100 stays inside the port range every RMW accepts on Linux; pytest-xdist's workers
+    # (scripts/test.sh runs the tests marked cpu two at a time) take neighbouring domains
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    seed = os.getppid() if worker else os.getpid()
+    offset = int(worker[2:]) if worker.startswith("gw") and worker[2:].isdigit() else 0
+    os.environ["ROS_DOMAIN_ID"] = str((random.Random(seed).randint(0, 99) + offset) % 100 + 1)
 os.environ.setdefault("MPLBACKEND", "Agg")
 # Discovery between this process's DDS participants (one per rclpy context) through the
 # transport: in-process, Fast DDS 2.14 can deadlock destroying a publisher (see the file)
@@ -58,3 +62,12 @@ def ros_node(rclpy_context, request):
         yield node
     finally:
         node.destroy_node()
+
+
+def pytest_collection_modifyitems(config, items):
+    """A test marked cpu runs beside another one (scripts/test.sh): it may not also start rclpy
+    or depend on timing, so cpu and ros together are a mistake in the marks."""
+    both = [item.nodeid for item in items
+            if item.get_closest_marker("cpu") and item.get_closest_marker("ros")]
+    if both:
+        raise pytest.UsageError(f"marked both cpu and ros: {', '.join(both)}")

@@ -5,6 +5,8 @@ from hypothesis import given, settings, strategies as st
 
 from softgrip_ros.canbus.codec import FrameCodec, crc8_sae_j1850
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 
 def test_crc_check_value():
     assert crc8_sae_j1850(b"123456789") == 0x4B  # the published check value of CRC-8/SAE-J1850

@@ -11,6 +11,8 @@ from softgrip_ros.estimation import grasp_sensing as gs
 from softgrip_ros.model import plant_file
 from tests.test_grasp_sensing import clamp_record
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 SHARES = tuple(np.round(np.linspace(0.05, 0.5, 91), 3))
 
 

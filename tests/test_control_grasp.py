@@ -11,6 +11,8 @@ from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.force_law import G_M_PER_S2, ClampForceLaw, ObjectKind, load_table
 from tests.helpers.grasp_loop import GraspLoop
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 
 @pytest.fixture(scope="module")
 def kinematics():

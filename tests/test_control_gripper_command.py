@@ -12,6 +12,8 @@ from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.force_law import ObjectKind
 from tests.helpers.grasp_loop import GraspLoop
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 TOLERANCE_M = 0.005
 DEFAULT_EFFORT_N = 1.0
 

@@ -12,6 +12,8 @@ from softgrip_ros.devtools.closed_loop import rise_time_s, step_figures, step_re
 from softgrip_ros.devtools.identification_sim import SLOW_LARGE, drawn, scaled
 from tests.helpers.closed_loop import FaultyLoop
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 
 @pytest.mark.parametrize("seed", range(3))
 def test_step_to_25_kpa_is_near_time_optimal(seed):

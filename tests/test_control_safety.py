@@ -18,6 +18,8 @@ from softgrip_ros.model.pneumatics import PlantInputs, PneumaticPlant, Valve
 from softgrip_ros.devtools.identification_sim import SLOW_LARGE, scaled
 from tests.helpers.closed_loop import FaultyLoop
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 LIMITS = (-65e3, 55e3)  # min - margin, max + margin
 
 

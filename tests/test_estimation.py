@@ -18,6 +18,8 @@ from softgrip_ros.estimation.estimator import (EstimatorConfig, Health, Pressure
 from softgrip_ros.estimation.filters import FILTER_TYPES, plant_step
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 STEADY = ((0.45, 0.6), (1.05, 1.3))  # after the 25 kPa fill settles; the sealed hold
 STEPS = ((0.2, 0.35), (0.6, 0.75), (1.3, 1.45), (1.7, 1.85))  # fills, evacuation, vent
 

@@ -17,6 +17,8 @@ from softgrip_ros.model.fe.solver import HyperelasticSolid, YeohMaterial
 from softgrip_ros.model.fe.verification import lame_cylinder, planar_tension
 from softgrip_ros.model.geometry import load_geometry
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 GEOMETRY = load_geometry()
 
 

@@ -7,6 +7,8 @@ import pytest
 from softgrip_ros import fileio
 from softgrip_ros.devtools.processes import installed_executable
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 
 def test_a_write_replaces_the_file_whole_and_leaves_nothing_beside_it(tmp_path):
     target = tmp_path / "deeper" / "model.yaml"

@@ -12,6 +12,8 @@ from softgrip_ros.model.force_law import ClampForceLaw, ObjectKind, load_table
 from softgrip_ros.model.kinematics import GripperKinematics
 from softgrip_ros.model.rod import RodFinger, Sheet
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 
 @pytest.mark.parametrize("model", list(gripper_models.built_in()))
 @pytest.mark.parametrize("law", ["l0", "l1"])

@@ -8,6 +8,8 @@ import pytest
 from softgrip_ros.estimation import grasp_sensing as gs
 from softgrip_ros.model.pneumatics import P_ATM_PA, PlantInputs, PneumaticPlant, Valve
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 
 @pytest.fixture(scope="module")
 def model():

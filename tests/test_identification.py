@@ -15,6 +15,8 @@ from softgrip_ros.model import plant_file
 from softgrip_ros.model.pneumatics import (P_ATM_PA, PlantInputs, PlantState,
                                            PneumaticParameters, PneumaticPlant, Valve)
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 
 def _par(parameters: PneumaticParameters) -> dict:
     par = {"temperature_k": np.array(parameters.temperature_k),

@@ -20,6 +20,8 @@ from softgrip_ros.config_paths import config_file
 from softgrip_ros.model import bending_fit, geometry, plant_file
 from softgrip_ros.model.world import scene
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 HOSTILE = st.one_of(
     st.sampled_from([math.nan, math.inf, -math.inf, 1e300, -1e300, 0.0, -1.0, 1e-300, None,
                      True, "", "12 mm", [], {}, [1.0, 2.0], {"value": 1.0}]),

@@ -4,6 +4,10 @@ import pathlib
 import subprocess
 import sys
 
+import pytest
+
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 

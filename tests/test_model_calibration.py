@@ -8,6 +8,8 @@ import pytest
 from softgrip_ros.config_paths import config_file
 from softgrip_ros.model import calibration
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
 PAPER = calibration.PaperNumbers.load()
 

@@ -18,6 +18,8 @@ from softgrip_ros.model.reference import ReferenceFinger
 from softgrip_ros.model.rod import Circle, Sheet
 from tests.helpers.grasp_loop import GraspLoop
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 MODEL = SceneModel("auto", 1e-3)
 BOUNDS = MODEL.selector.bounds
 CLAMP_40MM = cylinder_scene(MODEL.rod, 0.040, 30e3)

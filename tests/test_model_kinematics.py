@@ -12,6 +12,8 @@ from softgrip_ros.model.bending import BendingCalibration, LinearBending, YeohMo
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.geometry import CHAMBER_COUNT, FingerGeometry, load_geometry
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 L0 = build_kinematics("l0", max_pressure_pa=50e3)
 L1 = build_kinematics("l1", max_pressure_pa=50e3)
 MODELS = [L0, L1]

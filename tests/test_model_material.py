@@ -5,6 +5,8 @@ from hypothesis import given, settings, strategies as st
 
 from softgrip_ros.model.material import YeohMaterial, fit_yeoh, load_tensile_csv
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 PAPER = YeohMaterial()
 
 

@@ -11,6 +11,8 @@ from softgrip_ros.canbus.sim_device import DEFAULT_SENSORS
 from softgrip_ros.model import plant_file
 from softgrip_ros.model.pneumatics import P_ATM_PA, PneumaticParameters, PneumaticPlant, Valve
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
 SHIPPED = REPO_ROOT / "config" / "plant.yaml"
 

@@ -10,6 +10,8 @@ from scipy.integrate import solve_ivp
 from softgrip_ros.model.pneumatics import (P_ATM_PA, PlantInputs, PlantState, PneumaticParameters,
                                            PneumaticPlant, Valve, orifice_mass_flow)
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 PLANT = PneumaticPlant()
 SMALL = PneumaticPlant(
     PneumaticParameters(chamber_volume_m3=1e-6, min_chamber_volume_m3=0.2e-6,

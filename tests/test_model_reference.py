@@ -12,6 +12,8 @@ from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.reference import ReferenceFinger
 from softgrip_ros.model.rod import Circle, RodFinger
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 KIN = build_kinematics("l1")
 ROD = RodFinger(KIN.geometry, KIN.calibration)
 REFERENCE = ReferenceFinger(ROD)

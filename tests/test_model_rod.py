@@ -8,6 +8,8 @@ import pytest
 from softgrip_ros.model.calibration import build_kinematics
 from softgrip_ros.model.rod import Circle, RodFinger, Sheet
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 KIN = build_kinematics("l1")
 ROD = RodFinger(KIN.geometry, KIN.calibration)
 # a 40 mm cylinder on the centre line, between the chamber faces

@@ -26,6 +26,7 @@ def run(*args, timeout=300, env=None):
                           timeout=timeout, env=env)
 
 
+@pytest.mark.cpu
 def test_fit_yeoh_prints_constants_and_draws_the_plot(tmp_path):
     plot = tmp_path / "fit.png"
     result = run("scripts/fit_yeoh.py", "docs/examples/synthetic_tensile_test.csv", "--plot",
@@ -39,6 +40,7 @@ def test_fit_yeoh_prints_constants_and_draws_the_plot(tmp_path):
     assert plot.stat().st_size > 10_000
 
 
+@pytest.mark.cpu
 def test_fit_yeoh_names_the_bad_row(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("stretch,stress_pa\n1.1,100\n1.2,200\n0.0,300\n1.4,400\n1.5,500\n")
@@ -48,6 +50,7 @@ def test_fit_yeoh_names_the_bad_row(tmp_path):
     assert "Traceback" not in result.stderr
 
 
+@pytest.mark.cpu
 def test_validate_model_json_has_the_contract_keys():
     result = run("scripts/validate_model.py", "--json")
     assert result.returncode == 0, result.stderr
@@ -129,6 +132,7 @@ def test_bench_fe_quick_runs_the_checks_and_a_coarse_sweep():
     assert "[####################]" in result.stderr  # each sweep's progress bar ends full
 
 
+@pytest.mark.cpu
 def test_bench_model_quick_json_reports_every_figure():
     result = run("scripts/bench_model.py", "--quick", "--json")
     assert result.returncode == 0, result.stderr
@@ -223,6 +227,7 @@ def test_bench_identify_quick_json_reports_every_key():
     assert figures["excitation_s"] <= 60.0
 
 
+@pytest.mark.cpu
 @pytest.mark.slow
 def test_bench_identify_spread_quick_json_summarises_every_value_over_its_fits():
     """Two seeded offline fits of slow_large (quick excitation): every value of the issue's
@@ -261,6 +266,7 @@ def test_bench_identify_spread_quick_json_summarises_every_value_over_its_fits()
     assert "fit 2/2" in result.stderr
 
 
+@pytest.mark.cpu
 def test_strict_json_writes_what_is_not_finite_as_null():
     """A flagged value's unbounded interval came out as ``Infinity``, which Python reads and jq
     does not."""
@@ -292,6 +298,7 @@ def test_a_variant_run_writes_its_own_section_beside_the_main_one(tmp_path):
     assert "variant 1" not in text and text.index("main 1") < text.index("variant 2")
 
 
+@pytest.mark.cpu
 def test_bench_identify_spread_refuses_a_bad_seed_count():
     result = run("scripts/bench_identify_spread.py", "--seeds", "0", "--json")
     assert result.returncode == 2
@@ -299,6 +306,7 @@ def test_bench_identify_spread_refuses_a_bad_seed_count():
     assert "Traceback" not in result.stderr
 
 
+@pytest.mark.cpu
 @pytest.mark.slow
 def test_bench_speed_accuracy_quick_json_runs_through_and_reports_every_key():
     """#21: it died at the end on an import of a renamed function, and no test ran it."""

@@ -12,6 +12,8 @@ from softgrip_ros.model.calibration import PaperNumbers, build_kinematics, mean_
 from softgrip_ros.model.geometry import CHAMBER_COUNT
 from softgrip_ros.model.kinematics import GripperKinematics
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 L0 = build_kinematics("l0", max_pressure_pa=60e3)
 
 

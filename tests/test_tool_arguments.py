@@ -14,6 +14,8 @@ from hypothesis import strategies as st
 
 from softgrip_ros.argtypes import Assignment, Number
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 TOOLS = {
     "softgrip": "softgrip_ros.cli",
     "softgrip_identify": "softgrip_ros.tools.identify",

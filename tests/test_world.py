@@ -14,6 +14,8 @@ from softgrip_ros.model.world.fingers import PseudoRigidFinger
 from softgrip_ros.model.world.scene import SceneError, load_scene, scene_from_document
 from softgrip_ros.model.world.world import (TABLE_RANGE_PA, GraspTruthState, GripperWorld)
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 BASE_Z = 0.3
 FREE_PRESSURES = np.linspace(-60e3, 50e3, 12)
 

@@ -11,6 +11,8 @@ from softgrip_ros.model.world.fingers import PseudoRigidFinger
 from softgrip_ros.model.world.scene import scene_from_document
 from softgrip_ros.model.world.world import GripperWorld
 
+pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
+
 FINGER = PseudoRigidFinger(*gripper_models.resolve("type_II"), bending="l0")
 # a fill, a hold, a vent, an evacuation, a vent: (valve, regulator setpoint, seconds)
 PROGRAM = ((Valve.SUPPLY, 40e3, 0.6), (Valve.CLOSED, 40e3, 0.2), (Valve.VENT, 0.0, 0.5),
