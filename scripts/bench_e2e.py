@@ -37,9 +37,13 @@ from here, as an arm would:
   medians' ratio is ``gripper_open_ratio``.
 * ``cancel_to_valve_frame_ms``: a GripperCommand opening goal from IDLE, cancelled a random
   0-150 ms after its first valve frame (the opening under way), from the cancel request sent
-  here to the first ValveCommand frame after which channel 0 stays off the supply for 0.5 s
-  (held, as ros2_controllers' gripper controllers stop where they are); ``--cancels`` of them
-  per run.
+  here to the end of the last supply after it: the ValveCommand frame after which channel 0
+  stays off the supply for 0.5 s (held, as ros2_controllers' gripper controllers stop where
+  they are), or 0 when the supply was shut at the request (between the opening's pulses) and
+  never reopened, as the bus then shows no change to time; ``--cancels`` of them per run.
+  ``cancel_to_hold_stamp_ms``: from the same request to the stamp of the first ``grasp_state``
+  that says the goal was canceled, when the grasp manager ordered the hold (for every cancel,
+  those between pulses too).
 * ``safety_reaction_ms``: from the first PressureSensor frame past the overpressure limit (the
   simulated device's readings biased by ``fault.sensor_bias_pa`` while the gripper is held open
   at 40 mm) to the first ValveCommand frame that vents (both sender timestamps); ``--reactions``
@@ -159,6 +163,12 @@ class BusWatch:
                     return self.valve_times[index], self.valve_states[index]
             time.sleep(WATCH_PERIOD_S)
         return None
+
+    def valve_state_at(self, when_s: float):
+        """Channel 0's state in the last valve frame sent by ``when_s`` (None before the first)."""
+        count = len(self.valve_states)
+        index = bisect.bisect_right(self.valve_times, when_s, 0, count) - 1
+        return self.valve_states[index] if index >= 0 else None
 
     def valve_frames(self, after_s: float, until_s: float) -> list:
         """(sender time, channel-0 state) of every valve frame sent in (after_s, until_s]."""
@@ -309,11 +319,14 @@ def open_goals(node, states, pairs: int) -> dict:
 
 def cancel_goals(node, states, watch, count: int, seed: int = 0) -> dict:
     """``count`` GripperCommand opening goals from IDLE, each cancelled a random CANCEL_DELAY_S
-    after its first valve frame (the supply open): {"latencies_ms": [...], "states": {channel-0
-    state at the end: count}, "failed": n, "why": [...]}. A latency runs from the cancel request
-    to the first valve frame after which channel 0 does not open to the supply again within
-    CANCEL_WATCH_S (the opening pulses between closed frames, so the first change alone would
-    time the pulses)."""
+    after its first valve frame (the supply open): {"latencies_ms": [...], "hold_stamp_ms":
+    [...], "shut_at_request": n, "states": {channel-0 state at the end: count}, "failed": n,
+    "why": [...]}. A latency runs from the cancel request to the first valve frame after which
+    channel 0 does not open to the supply again within CANCEL_WATCH_S (the opening pulses
+    between closed frames, so the first change alone would time the pulses); it is 0 when the
+    supply was shut at the request and stayed shut (no frame changes then: the next one is the
+    periodic re-send). A hold stamp runs from the request to the stamp of the first
+    ``grasp_state`` after it that says the goal was canceled."""
     import random
 
     from control_msgs.action import GripperCommand
@@ -321,7 +334,8 @@ def cancel_goals(node, states, watch, count: int, seed: int = 0) -> dict:
     gripper = ActionClient(node, GripperCommand, "gripper_cmd")
     stops = node.create_publisher(GraspCommand, "grasp_command", 10)
     rng = random.Random(seed)
-    out = {"latencies_ms": [], "states": {}, "failed": 0, "why": []}
+    out = {"latencies_ms": [], "hold_stamp_ms": [], "shut_at_request": 0, "states": {},
+           "failed": 0, "why": []}
     try:
         if not gripper.wait_for_server(timeout_sec=10.0):
             raise RuntimeError("no gripper_cmd action server")
@@ -340,13 +354,20 @@ def cancel_goals(node, states, watch, count: int, seed: int = 0) -> dict:
                 time.sleep(CANCEL_WATCH_S + 2 * WATCH_PERIOD_S)
                 frames = watch.valve_frames(cancel_sent, cancel_sent + CANCEL_WATCH_S)
                 supplied = [k for k, (_, state) in enumerate(frames) if state == SUPPLY]
+                shut = not supplied and watch.valve_state_at(cancel_sent) != SUPPLY
                 settled = supplied[-1] + 1 if supplied else 0
                 if settled < len(frames):
-                    out["latencies_ms"].append(1e3 * (frames[settled][0] - cancel_sent))
+                    out["latencies_ms"].append(
+                        0.0 if shut else 1e3 * (frames[settled][0] - cancel_sent))
+                    out["shut_at_request"] += shut
                     end_state = frames[-1][1]
                     out["states"][end_state] = out["states"].get(end_state, 0) + 1
                 else:
                     why = f"still supplied {CANCEL_WATCH_S:g} s after the cancel"
+                held = [stamp for stamp in (stamp_seconds(m.header.stamp) for m in list(states)
+                                            if "canceled" in m.message) if stamp >= cancel_sent]
+                if held:
+                    out["hold_stamp_ms"].append(1e3 * (held[0] - cancel_sent))
                 wait_future(cancelled, 2.0)
                 wait_future(handle.get_result_async(), 5.0)
             if why:
@@ -581,7 +602,8 @@ def measure(idle_s: float, grasp_s: float, window_s: float, open_pairs: int, can
     to_joints, to_pose_arm = matched_latencies(watch, arm_joints), matched_latencies(
         watch, arm_poses)
     if not (to_joints and to_pose_arm and opens["gripper"] and opens["grasp"]
-            and cancelled["latencies_ms"] and reacted["latencies_ms"]):
+            and cancelled["latencies_ms"] and cancelled["hold_stamp_ms"]
+            and reacted["latencies_ms"]):
         raise RuntimeError(f"as an arm stack: {len(to_joints)} joint_states, {len(to_pose_arm)} "
                            f"poses, opening goals {opens}, cancels {cancelled}, safety "
                            f"reactions {reacted}")
@@ -611,6 +633,8 @@ def measure(idle_s: float, grasp_s: float, window_s: float, open_pairs: int, can
         statistics.median(opens["grasp"]),
         "cancel_to_valve_frame_ms_median": statistics.median(cancelled["latencies_ms"]),
         "cancel_to_valve_frame_ms_p99": p99(cancelled["latencies_ms"]),
+        "cancel_to_hold_stamp_ms_median": statistics.median(cancelled["hold_stamp_ms"]),
+        "cancel_to_hold_stamp_ms_p99": p99(cancelled["hold_stamp_ms"]),
         "safety_reaction_ms_median": statistics.median(reacted["latencies_ms"]),
         "safety_reaction_ms_p99": p99(reacted["latencies_ms"]),
     }
@@ -771,7 +795,12 @@ def main(argv=None) -> int:
         + ", ".join(f"{k}: {v}" for k, v in sorted(details["cancels"]["states"].items()))
         + ". From the cancel request sent here over DDS to the action server, the grasp "
         "manager's hold and the CAN send; the opening pulses the supply, so the latency runs "
-        "to the frame after its last pulse.\n"
+        "to the frame after its last pulse, and is 0 for the "
+        f"{details['cancels']['shut_at_request']} requests that came between pulses and after "
+        "which the supply never reopened (the hold closes nothing new then, and the next frame "
+        "is only the periodic re-send). The grasp manager's hold was stamped "
+        f"{figures['cancel_to_hold_stamp_ms_median']:.1f} ms after the request (median), "
+        f"{figures['cancel_to_hold_stamp_ms_p99']:.1f} ms p99, over every cancel.\n"
         f"- Safety reactions: {len(details['safety_reactions']['latencies_ms'])} readings past "
         f"the limit ({details['safety_reactions']['failed']} failed: "
         f"{'; '.join(details['safety_reactions']['why']) or 'none'}): the simulated device's "

@@ -191,10 +191,13 @@ def test_bench_e2e_quick_json_reports_every_figure():
                 "controller_cpu_pct_grasp", "controller_cpu_pct_device_paused",
                 "controller_rss_mb", "sensor_to_joint_states_ms_p99",
                 "sensor_to_tip_pose_arm_ms_p99", "gripper_open_s", "grasp_open_s",
-                "gripper_open_ratio", "cancel_to_valve_frame_ms_median",
-                "cancel_to_valve_frame_ms_p99", "safety_reaction_ms_median",
+                "gripper_open_ratio", "cancel_to_hold_stamp_ms_median",
+                "cancel_to_hold_stamp_ms_p99", "safety_reaction_ms_median",
                 "safety_reaction_ms_p99", "start_to_ready_s"):
         assert figures[key] > 0, key
+    # 0 for a cancel between the opening's pulses after which the supply never reopened
+    assert 0 <= figures["cancel_to_valve_frame_ms_median"] <= figures[
+        "cancel_to_valve_frame_ms_p99"]
     # every reading past the limit vented, within the second the bench waits
     reactions = figures["details"]["safety_reactions"]
     assert reactions["failed"] == 0 and len(reactions["latencies_ms"]) == 2, reactions
@@ -203,6 +206,9 @@ def test_bench_e2e_quick_json_reports_every_figure():
     # every cancel of an opening under way closes the valves: it holds, as a STOP would not
     cancels = figures["details"]["cancels"]
     assert cancels["failed"] == 0 and set(cancels["states"]) == {"0"}, cancels
+    # each one's hold stamped on grasp_state; the shut ones among the cancels timed on the bus
+    assert len(cancels["hold_stamp_ms"]) == len(cancels["latencies_ms"]) == 3, cancels
+    assert cancels["latencies_ms"].count(0.0) == cancels["shut_at_request"], cancels
     assert set(
         figures["details"]["runs"]) >= {"cmd_to_valve_frame_ms_p99", "controller_cpu_pct_idle"}
 
