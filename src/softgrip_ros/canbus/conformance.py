@@ -233,21 +233,27 @@ class DeviceChecker:
         return 1000.0 / cycle_ms if cycle_ms else 0.0
 
     @staticmethod
-    def _measured_hz(frames: list) -> float:
+    def _spacings_s(frames: list) -> list:
+        """The gaps between the frames' stamps, in time order (s)."""
+        stamps = sorted(f.stamp for f in frames)
+        return [b - a for a, b in zip(stamps, stamps[1:])]
+
+    @classmethod
+    def _measured_hz(cls, frames: list) -> float:
         """The frames' rate from their median cycle (their stamps' median spacing), 0.0 with fewer
         than 3. A median, not the count over the span: a host that stalls the thread reading (or
         a simulated device's sending) loses frames in a few long gaps, which say nothing of the
         cycle the firmware keeps; a wrong cycle moves every spacing, and so the median."""
-        stamps = sorted(f.stamp for f in frames)
-        if len(stamps) < 3 or stamps[-1] <= stamps[0]:
+        spacings = cls._spacings_s(frames)
+        span = sum(spacings)
+        if len(spacings) < 2 or span <= 0.0:
             return 0.0
-        cycle = statistics.median(b - a for a, b in zip(stamps, stamps[1:]))
-        return 1.0 / cycle if cycle > 0.0 else (len(stamps) - 1) / (stamps[-1] - stamps[0])
+        cycle = statistics.median(spacings)
+        return 1.0 / cycle if cycle > 0.0 else len(spacings) / span
 
-    @staticmethod
-    def _longest_gap_ms(frames: list) -> float:
-        stamps = sorted(f.stamp for f in frames)
-        return 1e3 * max((b - a for a, b in zip(stamps, stamps[1:])), default=0.0)
+    @classmethod
+    def _longest_gap_ms(cls, frames: list) -> float:
+        return 1e3 * max(cls._spacings_s(frames), default=0.0)
 
     def _rate_row(self, name: str, frames: list) -> Row:
         expected, measured = self._expected_hz(name), self._measured_hz(frames)
