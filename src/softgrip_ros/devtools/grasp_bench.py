@@ -218,6 +218,7 @@ class SuiteRig:
         from softgrip_interfaces.srv import LoadScene, PlayArmMove
         from softgrip_ros.client import GripperClient
         from softgrip_ros.devtools.processes import installed_executable
+        from softgrip_ros.nodes.common import spinning
 
         self.log = open(log_path, "w+")  # the caller's directory: it goes when that does
         world = ("-p", f"world.scene:={first_scene}")
@@ -242,10 +243,10 @@ class SuiteRig:
         self.node.create_subscription(GripperState, "grasp_state", self._on_state, 50)
         self.play_client = self.node.create_client(PlayArmMove, "sim/play_arm_move")
         self.load_client = self.node.create_client(LoadScene, "sim/load_scene")
-        self._executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
-        self._executor.add_node(self.node)
-        self._spin = threading.Thread(target=self._executor.spin, daemon=True)
-        self._spin.start()
+        # the package's spinner stops its loop before the executor shuts down: executor.spin in
+        # a thread raced with shutdown() (InvalidHandle on its guard condition, seen in CI)
+        self._spinning = spinning(self.node, context=self.context, threads=1)
+        self._spinning.__enter__()
         self.GripperState, self.GraspTruth = GripperState, GraspTruth
         self.LoadScene, self.PlayArmMove = LoadScene, PlayArmMove
 
@@ -277,7 +278,7 @@ class SuiteRig:
         import rclpy
         try:
             self.client.close()
-            self._executor.shutdown(timeout_sec=1.0)
+            self._spinning.__exit__(None, None, None)
             self.node.destroy_node()
         finally:
             rclpy.try_shutdown(context=self.context)
