@@ -196,8 +196,12 @@ def test_the_known_object_step_learns_the_share_on_the_worlds_fingers(tmp_path):
                     break
             assert sum("on nothing" in line for line in told) == 2, told
             rig.play_through("approach")
-            run.stdin.write("\n")
-            run.stdin.flush()
+            try:
+                run.stdin.write("\n")
+                run.stdin.flush()
+            except BrokenPipeError:  # the tool stopped at the prompt: say why
+                out, err = run.communicate(timeout=30)
+                pytest.fail("softgrip_identify ended at the prompt: " + "".join(told) + out + err)
             out, err = run.communicate(timeout=300)
         finally:
             stop_process(run, timeout_s=10.0)
