@@ -19,6 +19,7 @@ the L0 and L1 laws, the 3-D FE's table of the FE-calibrated model).
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import enum
 import math
@@ -245,8 +246,8 @@ class SuiteRig:
         self.load_client = self.node.create_client(LoadScene, "sim/load_scene")
         # the package's spinner stops its loop before the executor shuts down: executor.spin in
         # a thread raced with shutdown() (InvalidHandle on its guard condition, seen in CI)
-        self._spinning = spinning(self.node, context=self.context, threads=1)
-        self._spinning.__enter__()
+        self._spinning = contextlib.ExitStack()
+        self._spinning.enter_context(spinning(self.node, context=self.context, threads=1))
         self.GripperState, self.GraspTruth = GripperState, GraspTruth
         self.LoadScene, self.PlayArmMove = LoadScene, PlayArmMove
 
@@ -278,7 +279,7 @@ class SuiteRig:
         import rclpy
         try:
             self.client.close()
-            self._spinning.__exit__(None, None, None)
+            self._spinning.close()
             self.node.destroy_node()
         finally:
             rclpy.try_shutdown(context=self.context)
