@@ -112,12 +112,12 @@ def compliance(result) -> dict:
     rest = sum(result.at(0.0).cavity_areas_m2)
     out = {}
     for low, high in ((0.0, 5e3), (20e3, 25e3), (45e3, 50e3)):
+        key = f"fe_compliance_{low / 1e3:.0f}_{high / 1e3:.0f}kPa_pct_per_kPa"
         if not swept(result, low / 1e3, high / 1e3):
-            out[f"fe_compliance_{low / 1e3:.0f}_{high / 1e3:.0f}kPa_pct_per_kPa"] = None
+            out[key] = None
             continue
         grow = sum(result.at(high).cavity_areas_m2) - sum(result.at(low).cavity_areas_m2)
-        out[f"fe_compliance_{low / 1e3:.0f}_{high / 1e3:.0f}kPa_pct_per_kPa"] = (
-            100.0 * grow / rest / ((high - low) / 1e3))
+        out[key] = 100.0 * grow / rest / ((high - low) / 1e3)
     out["plant_compliance_pct_per_kPa"] = 100.0 * plant.chamber_compliance_m3_per_pa * 1e3 / (
         plant.chamber_volume_m3)
     return out
