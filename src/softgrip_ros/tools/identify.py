@@ -10,7 +10,9 @@ vents, the chamber swung across the limits, evacuations, a PRBS, then a held-out
 validation (softgrip_ros.estimation.identification). Every reading and status goes into a
 rosbag2 log (MCAP). Then the controller is restored (deactivated, mode off, activated) and the
 fit runs. A sensor that drops out or saturates, a fault the controller latches, or Ctrl-C stops
-it: it vents, restores the controller, says why, and writes nothing.
+it: it vents, restores the controller, says why, and writes nothing. A run whose readings
+cannot be fitted writes no plant file but keeps its log in --output/recording, to fit again
+with --from-log.
 
 Writes into --output: plant.yaml (provenance, each value's source, interval and flag; select it
 with the nodes' plant_file parameter), identification.md (the report), identification.png
@@ -57,6 +59,7 @@ INFO_TOPIC = "/softgrip_identify/info"
 SILENT_S = 1.0
 FRAME_AGE_S = 0.25
 BLIND_GRACE_S = 0.3  # the controller unable to see the chamber this long: stop (as the grasp does)
+CHANGE_RESOLUTION_S = 1e-3  # statuses dating their outputs this close say the same change
 REFRESH_S = 0.5  # a held command is sent again this often (the controller's command timeout)
 LIMIT_USE = 0.9  # the excitation uses this much of each pressure limit
 
@@ -116,6 +119,9 @@ def _check(args, error) -> None:
         error(f"--from-log {args.from_log}: no rosbag2 log there (no metadata.yaml)")
     if args.output is not None and (args.output / "plant.yaml").exists():
         error(f"{args.output / 'plant.yaml'} exists: choose another --output")
+    if args.output is not None and args.from_log is None and (args.output / "recording").exists():
+        error(f"{args.output / 'recording'} exists (a log kept from an earlier run: fit it with "
+              "--from-log): choose another --output")
     if args.known_object_m is not None and args.from_log is None:
         from softgrip_ros.model import gripper_models
         try:
@@ -144,6 +150,9 @@ class Live:
         self.lock = threading.Lock()
         self.messages = []  # (topic, msgtype, receive ns, cdr bytes)
         self.last_reading, self.status = {}, None
+        # (when the controller's outputs went out, ROS s; its status message then), each change
+        # once: the known-object step tells a clamp the controller interrupted
+        self.output_changes = []
         self.recording = False
         self._blind_since = None
 
@@ -204,8 +213,13 @@ class Live:
                     self.last_reading[name] = time.monotonic()
             if name is None:
                 status = deserialize_message(data, ControllerStatus)
+                stamp = status.header.stamp.sec + 1e-9 * status.header.stamp.nanosec
+                changed = outputs_changed_at(stamp, status.output_change_age_s)
                 with self.lock:
                     self.status = status
+                    if (not self.output_changes or
+                            abs(changed - self.output_changes[-1][0]) > CHANGE_RESOLUTION_S):
+                        self.output_changes.append((changed, status.message))
 
         for name in sensors:
             topic = f"{self.prefix}/pressure/sensor/{name}"
@@ -224,6 +238,19 @@ class Live:
                                   source=getattr(PressureCommand, source))
         message.header.stamp = stamp_msg(self.node.get_clock().now().nanoseconds * 1e-9)
         self.publisher.publish(message)
+
+    def output_changes_between(self, start_s: float, end_s: float) -> list:
+        """The controller's output changes from ``start_s`` to ``end_s`` (ROS s), as (when,
+        its status message then), in order."""
+        with self.lock:
+            return [change for change in self.output_changes if start_s <= change[0] <= end_s]
+
+    def measured_gauge_pa(self) -> float:
+        """The chamber's pressure (Pa gauge) as the controller last reported it measured; NaN
+        before a status or with no valid sensor."""
+        with self.lock:
+            status = self.status
+        return math.nan if status is None else status.measured_gauge_pressure_pa
 
     def problem(self, sensors: list) -> str:
         """Why the run must stop now ('' when nothing is wrong)."""
@@ -376,6 +403,15 @@ def _write_log(live: Live, info: dict) -> pathlib.Path:
     return folder
 
 
+def _keep_log(log: pathlib.Path, output: pathlib.Path) -> pathlib.Path:
+    """Move a live run's log (``_write_log``'s folder) to ``output``/recording; that path."""
+    output.mkdir(parents=True, exist_ok=True)
+    kept = output / "recording"
+    shutil.move(str(log), str(kept))
+    shutil.rmtree(log.parent, ignore_errors=True)
+    return kept
+
+
 # ---- from a log ---------------------------------------------------------------------------------
 def recording_from_log(path: pathlib.Path) -> tuple[identification.Recording, dict]:
     """The Recording in a log softgrip_identify wrote, and its info. The readings there have the
@@ -468,8 +504,7 @@ def main(argv=None) -> int:
             log, _ = run_live(args, progress)
         written = fit_log(log, args, output, progress, command)
         if args.from_log is None:
-            shutil.move(str(log), str(output / "recording"))
-            shutil.rmtree(log.parent, ignore_errors=True)
+            _keep_log(log, output)
     except ConnectionError as error:
         print(f"softgrip_identify: {error}", file=sys.stderr)
         return 3
@@ -480,9 +515,12 @@ def main(argv=None) -> int:
         print("softgrip_identify: stopped by Ctrl-C; vented, nothing written", file=sys.stderr)
         return 1
     except ValueError as error:
-        print(f"softgrip_identify: cannot fit: {error}; nothing written", file=sys.stderr)
-        if log is not None and args.from_log is None:
-            shutil.rmtree(log.parent, ignore_errors=True)
+        if log is None or args.from_log is not None:
+            print(f"softgrip_identify: cannot fit: {error}; nothing written", file=sys.stderr)
+        else:  # the run's readings are worth keeping: a fix may let them be fitted again
+            kept = _keep_log(log, output)
+            print(f"softgrip_identify: cannot fit: {error}; no plant file written, the log kept "
+                  f"in {kept} (fit it again with --from-log)", file=sys.stderr)
         return 1
     if "contact" in written:
         fit = written["contact"]

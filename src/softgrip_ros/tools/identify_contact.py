@@ -17,6 +17,7 @@ import datetime
 import pathlib
 import select
 import sys
+import time
 
 from softgrip_ros.estimation.grasp_sensing import AirRecord, MotionJob
 from softgrip_ros.model import plant_file
@@ -26,7 +27,15 @@ REPORT, FIGURE = "contact.md", "contact.png"
 OPEN_MARGIN_M = 0.01  # the opening clears the object by this much of D2
 CLAMP_PA = -30e3  # deep enough that the closing's transient decides (docs/grasp_sensing.md)
 OPEN_S, CLAMP_S = 1.5, 1.0  # the opening settles; the clamp's transient and its settling
+# the object is asked for once the chamber reads the opening within this: an object brought in
+# while the fingers still close on the last clamp is knocked away by them
+OPEN_TOLERANCE_PA = 1e3
+OPEN_TIMEOUT_S = 5.0  # ... and the step stops when it does not within this after OPEN_S
 JUDGED_S = 0.8  # the part of a clamp that is fitted
+STEADY_S = 0.3  # ... and the opening's readings before it, its starting pressure
+# a clamp the controller interrupted (its valves held closed while its readings were late, say)
+# is not the closing the fit models: it is done again, this many times in a step at most
+MAX_REDONE = 4
 EMPTY_CLOSINGS, OBJECT_CLOSINGS = 2, 3
 PLACE_PROMPT = "then press Enter"
 
@@ -56,15 +65,15 @@ def run(live, contact_plan: ContactPlan, sensors: list, progress, wait_placed) -
     """The closings, live (``live``: softgrip_ros.tools.identify.Live, in identification mode):
     [(kind 'empty' or 'object', when the clamp was sent, ROS s)]. ``wait_placed(check)`` blocks
     until the user has placed the object, calling ``check()`` meanwhile (EOFError: never).
-    Raises identify.Stopped."""
+    A clamp during which the controller changed its outputs again is done again (MAX_REDONE
+    in all). Raises identify.Stopped."""
     from softgrip_ros.tools.identify import Stopped, hold_for
     with live.lock:
         live.recording = True
-    closings = []
+    closings, redone = [], 0
     for kind, count in (("empty", EMPTY_CLOSINGS), ("object", OBJECT_CLOSINGS)):
         if kind == "object":
-            live.send("SUPPLY", contact_plan.open_pa)
-            hold_for(live, sensors, "SUPPLY", contact_plan.open_pa, 0.5)
+            _open_for_placing(live, sensors, contact_plan.open_pa)
             progress(f"open for a {contact_plan.known_size_m * 1e3:.1f} mm object: place it "
                      f"between the fingers, level with their tip chambers, {PLACE_PROMPT}")
 
@@ -77,7 +86,8 @@ def run(live, contact_plan: ContactPlan, sensors: list, progress, wait_placed) -
                 wait_placed(check)
             except EOFError as error:  # no one to place the object
                 raise Stopped(str(error)) from None
-        for index in range(count):
+        index = 0
+        while index < count:
             target = "nothing" if kind == "empty" else "the object"
             progress(f"clamp {index + 1}/{count} on {target}: open to "
                      f"{contact_plan.open_pa / 1e3:+.1f} kPa, clamp at "
@@ -87,12 +97,38 @@ def run(live, contact_plan: ContactPlan, sensors: list, progress, wait_placed) -
             sent = live.node.get_clock().now().nanoseconds * 1e-9
             live.send("SUPPLY", contact_plan.clamp_pa)
             hold_for(live, sensors, "SUPPLY", contact_plan.clamp_pa, CLAMP_S)
+            # the clamp's own change, and no other while the opening and the closing are read
+            extra = live.output_changes_between(sent - STEADY_S, sent + JUDGED_S)[1:]
+            if extra:
+                redone += 1
+                why = "; ".join(dict.fromkeys(message or "no message" for _, message in extra))
+                if redone > MAX_REDONE:
+                    raise Stopped(f"{redone} clamps interrupted by the controller (the last: "
+                                  f"{why}): a busy host or a slow bus?")
+                progress(f"clamp {index + 1}/{count} on {target} interrupted: the controller "
+                         f"changed its outputs {len(extra)} times mid-clamp ({why}); again")
+                continue
             closings.append((kind, sent))
+            index += 1
     live.send("SUPPLY", contact_plan.open_pa)
     hold_for(live, sensors, "SUPPLY", contact_plan.open_pa, 0.5)
     with live.lock:
         live.recording = False
     return closings
+
+
+def _open_for_placing(live, sensors: list, open_pa: float) -> None:
+    """Hold the opening (Pa gauge) for OPEN_S, and on until the controller measures it within
+    OPEN_TOLERANCE_PA; identify.Stopped when it does not within OPEN_TIMEOUT_S more."""
+    from softgrip_ros.tools.identify import Stopped, hold_for
+    live.send("SUPPLY", open_pa)
+    hold_for(live, sensors, "SUPPLY", open_pa, OPEN_S)
+    deadline = time.monotonic() + OPEN_TIMEOUT_S
+    while not live.measured_gauge_pa() >= open_pa - OPEN_TOLERANCE_PA:
+        if time.monotonic() > deadline:
+            raise Stopped(f"the fingers did not open to {open_pa / 1e3:.1f} kPa for the object "
+                          f"(the chamber reads {live.measured_gauge_pa() / 1e3:.1f} kPa)")
+        hold_for(live, sensors, "SUPPLY", open_pa, 0.1)
 
 
 def wait_for_enter(check, period_s: float = 0.05) -> None:
@@ -128,7 +164,7 @@ def jobs_from_log(recording, info: dict, base: plant_file.PlantDescription) -> t
                       abs(c.regulator_setpoint_pa - clamp_pa) < 1.0), None)
         if start is None:
             raise ValueError(f"the log holds no clamp output after {sent:.3f} s")
-        before = sorted(v for t, v, _ in readings if start - 0.3 <= t < start - 0.01)
+        before = sorted(v for t, v, _ in readings if start - STEADY_S <= t < start - 0.01)
         if len(before) < 5:
             raise ValueError(f"the log holds no steady opening before the clamp at {start:.3f} s")
         record = AirRecord(start, before[len(before) // 2])
