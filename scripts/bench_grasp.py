@@ -426,7 +426,9 @@ def run_sensing_suite(quick: bool, gripper_model: str) -> dict:
             "suite_size_err_mm_p95": float(_percentile(sized, 95)) if sized else math.nan,
             "suite_sensing_rows": [{"case": c.case.object_class, "object": c.object_present,
                                     "status": c.status.name, "size_m": c.size_m,
-                                    "evidence": c.evidence} for c in closings]}
+                                    "evidence": c.evidence,
+                                    "verdict_after_task_s": c.verdict_after_task_s}
+                                   for c in closings]}
 
 
 def confusion_matrix(pairs) -> dict:

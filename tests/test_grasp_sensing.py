@@ -210,6 +210,21 @@ def test_a_judgement_that_raises_leaves_the_status_unknown_and_says_why(model):
     assert not fsm.object_held()
 
 
+def test_the_judge_process_runs_nicer_than_the_controller_but_not_starved(model):
+    """By default the judge's child runs JUDGE_NICE_INCREMENT above this process, less than
+    the other workers' WORKER_NICE_INCREMENT: its verdicts have a deadline."""
+    import os
+    from softgrip_ros.runtime.motion_judge import JUDGE_NICE_INCREMENT, MotionJudgeProcess
+    from softgrip_ros.runtime.worker_process import WORKER_NICE_INCREMENT
+    assert 0 < JUDGE_NICE_INCREMENT < WORKER_NICE_INCREMENT
+    judge = MotionJudgeProcess("type_II", "l0", model.plant)
+    try:
+        nice_in_child = judge._worker.submit(os.nice, 0).result(timeout=60.0)
+    finally:
+        judge.close()
+    assert nice_in_child == min(os.nice(0) + JUDGE_NICE_INCREMENT, 19)
+
+
 def test_the_judge_process_gives_the_verdict_of_an_in_process_judgement(model):
     """MotionJudgeProcess judges in a child of its own (another PID, which builds its own
     model, with the plant file's identified share), with the verdict judge_motion gives here;

@@ -111,19 +111,26 @@ def verdict_correct(status: ObjectStatus, object_present: bool) -> bool:
 @dataclasses.dataclass
 class SensedClosing:
     """A closing judged through the suite: the status the task ended with (an ObjectStatus),
-    the felt size (m, NaN: none), whether the world had the object in the hand then, and the
-    evidence (or why the closing failed)."""
+    the felt size (m, NaN: none), whether the world had the object in the hand then, the
+    evidence (or why the closing failed), and how long after the task's end the verdict came
+    (a goal ends without it after the grasp manager's sensing_wait)."""
 
     case: GraspCase
     status: ObjectStatus
     size_m: float
     object_present: bool
     evidence: str
+    verdict_after_task_s: float = 0.0  # how long after the task's end the verdict came
 
     @property
     def correct(self) -> bool:
         return verdict_correct(self.status, self.object_present)
 
+
+# a closing's status until its verdict comes; the verdict is waited for this long after the
+# task's end (past it the closing counts UNKNOWN)
+MOVING = ObjectStatus.MOVING_NO_CONTACT
+VERDICT_WAIT_S = 10.0
 
 FULL_SIZES_M = (0.005, 0.01, 0.02, 0.04, 0.06, 0.08)
 FULL_MASSES_KG = (0.02, 0.05, 0.1, 0.2)
@@ -422,10 +429,18 @@ class SuiteRig:
             self._close_around(case)
             if not self._wait(self.client.is_task_complete, 12.0):
                 raise TimeoutError(f"the task did not end (phase {self.phase()})")
+            ended = time.monotonic()
+            # the goal waits sensing_wait for the closing's verdict, then ends without it: on
+            # a loaded host the judgement comes later, and it is the verdict that is benched
+            judged = self._wait(lambda: self.client.object_status()[0] != MOVING, VERDICT_WAIT_S)
             status, size = self.client.object_status()
             truth = self.truth
             closing = SensedClosing(case, status, size, bool(truth.object_in_hand),
-                                    self.client.state().message)
+                                    self.client.state().message, time.monotonic() - ended)
+            if not judged:
+                closing.status = ObjectStatus.UNKNOWN
+                closing.evidence = (f"no verdict {VERDICT_WAIT_S:.0f} s after the task ended "
+                                    f"({closing.evidence})")
         except (TimeoutError, RuntimeError) as error:
             closing.evidence = f"failed: {error}"
         finally:

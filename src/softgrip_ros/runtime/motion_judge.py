@@ -4,7 +4,12 @@ from __future__ import annotations
 
 from concurrent.futures import Future
 
-from softgrip_ros.runtime.worker_process import WORKER_NICE_INCREMENT, WorkerProcess, worker_state
+from softgrip_ros.runtime.worker_process import WorkerProcess, worker_state
+
+# a judgement has a deadline (the grasp manager's sensing_wait): at the workers' +10, beside busy
+# processes at nice 0 it got a tenth of a core and its start-up and first verdict never came in
+# time; at +5 it still yields to the control loop
+JUDGE_NICE_INCREMENT = 5
 
 
 class MotionJudgeProcess:
@@ -18,7 +23,7 @@ class MotionJudgeProcess:
 
     def __init__(self, gripper_model: str, bending: str, plant_parameters,
                  bending_volume_share: float | None = None,
-                 nice_increment: int = WORKER_NICE_INCREMENT):
+                 nice_increment: int = JUDGE_NICE_INCREMENT):
         self._worker = WorkerProcess(
             _setup_judge, (gripper_model, bending, plant_parameters, bending_volume_share),
             nice_increment, "softgrip-sensing")
