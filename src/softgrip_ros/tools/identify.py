@@ -204,6 +204,7 @@ class Live:
         from rclpy.serialization import deserialize_message
         from sensor_msgs.msg import FluidPressure
         from softgrip_interfaces.msg import ControllerStatus
+        from softgrip_ros.nodes.common import stamp_seconds
 
         def keep(topic, msgtype, data, name=None):
             with self.lock:
@@ -213,8 +214,8 @@ class Live:
                     self.last_reading[name] = time.monotonic()
             if name is None:
                 status = deserialize_message(data, ControllerStatus)
-                stamp = status.header.stamp.sec + 1e-9 * status.header.stamp.nanosec
-                changed = outputs_changed_at(stamp, status.output_change_age_s)
+                changed = outputs_changed_at(stamp_seconds(status.header.stamp),
+                                             status.output_change_age_s)
                 with self.lock:
                     self.status = status
                     if (not self.output_changes or
