@@ -110,26 +110,25 @@ def verdict_correct(status: ObjectStatus, object_present: bool) -> bool:
 
 @dataclasses.dataclass
 class SensedClosing:
-    """A closing judged through the suite: the status the task ended with (an ObjectStatus),
-    the felt size (m, NaN: none), whether the world had the object in the hand then, the
-    evidence (or why the closing failed), and how long after the task's end the verdict came
-    (a goal ends without it after the grasp manager's sensing_wait)."""
+    """A closing judged through the suite: its verdict (an ObjectStatus), the felt size (m,
+    NaN: none), whether the world had the object in the hand then, the evidence (or why the
+    closing failed), and how long after the task's end the verdict came (a goal ends without it
+    after the grasp manager's sensing_wait)."""
 
     case: GraspCase
     status: ObjectStatus
     size_m: float
     object_present: bool
     evidence: str
-    verdict_after_task_s: float = 0.0  # how long after the task's end the verdict came
+    verdict_after_task_s: float = 0.0
 
     @property
     def correct(self) -> bool:
         return verdict_correct(self.status, self.object_present)
 
 
-# a closing's status until its verdict comes; the verdict is waited for this long after the
-# task's end (past it the closing counts UNKNOWN)
-MOVING = ObjectStatus.MOVING_NO_CONTACT
+# a closing's verdict is waited for this long after the task's end (MOVING_NO_CONTACT until it
+# comes); past it the closing counts UNKNOWN
 VERDICT_WAIT_S = 10.0
 
 FULL_SIZES_M = (0.005, 0.01, 0.02, 0.04, 0.06, 0.08)
@@ -413,8 +412,8 @@ class SuiteRig:
     def sense_closing(self, case: GraspCase, scene_path: pathlib.Path) -> SensedClosing:
         """One closing with the grasp manager's object sensing on (see :class:`SuiteRig`'s
         ``parameters``): ``case``'s grasp in the scene at ``scene_path`` (which may hold no
-        object), the verdict the task ended with against the world's truth; the gripper is vented
-        and IDLE afterwards."""
+        object), its verdict (waited for up to VERDICT_WAIT_S after the task's end; UNKNOWN
+        when none came) against the world's truth; the gripper is vented and IDLE afterwards."""
         S = self.GripperState
         self.load(scene_path)
         command_id = f"sense-{uuid.uuid4().hex[:8]}"
@@ -432,7 +431,8 @@ class SuiteRig:
             ended = time.monotonic()
             # the goal waits sensing_wait for the closing's verdict, then ends without it: on
             # a loaded host the judgement comes later, and it is the verdict that is benched
-            judged = self._wait(lambda: self.client.object_status()[0] != MOVING, VERDICT_WAIT_S)
+            judged = self._wait(lambda: self.client.object_status()[0] !=
+                                ObjectStatus.MOVING_NO_CONTACT, VERDICT_WAIT_S)
             status, size = self.client.object_status()
             truth = self.truth
             closing = SensedClosing(case, status, size, bool(truth.object_in_hand),
