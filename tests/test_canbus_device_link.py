@@ -2,6 +2,7 @@
 loopback)."""
 import gc
 import math
+import threading
 import time
 import uuid
 
@@ -173,6 +174,32 @@ def test_at_rest_the_loop_slows_and_a_command_or_a_reading_beyond_the_limits_ste
         wait_for(lambda: device.valves() == (Valve.VENT,), timeout=0.9, message="vent")
     finally:
         loop.stop()
+
+
+def test_a_running_loop_takes_the_frames_in_its_own_thread_and_hands_them_back_stopped(rig):
+    """One thread orders the readings and the steps: while the loop runs, every batch of
+    readings reaches the link's listener from the loop's thread, and the link's reception
+    thread is off; the loop stopped, that thread takes the frames again."""
+    from softgrip_ros.canbus.controller_link import make_control_loop
+    device, link = rig
+    threads = []
+    link.on_readings = lambda readings: threads.append(threading.current_thread().name)
+    loop = make_control_loop(link, 500.0, 50.0, rest_rate_hz=50.0)
+    link.command(0.0, Source.VENT, math.nan)
+    loop.start()
+    try:
+        assert not link._reader.running
+        wait_for(lambda: loop.ticks >= 10, message="the loop's ticks")
+        threads.clear()
+        wait_for(lambda: len(threads) >= 20, message="readings taken by the loop")
+        assert set(threads) == {"softgrip-control-loop"}
+        assert loop.receives > loop.ticks  # at rest it also takes them between its ticks
+    finally:
+        loop.stop()
+    assert link._reader.running
+    threads.clear()
+    wait_for(lambda: len(threads) >= 5, message="readings taken by the link's thread again")
+    assert set(threads) == {"softgrip-can-rx"}
 
 
 def test_a_command_steps_in_the_callers_thread_without_waiting_for_the_loop(rig):

@@ -117,6 +117,41 @@ def test_a_failing_read_is_counted_and_reading_goes_on():
     assert reader.errors == 1 and "adapter unplugged" in reader.last_error
 
 
+def test_a_stopped_reader_hands_the_queued_frames_to_its_caller_and_starts_again(buses):
+    """Stopped, the reader's thread takes nothing: the frames queue until take_queued() hands
+    them over in the calling thread (max_batch a call, in order); started again, it reads on."""
+    sender, receiver = buses
+    batches = Batches()
+    threads = []
+    reader = BatchReader(receiver, lambda frames: (threads.append(threading.current_thread()),
+                                                   batches(frames)), max_batch=16)
+    try:
+        reader.stop()
+        assert not reader.running
+        for k in range(40):
+            sender.send(frame(k))
+        threading.Event().wait(0.1)
+        assert batches.ids() == []
+        assert reader.take_queued() == 40 and reader.take_queued() == 0
+        assert batches.ids() == list(range(40))
+        assert [len(call) for call in batches.calls] == [16, 16, 8]
+        assert set(threads) == {threading.current_thread()}
+        reader.start()
+        sender.send(frame(40))
+        wait_for(lambda: batches.ids()[-1:] == [40], timeout=2.0, message="read on its thread")
+        assert threads[-1] is not threading.current_thread()
+    finally:
+        reader.stop()
+
+
+def test_a_failing_take_is_counted_not_raised():
+    reader = BatchReader(FailingOnce(), Batches(), timeout_s=0.01)
+    reader.stop()
+    reader.bus.reads, errors = 0, reader.errors  # its thread may have read already
+    assert reader.take_queued() == 0
+    assert reader.errors == errors + 1 and "adapter unplugged" in reader.last_error
+
+
 def test_bad_settings_are_refused():
     with pytest.raises(ValueError, match="rest_period_s"):
         BatchReader(None, print, rest_period_s=-0.1)

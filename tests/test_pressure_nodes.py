@@ -258,7 +258,7 @@ def test_a_batch_of_readings_asks_once_per_sensor_whether_its_topic_is_subscribe
     real = pressure_controller.listened
 
     def counting(node, publisher):
-        if threading.get_ident() == here:  # not the reception thread's own batches
+        if threading.get_ident() == here:  # not the control loop's own batches
             asked.append(publisher.topic_name)
         return real(node, publisher)
 

@@ -85,6 +85,50 @@ def test_periodic_thread_slows_down_at_rest_and_wakes_at_once():
         PeriodicThread(step, 100.0, "test-loop", rest_rate_hz=200.0, resting=bool)
 
 
+def test_a_receiving_loop_takes_its_inputs_between_rest_ticks_and_before_each_tick():
+    """At rest (1 Hz ticks) ``receive`` runs every receive period (50 ms) in the loop's own
+    thread, and before each tick; a wake from within ``receive`` (an input that needs the step)
+    runs the tick at once; a failing receive is counted and the loop goes on."""
+    from softgrip_ros.realtime import PeriodicThread
+    calls, threads = [], set()
+    state = {"wake": False, "fail": False}
+
+    def step():
+        calls.append("step")
+        return True
+
+    def receive():
+        calls.append("receive")
+        threads.add(threading.current_thread().name)
+        if state["fail"]:
+            state["fail"] = False
+            raise OSError("bus closed")
+        if state["wake"]:
+            state["wake"] = False
+            loop.wake()
+
+    loop = PeriodicThread(step, 1000.0, "test-loop", rest_rate_hz=1.0, resting=bool,
+                          receive=receive, receive_period_s=0.05)
+    loop.start()
+    try:
+        wait_for(lambda: loop.ticks >= 1, message="the first step")
+        threading.Event().wait(0.5)
+        # about 10 receives in 0.5 s at rest, no second tick
+        assert loop.ticks == 1 and 5 <= loop.receives <= 12, (loop.ticks, loop.receives)
+        assert calls[:2] == ["receive", "step"] and threads == {"test-loop"}
+        state["wake"] = True
+        wait_for(lambda: loop.ticks >= 2, timeout=0.3, message="a tick at once on the wake")
+        state["fail"] = True
+        wait_for(lambda: loop.errors == 1, timeout=0.3, message="the failing receive counted")
+        receives = loop.receives
+        wait_for(lambda: loop.receives >= receives + 2, timeout=0.5, message="receiving on")
+        assert "bus closed" in loop.last_error
+    finally:
+        loop.stop()
+    with pytest.raises(ValueError, match="receive_period_s must lie in"):
+        PeriodicThread(step, 100.0, "test-loop", receive=receive, receive_period_s=0.0)
+
+
 def test_a_clock_offset_is_read_between_two_reads_of_the_other_clock_not_across_a_pause():
     """Two clocks read one after the other are an instant apart only while the thread runs: the
     first bracket here spans a 40 ms pause (another thread took the GIL), the second does not,

@@ -56,10 +56,18 @@ class PeriodicThread:
     the recent tick-to-tick periods and the time spent in ``step()``. After falling more than
     10 periods behind, the schedule re-anchors rather than bursting to catch up. Exceptions
     from ``on_output`` are counted, never raised.
+
+    With ``receive``, the thread also takes its inputs itself: ``receive()`` runs before each
+    tick and, while the ticks are further apart than ``receive_period_s``, every
+    ``receive_period_s`` between them; a :meth:`wake` during ``receive()`` runs the tick at
+    once. So the inputs and the step that uses them are ordered by one thread, and a wait costs
+    one wake instead of one per thread (``receives`` counts the calls, ``receive_work_s`` keeps
+    the time each took).
     """
 
     def __init__(self, step, rate_hz: float, name: str, on_output=None, history: int = 20000,
-                 rest_rate_hz: float | None = None, resting=None):
+                 rest_rate_hz: float | None = None, resting=None, receive=None,
+                 receive_period_s: float | None = None):
         if not 1.0 <= rate_hz <= 5000.0:
             raise ValueError(f"rate_hz must lie in [1, 5000], got {rate_hz}")
         if rest_rate_hz is not None and not 1.0 <= rest_rate_hz <= rate_hz:
@@ -69,10 +77,16 @@ class PeriodicThread:
         self.period_s = 1.0 / rate_hz
         self.rest_period_s = self.period_s if rest_rate_hz is None else 1.0 / rest_rate_hz
         self.resting = resting
+        self.receive = receive
+        self.receive_period_s = self.period_s if receive_period_s is None else receive_period_s
+        if not 0.0 < self.receive_period_s <= 1.0:
+            raise ValueError(f"receive_period_s must lie in (0, 1] s, got {receive_period_s}")
+        self.receives = 0
         self.name = name
         self.on_output = on_output
         self.periods_s = collections.deque(maxlen=history)
         self.work_s = collections.deque(maxlen=history)
+        self.receive_work_s = collections.deque(maxlen=history)
         self.ticks = 0
         self.rest_ticks = 0
         self.errors = 0
@@ -109,15 +123,12 @@ class PeriodicThread:
         period = self.period_s
         while not self._stop.is_set():
             deadline += period
-            delay = deadline - time.monotonic()
-            if delay > 0.0:
-                if self._wake.wait(delay):
-                    deadline = time.monotonic()
-            elif delay < -10 * period:
-                deadline = time.monotonic()
+            deadline = self._wait_for(deadline, period)
             self._wake.clear()
             if self._stop.is_set():
                 return
+            if self.receive is not None:
+                self._receive()
             now = time.monotonic()
             self.periods_s.append(now - previous)
             previous = now
@@ -134,6 +145,33 @@ class PeriodicThread:
                 except Exception as error:  # publishing must never stop the loop
                     self.errors += 1
                     self.last_error = f"{type(error).__name__}: {error}"
+
+    def _wait_for(self, deadline: float, period: float) -> float:
+        """Wait until ``deadline`` or a wake, taking the inputs every receive period meanwhile;
+        the deadline the tick then keeps (now after a wake, or after falling 10 periods
+        behind)."""
+        while True:
+            delay = deadline - time.monotonic()
+            if delay <= 0.0:
+                return time.monotonic() if delay < -10 * period else deadline
+            # not for a sliver of a period: that input comes with the tick
+            receiving = self.receive is not None and delay > 1.5 * self.receive_period_s
+            if self._wake.wait(self.receive_period_s if receiving else delay):
+                return time.monotonic()
+            if receiving:
+                self._receive()
+                if self._wake.is_set():  # an input that needs the step now
+                    return time.monotonic()
+
+    def _receive(self) -> None:
+        self.receives += 1
+        start = time.monotonic()
+        try:
+            self.receive()
+        except Exception as error:  # the inputs' own failures are counted by their owner
+            self.errors += 1
+            self.last_error = f"{type(error).__name__}: {error}"
+        self.receive_work_s.append(time.monotonic() - start)
 
 
 class TimerThread:

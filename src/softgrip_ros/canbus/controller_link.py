@@ -1,11 +1,13 @@
 """The pressure controller's side of the bus: frames in, control core, frames out (no ROS).
 
-Reception runs on a :class:`~softgrip_ros.canbus.reader.BatchReader` thread: sensor and
-regulator frames are decoded (invalid ones are counted and dropped by the codec) and fed to the
-control core, a batch at a time. While the controller rests (venting, holding, inactive or
+Sensor and regulator frames are decoded (invalid ones are counted and dropped by the codec) and
+fed to the control core, a batch at a time. While a control loop runs (:func:`make_control_loop`)
+its thread takes them, every frame queued before each step, so that readings and the step that
+uses them are ordered by one thread; otherwise a :class:`~softgrip_ros.canbus.reader.BatchReader`
+thread takes each as it comes. While the controller rests (venting, holding, inactive or
 faulted: the valves stay as they are) the frames are taken every ``rest_receive_period_s``
-instead of at once, which saves a thread wake per frame; a reading beyond the limits is then
-acted on within that period. A step that starts regulating (a command's) ends the wait. The
+instead, which saves a thread wake per frame; a reading beyond the limits is then acted on within
+that period. A step that starts regulating (a command's) ends the wait. The
 owner calls :meth:`ControllerLink.step` once per control period; it runs the core and
 sends RegulatorSetpoint and ValveCommand in that period when their content changed, and else
 every ``command_frame_period_s`` (they are cyclic frames: the device's watchdog expects them),
@@ -64,9 +66,10 @@ class SensorBinding:
 
 
 class ControllerLink:
-    """Owns the controller's bus traffic. ``on_readings(readings)`` is called (from the reception
-    thread) with each batch's valid sensor readings, [(name, gauge_pa, stamp)] oldest first;
-    ``stamp`` is when the frame was sent, on ``clock`` (see :func:`frame_sent_at`)."""
+    """Owns the controller's bus traffic. ``on_readings(readings)`` is called (from the thread
+    that takes the frames) with each batch's valid sensor readings, [(name, gauge_pa, stamp)]
+    oldest first; ``stamp`` is when the frame was sent, on ``clock`` (see
+    :func:`frame_sent_at`)."""
 
     def __init__(self, bus: can.BusABC, controller: PressureController, sensors: list,
                  codec: FrameCodec | None = None, bus_silent_timeout_s: float = 0.25,
@@ -127,6 +130,7 @@ class ControllerLink:
         self.wake = None
         # the last step left the valves as they are (not regulating)
         self.resting = False
+        self.rest_receive_period_s = rest_receive_period_s
         self._reader = BatchReader(bus, self._on_frames, rest_receive_period_s,
                                    lambda: self.resting, name="softgrip-can-rx")
 
@@ -141,6 +145,19 @@ class ControllerLink:
 
     def close(self) -> None:
         self._reader.stop(timeout_s=1.0)
+
+    def receive_queued(self) -> int:
+        """Take every frame queued on the bus now, in the calling thread (a control loop's, with
+        :meth:`reception_thread` off); how many."""
+        return self._reader.take_queued()
+
+    def reception_thread(self, on: bool) -> None:
+        """Whether the link's own thread takes the frames (on, from construction) or a caller
+        of :meth:`receive_queued` does."""
+        if on:
+            self._reader.start()
+        else:
+            self._reader.stop(timeout_s=1.0)
 
     # ---- reception
     # --------------------------------------------------------------------------------
@@ -431,17 +448,45 @@ class ControllerLink:
                          valve_lapses=self.lapses)
 
 
+class ControlLoop(PeriodicThread):
+    """The pressure controller's one thread (see :func:`make_control_loop`): while it runs it
+    takes the link's frames too, before each step and every ``rest_receive_period_s`` at rest;
+    stopped, it hands them back to the link's reception thread."""
+
+    def __init__(self, link: ControllerLink, rate_hz: float, on_output=None,
+                 rest_rate_hz: float | None = None):
+        super().__init__(link.step, rate_hz, "softgrip-control-loop", on_output=on_output,
+                         rest_rate_hz=rest_rate_hz, resting=lambda output: not acting(output),
+                         receive=link.receive_queued,
+                         receive_period_s=link.rest_receive_period_s or None)
+        self.link = link
+
+    def start(self) -> None:
+        if self.running:
+            return
+        self.link.reception_thread(False)
+        try:
+            super().start()
+        except BaseException:
+            self.link.reception_thread(True)
+            raise
+
+    def stop(self) -> None:
+        running = self.running
+        super().stop()
+        if running:
+            self.link.reception_thread(True)
+
+
 def make_control_loop(link: ControllerLink, rate_hz: float, status_rate_hz: float, on_status=None,
-                      rest_rate_hz: float | None = None) -> PeriodicThread:
+                      rest_rate_hz: float | None = None) -> ControlLoop:
     """The pressure controller's loop: ``link.step`` at ``rate_hz`` while regulating, and at
     ``rest_rate_hz`` (default: the same) while venting, holding, inactive or faulted, when the
     valves stay as they are; a command, or a reading beyond the limits, runs a step at once.
-    ``on_status`` at about ``status_rate_hz`` and at once on a change (see
-    :class:`StatusOnChange`)."""
+    Its thread takes the bus's frames too (:class:`ControlLoop`). ``on_status`` at about
+    ``status_rate_hz`` and at once on a change (see :class:`StatusOnChange`)."""
     on_output = None if on_status is None else StatusOnChange(on_status, 1.0 / status_rate_hz)
-    loop = PeriodicThread(link.step, rate_hz, "softgrip-control-loop", on_output=on_output,
-                          rest_rate_hz=rest_rate_hz,
-                          resting=lambda output: not acting(output))
+    loop = ControlLoop(link, rate_hz, on_output=on_output, rest_rate_hz=rest_rate_hz)
     link.wake = loop.wake
     return loop
 

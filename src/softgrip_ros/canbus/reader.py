@@ -6,7 +6,9 @@ code after it runs several times slower than warm (docs/benchmarks.md, bench_e2e
 simulated device's ~700 frames a second that alone was a tenth of a core. :class:`BatchReader`
 takes every frame already queued at each wake, and while its owner says nothing needs them at
 once (``resting()``) it waits ``rest_period_s`` between batches, so a quiet stream costs one
-wake per period.
+wake per period. A thread that has other periodic work (the control loop) can take the frames
+itself instead: :meth:`BatchReader.stop` the reader's thread and call
+:meth:`BatchReader.take_queued` at each of its own wakes.
 """
 from __future__ import annotations
 
@@ -20,7 +22,8 @@ class BatchReader:
     After a batch, while ``resting()`` is true, the thread waits ``rest_period_s`` (or until
     :meth:`wake`) before reading again; the frames meanwhile queue in the bus. Exceptions from
     the bus or from ``on_frames`` are counted (``errors``, ``last_error``) and reading goes on
-    after ``timeout_s``: a failing read must neither end reception nor spin.
+    after ``timeout_s``: a failing read must neither end reception nor spin. The thread starts
+    with the reader; :meth:`stop` and :meth:`start` hand reception to another thread and back.
     """
 
     def __init__(self, bus, on_frames, rest_period_s: float = 0.0, resting=None,
@@ -34,8 +37,23 @@ class BatchReader:
         self.timeout_s, self.max_batch = timeout_s, max_batch
         self.batches = self.frames = self.errors = 0
         self.last_error = ""
+        self.name = name
         self._stop, self._wake = threading.Event(), threading.Event()
-        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread = None
+        self.start()
+
+    @property
+    def running(self) -> bool:
+        """Whether the reader's own thread reads the bus."""
+        return self._thread is not None
+
+    def start(self) -> None:
+        """Read on the reader's own thread (again, after :meth:`stop`)."""
+        if self._thread is not None:
+            return
+        self._stop = threading.Event()  # each thread its own: one that outlives a join must end
+        self._thread = threading.Thread(target=self._run, args=(self._stop,), name=self.name,
+                                        daemon=True)
         self._thread.start()
 
     def wake(self) -> None:
@@ -43,13 +61,37 @@ class BatchReader:
         self._wake.set()
 
     def stop(self, timeout_s: float = 1.0) -> None:
+        """End the reader's thread; the frames queue in the bus until :meth:`take_queued` or
+        :meth:`start`."""
+        thread, self._thread = self._thread, None
         self._stop.set()
         self._wake.set()
-        if self._thread is not threading.current_thread():
-            self._thread.join(timeout=timeout_s)
+        if thread is not None and thread is not threading.current_thread():
+            thread.join(timeout=timeout_s)
 
-    def _read_batch(self) -> list:
-        frame = self.bus.recv(self.timeout_s)
+    def take_queued(self) -> int:
+        """Hand every frame queued now to ``on_frames`` in the calling thread, ``max_batch`` at
+        most per call, without waiting for one; how many. For a caller that reads instead of
+        the reader's thread (stopped): errors are counted as the thread counts them."""
+        taken = 0
+        while True:
+            try:
+                frames = self._read_batch(0.0)
+                if not frames:
+                    return taken
+                self.batches += 1
+                self.frames += len(frames)
+                taken += len(frames)
+                self.on_frames(frames)
+            except Exception as error:  # a closed or failing bus, a consumer's bug
+                self.errors += 1
+                self.last_error = f"{type(error).__name__}: {error}"
+                return taken
+            if len(frames) < self.max_batch:
+                return taken
+
+    def _read_batch(self, timeout_s: float) -> list:
+        frame = self.bus.recv(timeout_s)
         if frame is None:
             return []
         frames = [frame]
@@ -60,21 +102,21 @@ class BatchReader:
             frames.append(frame)
         return frames
 
-    def _run(self) -> None:
-        while not self._stop.is_set():
+    def _run(self, stop: threading.Event) -> None:
+        while not stop.is_set():
             self._wake.clear()  # a wake ends the wait after a batch taken from here on
             try:
-                frames = self._read_batch()
+                frames = self._read_batch(self.timeout_s)
                 if frames:
                     self.batches += 1
                     self.frames += len(frames)
                     self.on_frames(frames)
             except Exception as error:  # a closed or failing bus, a consumer's bug
-                if self._stop.is_set():
+                if stop.is_set():
                     return
                 self.errors += 1
                 self.last_error = f"{type(error).__name__}: {error}"
-                self._stop.wait(self.timeout_s)
+                stop.wait(self.timeout_s)
                 continue
             if self.rest_period_s > 0.0 and self.resting is not None and self.resting():
                 self._wake.wait(self.rest_period_s)

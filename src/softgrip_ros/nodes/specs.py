@@ -101,8 +101,8 @@ PRESSURE_CONTROLLER_SPECS = (CAN_SPECS + [
     ParamSpec(
         "rest_receive_period", 0.01, "while the controller rests (not regulating), "
         "received frames are taken in batches this often, one thread wake each instead of "
-        "one per frame; a reading beyond the limits is then acted on within it; 0 = each "
-        "frame at once", "s", 0.0, 0.05),
+        "one per frame; a reading beyond the limits is then acted on within it; 0 = at every "
+        "control period", "s", 0.0, 0.05),
     ParamSpec("status_rate_hz", 50.0, "controller/status publish rate", "Hz", 1.0, 200.0),
     ParamSpec(
         "command_frame_period", 0.01, "RegulatorSetpoint and ValveCommand re-sent this "
