@@ -102,6 +102,30 @@ def test_inactive_controller_outputs_nothing():
         Valve.CLOSED,) and not out.regulator_enabled
 
 
+def test_a_refused_command_is_reported_by_a_step_even_when_the_next_command_came_first():
+    """A refusal is flagged until a command applies; one that applies before any step ran (the
+    grasp manager's refresh between the refusal and the loop's step) no longer hides it: the
+    next step reports it, with its reason, and the one after does not."""
+    controller = active()
+    controller.command(0.0, Source.VENT, math.nan, 0.0)
+    controller.reject_command("pressure command stamped 30 s in the future")
+    out = controller.step(0.01)
+    assert Fault.COMMAND_REJECTED in out.fault_flags and "in the future" in out.message
+    assert Fault.COMMAND_REJECTED in controller.step(0.012).fault_flags  # until one applies
+    controller.command(0.0, Source.VENT, math.nan, 0.014)
+    assert Fault.COMMAND_REJECTED not in controller.step(0.016).fault_flags
+    controller.reject_command("pressure command stamped 30 s in the future")
+    controller.command(0.0, Source.VENT, math.nan, 0.018)  # before any step
+    out = controller.step(0.02)
+    assert Fault.COMMAND_REJECTED in out.fault_flags and "in the future" in out.message
+    assert Fault.COMMAND_REJECTED not in controller.step(0.022).fault_flags
+    controller.active = False  # an inactive controller reports it too
+    controller.reject_command("pressure command stamped 30 s in the future")
+    controller.command(0.0, Source.VENT, math.nan, 0.024)
+    assert Fault.COMMAND_REJECTED in controller.step(0.026).fault_flags
+    assert Fault.COMMAND_REJECTED not in controller.step(0.028).fault_flags
+
+
 def test_setpoint_above_the_limit_is_clamped_and_reported():
     controller = active()
     note = controller.command(80e3, Source.SUPPLY, math.nan, 0.0)

@@ -217,6 +217,8 @@ class PressureController:
         self._fault_message = ""  # the finding that latched the safe state
         self._steady_target = math.nan
         self._rejection = ""  # why the last refused command was refused
+        # a refusal no step has reported yet; whether a command applied since
+        self._rejection_unreported = self._applied_after_rejection = False
         self._regulator_faults = 0
         # boosts and evacuations since the target last changed
         self._corrections = collections.deque()
@@ -261,7 +263,13 @@ class PressureController:
             raise ValueError(
                 f"target pressure must be finite for {source.name}, got {target_gauge_pa}")
         note = ""
-        self._latched &= ~(Fault.SETPOINT_CLAMPED | Fault.COMMAND_TIMEOUT | Fault.COMMAND_REJECTED)
+        cleared = Fault.SETPOINT_CLAMPED | Fault.COMMAND_TIMEOUT
+        # a refusal is reported by a step even when a command applies before any step ran
+        if self._rejection_unreported:
+            self._applied_after_rejection = True
+        else:
+            cleared |= Fault.COMMAND_REJECTED
+        self._latched &= ~cleared
         # identification: a HOLD may set the regulator, with the valves closed
         self._hold_regulator = (self.identification and source == Source.HOLD and
                                 math.isfinite(target_gauge_pa))
@@ -299,9 +307,20 @@ class PressureController:
 
     def reject_command(self, reason: str) -> None:
         """A command the caller refused (a stamp in the future): flagged until the next one
-        applies."""
+        applies, and in the next step's output at least."""
         self._latched |= Fault.COMMAND_REJECTED
         self._rejection = reason
+        self._rejection_unreported, self._applied_after_rejection = True, False
+
+    def _report_rejection(self) -> Fault:
+        """The faults latched for this step's output; a refusal is reported once here, and
+        cleared after it when a command has applied since."""
+        faults = self._latched
+        if self._rejection_unreported:
+            self._rejection_unreported = False
+            if self._applied_after_rejection:
+                self._latched &= ~Fault.COMMAND_REJECTED
+        return faults
 
     def update_sensor(self, name: str, gauge_pa: float, now: float) -> bool:
         """Take a reading taken at ``now``; True when it lies beyond the limits plus margin and the
@@ -399,14 +418,14 @@ class PressureController:
         self._period_s = max(dt, 0.9 * self._period_s)
         if not self.active:
             return self._output(0.0, False, Source.VENT, Valve.CLOSED, PressureMode.INACTIVE,
-                                self._latched, self.feedback(now), "inactive")
+                                self._report_rejection(), self.feedback(now), "inactive")
         regulating = self._source in (Source.SUPPLY, Source.VACUUM)
         for finding in self.monitor.check(now, c.sensor_timeout_s, regulating and
                                           self._phase == RegulationPhase.TRACK):
             if finding.flag in SAFETY_FAULTS and not self._latched & SAFETY_FAULTS:
                 self._fault_message = finding.message  # the first evidence names the fault
             self._latched |= finding.flag & SAFETY_FAULTS
-        faults = self._latched
+        faults = self._report_rejection()
         if self._regulator_faults:
             faults |= Fault.REGULATOR
         measured = self.measured(now)
