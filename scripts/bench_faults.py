@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """The single-fault matrix (#20): every simulated fault in every grasp phase, on the composed suite
 over DDS, judged on the simulated device's true chamber pressure; then fault-free grasps for
-false alarms.
+false alarms. The device runs in a process of its own on a softgrip_ipc bus, as a real device
+has its own processor.
 
 For each (fault, phase) it reports whether the true pressure stayed within [min - margin,
 max + margin], how long after the injection the fault's named evidence appeared, whether the

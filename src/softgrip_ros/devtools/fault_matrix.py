@@ -1,6 +1,6 @@
 """The single-fault matrix: every simulated fault, injected in every grasp phase, on the composed
 suite (the ``controller`` executable's nodes) over DDS, judged on the simulated device's true
-chamber pressure.
+chamber pressure. The device runs in a process of its own, as a real one has its own processor.
 
 For each (fault, phase) :func:`run_case`:
 
@@ -129,6 +129,80 @@ class CaseResult:
         return self.within_limits and self.detected and self.end_state_ok and self.recovered
 
 
+# the longest a call into the device's process may take (its start: the imports, on a busy host)
+DEVICE_START_TIMEOUT_S = 120.0
+DEVICE_CALL_TIMEOUT_S = 10.0
+
+
+def _start_device(channel: str):
+    """In the device's process: the simulated device with every parameter at its default, as
+    ``sim_device`` has it, sending on the softgrip_ipc bus ``channel``."""
+    from softgrip_ros.canbus import open_bus
+    from softgrip_ros.canbus.sim_device import SimulatedDevice
+    from softgrip_ros.nodes.sim_device import default_values, device_setup
+    values = default_values()
+    _, config, world = device_setup(values)
+    bus = open_bus("softgrip_ipc", channel, values["can.bitrate"], preserve_timestamps=True)
+    device = SimulatedDevice(bus, config, world=world)
+    freeze_start_up_heap()  # as sim_device's own process has it (run_node)
+    device.start()
+    return device, bus
+
+
+def _call_device(method: str, *args):
+    from softgrip_ros.runtime.worker_process import worker_state
+    device, bus = worker_state()
+    if method == "close":
+        device.stop()
+        bus.shutdown()
+        return None
+    return getattr(device, method)(*args)
+
+
+class DeviceApart:
+    """The simulated device in a process of its own on a softgrip_ipc bus, as a real device has
+    its own processor: the suite's process then does only the suite's work (in it, the device's
+    plant thread took the GIL from the control loop). Offers the device's methods the matrix uses;
+    each call waits for the device's answer. :meth:`close` it."""
+
+    def __init__(self, channel: str):
+        from softgrip_ros.runtime.worker_process import WorkerProcess
+        # nice 0: the device is the world, not background work
+        self._worker = WorkerProcess(_start_device, (channel,), nice_increment=0,
+                                     name="softgrip-device")
+        try:
+            self._worker.submit(os.getpid).result(timeout=DEVICE_START_TIMEOUT_S)
+        except BaseException:
+            self._worker.close()
+            raise
+
+    def _call(self, method: str, *args):
+        return self._worker.submit(_call_device, method, *args).result(
+            timeout=DEVICE_CALL_TIMEOUT_S)
+
+    def set_fault(self, name: str, value) -> None:
+        self._call("set_fault", name, value)
+
+    def valves(self) -> tuple:
+        return self._call("valves")
+
+    def regulator_enabled(self) -> bool:
+        return self._call("regulator_enabled")
+
+    def true_extremes(self) -> tuple:
+        return self._call("true_extremes")
+
+    def reset_true_extremes(self) -> None:
+        self._call("reset_true_extremes")
+
+    def close(self) -> None:
+        try:
+            self._call("close")
+        except Exception:  # a child already gone: closing the worker is all there is to do
+            pass
+        self._worker.close()
+
+
 def _command(mode, command_id="", **fields):
     from softgrip_interfaces.msg import GraspCommand
     values = dict(object_diameter_m=NAN, object_mass_kg=NAN, target_tip_spacing_m=NAN,
@@ -138,8 +212,9 @@ def _command(mode, command_id="", **fields):
 
 
 class Rig:
-    """The composed suite on a private virtual bus, with a user node that watches and commands.
-    Use as a context manager; ``rclpy`` must be initialised for ``context`` (None: the default)."""
+    """The composed suite, with a user node that watches and commands, and the simulated device in
+    a process of its own (:class:`DeviceApart`) on a private softgrip_ipc bus. Use as a context
+    manager; ``rclpy`` must be initialised for ``context`` (None: the default)."""
 
     def __init__(self, context=None):
         self.context = context
@@ -155,12 +230,18 @@ class Rig:
         from softgrip_ros.nodes.controller import make_nodes
 
         channel = f"faults-{uuid.uuid4().hex[:8]}"
-        self.nodes = {
-            n.get_name(): n
-            for n in make_nodes(self.context,
-                                {"pressure_controller": [Parameter("can.channel", value=channel)]})
-        }
-        self.device = self.nodes["sim_device"].device
+        self.device = DeviceApart(channel)
+        try:
+            self.nodes = {
+                n.get_name(): n
+                for n in make_nodes(self.context, {"pressure_controller": [
+                    Parameter("can.interface", value="softgrip_ipc"),
+                    Parameter("can.channel", value=channel)
+                ]})
+            }
+        except BaseException:
+            self.device.close()
+            raise
         self.user = Node(f"fault_matrix_{uuid.uuid4().hex[:6]}", context=self.context)
         now = time.monotonic
         self.user.create_subscription(GripperState, "grasp_state",
@@ -189,6 +270,7 @@ class Rig:
         self._spin.__exit__(None, None, None)
         close_all(list(self.nodes.values()))
         self.user.destroy_node()
+        self.device.close()
         gc.unfreeze()
 
     def _keep(self, history, message, when):

@@ -76,14 +76,8 @@ class SimDeviceNode(Node):
         super().__init__("sim_device", **kwargs)
         self.specs = {s.name: s for s in SPECS}
         values = declare(self, SPECS)
-        truth = load_plant(values)  # a bad file refused before the bus is open
-        sensors = tuple(dataclasses.replace(s, noise_std_pa=truth.sensor(s.name).noise_std_pa,
-                                            bias_pa=truth.sensor(s.name).bias_pa)
-                        for s in DEFAULT_SENSORS)
-        config = SimDeviceConfig(plant=truth.parameters, sensors=sensors,
-                                 plant_rate_hz=values["plant_rate_hz"],
-                                 seed=None if values["seed"] < 0 else values["seed"])
-        world = make_world_from(values, truth.parameters)  # a bad scene refused before the bus
+        # a bad plant file or scene refused before the bus is open
+        truth, config, world = device_setup(values)
         self._own_bus, self.device = bus is None, None
         # its frames reach the controller stamped when their readings were taken
         self.bus = bus or open_bus(values["can.interface"], values["can.channel"],
@@ -127,6 +121,25 @@ class SimDeviceNode(Node):
             self.device.stop()
         if self._own_bus:
             self.bus.shutdown()
+
+
+def device_setup(values: dict):
+    """(the plant file's description, the device's SimDeviceConfig, its world or None) from the
+    node's parameter values (``default_values()`` for the defaults); ValueError naming a bad plant
+    file or scene."""
+    truth = load_plant(values)
+    sensors = tuple(dataclasses.replace(s, noise_std_pa=truth.sensor(s.name).noise_std_pa,
+                                        bias_pa=truth.sensor(s.name).bias_pa)
+                    for s in DEFAULT_SENSORS)
+    config = SimDeviceConfig(plant=truth.parameters, sensors=sensors,
+                             plant_rate_hz=values["plant_rate_hz"],
+                             seed=None if values["seed"] < 0 else values["seed"])
+    return truth, config, make_world_from(values, truth.parameters)
+
+
+def default_values() -> dict:
+    """Every parameter of the node at its default."""
+    return {spec.name: spec.default for spec in SPECS}
 
 
 def make_world_from(values: dict, plant):
