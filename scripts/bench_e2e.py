@@ -25,6 +25,11 @@ from here, as an arm would:
 * ``controller_rss_mb``: resident memory at the end (VmRSS), and its peak (VmHWM); the L2
   solver child's VmRSS separately (``controller_children_rss_mb``: summing shared pages twice
   would overstate the total).
+* ``receive_floor_cpu_pct``: the idle figure's floor, a bare python-can loop in a process of its
+  own receiving the same frames, drained every 10 ms as the resting controller takes them;
+  ``_per_frame``: the same loop with one blocking ``recv`` per frame; ``idle_over_receive_floor``:
+  the idle controller's CPU over the first (measured one after the other, the controller idle;
+  the loop's own process time, not ticks).
 * ``controller_cpu_pct_device_paused``: idle CPU again with the device process stopped
   (SIGSTOP), so that no frame arrives: what the frames' reception, estimation and kinematics
   cost is the difference from ``_idle``.
@@ -93,8 +98,28 @@ TARGETS = {
     "controller_rss_mb": (150.0, True), "start_to_ready_s": (1.5, True),
     "joint_states_p99_excess_ms": (0.5, True),
     "gripper_open_ratio": (1.2, True), "cancel_to_valve_frame_ms_p99": (20.0, True),
-    "safety_reaction_ms_p99": (5.0, True),
+    "safety_reaction_ms_p99": (5.0, True), "idle_over_receive_floor": (5.0, True),
 }
+# the idle figure's floor (#51): a bare python-can loop receiving the same frames in a process of
+# its own for argv[3] s, drained every RECEIVE_FLOOR_PERIOD_S as the resting controller takes them
+# (0 in argv[2]: one blocking recv per frame); it prints its CPU and wall seconds
+RECEIVE_FLOOR_PERIOD_S = 0.01
+RECEIVE_FLOOR_LOOP = """
+import sys, threading, time, can
+bus = can.Bus(interface="softgrip_ipc", channel=sys.argv[1])
+period_s, seconds, wait = float(sys.argv[2]), float(sys.argv[3]), threading.Event().wait
+while bus.recv(0.0) is not None:
+    pass
+cpu0, start = time.process_time(), time.monotonic()
+while time.monotonic() - start < seconds:
+    if period_s > 0.0:
+        wait(period_s)
+        while bus.recv(0.0) is not None:
+            pass
+    else:
+        bus.recv(1.0)
+print(time.process_time() - cpu0, time.monotonic() - start, flush=True)
+"""
 VENT = 3  # ValveCommand's channel state
 FAULT_MODE = 4  # ControllerStatus.mode in the safe state
 REACTION_OPEN_M = 0.04  # held open at this D2 (about 20 kPa) when the readings jump
@@ -251,6 +276,22 @@ def cpu_windows(pid: int, seconds: float, window_s: float, during=None) -> list:
                 during()
         percents.append(100.0 * (cpu_seconds(pid) - cpu0) / (time.monotonic() - wall0))
     return percents
+
+
+def receive_floor_cpu(channel: str, period_s: float, seconds: float) -> float:
+    """CPU % (of one core) of RECEIVE_FLOOR_LOOP on ``channel`` over ``seconds``: the frames
+    drained every ``period_s``, or one at a time for 0."""
+    loop = subprocess.Popen(
+        [sys.executable, "-c", RECEIVE_FLOOR_LOOP, channel, str(period_s), str(seconds)],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        output, _ = loop.communicate(timeout=seconds + 60.0)
+        cpu_s, wall_s = map(float, output.split())
+    except (subprocess.TimeoutExpired, ValueError) as error:
+        raise RuntimeError(f"the receive floor's loop gave no figure: {error}") from None
+    finally:
+        stop_process(loop)
+    return 100.0 * cpu_s / wall_s
 
 
 def p99(values) -> float:
@@ -556,6 +597,9 @@ def measure(idle_s: float, grasp_s: float, window_s: float, open_pairs: int, can
             time.sleep(2.0)  # past start-up
             progress(f"idle: CPU over {idle_s:.0f} s")
             idle = cpu_windows(controller.pid, idle_s, window_s)
+            progress(f"the floor: a bare receive loop of the same frames, 2 x {idle_s:.0f} s")
+            floor = receive_floor_cpu(channel, RECEIVE_FLOOR_PERIOD_S, idle_s)
+            floor_per_frame = receive_floor_cpu(channel, 0.0, idle_s)
             progress(f"grasping: ENVELOP_CLAMP 40 mm -> CLAMP -> STOP cycles for {grasp_s:.0f} s")
             poses.clear()
             grasp = cpu_windows(controller.pid, grasp_s, window_s, during=one_grasp)
@@ -620,6 +664,9 @@ def measure(idle_s: float, grasp_s: float, window_s: float, open_pairs: int, can
         "controller_cpu_pct_idle": statistics.median(idle),
         "controller_cpu_pct_grasp": statistics.median(grasp),
         "controller_cpu_pct_device_paused": statistics.median(paused),
+        "receive_floor_cpu_pct": floor,
+        "receive_floor_cpu_pct_per_frame": floor_per_frame,
+        "idle_over_receive_floor": statistics.median(idle) / floor,
         "start_to_ready_s": ready_s[0],
         "controller_rss_mb": memory.get("VmRSS", float("nan")),
         "controller_peak_rss_mb": memory.get("VmHWM", float("nan")),

@@ -193,8 +193,11 @@ def test_bench_e2e_quick_json_reports_every_figure():
                 "sensor_to_tip_pose_arm_ms_p99", "gripper_open_s", "grasp_open_s",
                 "gripper_open_ratio", "cancel_to_hold_stamp_ms_median",
                 "cancel_to_hold_stamp_ms_p99", "safety_reaction_ms_median",
-                "safety_reaction_ms_p99", "start_to_ready_s"):
+                "safety_reaction_ms_p99", "start_to_ready_s", "receive_floor_cpu_pct",
+                "receive_floor_cpu_pct_per_frame", "idle_over_receive_floor"):
         assert figures[key] > 0, key
+    # the floor is a bare loop of the same frames: cheaper than the controller that decodes them
+    assert figures["receive_floor_cpu_pct"] < figures["controller_cpu_pct_idle"]
     # 0 for a cancel between the opening's pulses after which the supply never reopened
     assert 0 <= figures["cancel_to_valve_frame_ms_median"] <= figures[
         "cancel_to_valve_frame_ms_p99"]
