@@ -189,7 +189,11 @@ def _known_object_run(tmp_path, place: bool) -> tuple:
                 told.append(line)
                 if identify_contact.PLACE_PROMPT in line:
                     break
-            if sum("on nothing" in line for line in told) != identify_contact.EMPTY_CLOSINGS:
+            # each clamp on nothing once, however often one interrupted was done again
+            clamps = {line.split(":")[0] for line in told
+                      if "on nothing:" in line and "interrupted" not in line}
+            if len(clamps) != identify_contact.EMPTY_CLOSINGS or not any(
+                    identify_contact.PLACE_PROMPT in line for line in told):
                 out, err = run.communicate(timeout=30)
                 pytest.fail("softgrip_identify ended before the prompt: " + "".join(told) + out
                             + err)
