@@ -61,8 +61,7 @@ class PeriodicThread:
     tick and, while the ticks are further apart than ``receive_period_s``, every
     ``receive_period_s`` between them; a :meth:`wake` during ``receive()`` runs the tick at
     once. So the inputs and the step that uses them are ordered by one thread, and a wait costs
-    one wake instead of one per thread (``receives`` counts the calls, ``receive_work_s`` keeps
-    the time each took).
+    one wake instead of one per thread (``receives`` counts the calls).
     """
 
     def __init__(self, step, rate_hz: float, name: str, on_output=None, history: int = 20000,
@@ -86,7 +85,6 @@ class PeriodicThread:
         self.on_output = on_output
         self.periods_s = collections.deque(maxlen=history)
         self.work_s = collections.deque(maxlen=history)
-        self.receive_work_s = collections.deque(maxlen=history)
         self.ticks = 0
         self.rest_ticks = 0
         self.errors = 0
@@ -165,13 +163,11 @@ class PeriodicThread:
 
     def _receive(self) -> None:
         self.receives += 1
-        start = time.monotonic()
         try:
             self.receive()
         except Exception as error:  # the inputs' own failures are counted by their owner
             self.errors += 1
             self.last_error = f"{type(error).__name__}: {error}"
-        self.receive_work_s.append(time.monotonic() - start)
 
 
 class TimerThread:
