@@ -13,73 +13,16 @@ import math
 
 import pytest
 import yaml
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from softgrip_ros.config_paths import config_file
 from softgrip_ros.model import bending_fit, geometry, plant_file
 from softgrip_ros.model.world import scene
 
+from tests.helpers.mutation import EXAMPLES, mutated, refused_in_one_line
+
 pytestmark = pytest.mark.cpu  # computation only: scripts/test.sh runs it beside another
-
-HOSTILE = st.one_of(
-    st.sampled_from([math.nan, math.inf, -math.inf, 1e300, -1e300, 0.0, -1.0, 1e-300, None,
-                     True, "", "12 mm", [], {}, [1.0, 2.0], {"value": 1.0}]),
-    st.floats(allow_nan=True, allow_infinity=True),
-    st.integers(min_value=-10**6, max_value=10**6),
-    st.text(max_size=8),
-)
-EXAMPLES = settings(max_examples=60, deadline=None,
-                    suppress_health_check=[HealthCheck.function_scoped_fixture])
-
-
-def _paths(node, prefix=()):
-    """Every path (a tuple of keys and indices) to a value inside ``node``, the node itself too."""
-    yield prefix
-    if isinstance(node, dict):
-        for key, value in node.items():
-            yield from _paths(value, prefix + (key,))
-    elif isinstance(node, list):
-        for index, value in enumerate(node):
-            yield from _paths(value, prefix + (index,))
-
-
-def _container(document, path):
-    node = document
-    for step in path[:-1]:
-        node = node[step]
-    return node
-
-
-@st.composite
-def mutated(draw, document):
-    """``document`` with one random mutation (a deep copy)."""
-    out = copy.deepcopy(document)
-    paths = [p for p in _paths(out) if p]
-    path = draw(st.sampled_from(paths))
-    parent, key = _container(out, path), path[-1]
-    action = draw(st.sampled_from(["replace", "replace", "replace", "delete", "add"]))
-    if action == "replace":
-        parent[key] = draw(HOSTILE)
-    elif action == "delete":
-        del parent[key]
-    elif isinstance(parent, dict):
-        parent[draw(st.text(min_size=1, max_size=6))] = draw(HOSTILE)
-    else:
-        parent.append(draw(HOSTILE))
-    return out
-
-
-def _refused_in_one_line(load, path):
-    """Load ``path``; a ValueError must be one line. Return the result or None if refused."""
-    try:
-        return load(path)
-    except ValueError as error:
-        message = str(error)
-        assert message and "\n" not in message.strip(), repr(message)
-        assert "Traceback" not in message
-        return None
-
 
 def _finite_fields(value):
     import dataclasses
@@ -96,31 +39,31 @@ SCENE = yaml.safe_load(config_file("scenes/sheet.yaml").read_text())
 
 @EXAMPLES
 @given(document=mutated(GEOMETRY))
-def test_a_mutated_geometry_file_loads_valid_or_is_refused_in_one_line(document, tmp_path):
+def test_a_mutated_geometry_file_loads_valid_or_isrefused_in_one_line(document, tmp_path):
     path = tmp_path / "geometry.yaml"
     path.write_text(yaml.safe_dump(document))
     for name in ("type_I", "type_II", "type_III"):
-        loaded = _refused_in_one_line(lambda p, n=name: geometry.load_geometry(n, p), path)
+        loaded = refused_in_one_line(lambda p, n=name: geometry.load_geometry(n, p), path)
         if loaded is not None:
             _finite_fields(loaded)
 
 
 @EXAMPLES
 @given(document=mutated(PLANT))
-def test_a_mutated_plant_file_loads_valid_or_is_refused_in_one_line(document, tmp_path):
+def test_a_mutated_plant_file_loads_valid_or_isrefused_in_one_line(document, tmp_path):
     path = tmp_path / "plant.yaml"
     path.write_text(yaml.safe_dump(document))
-    loaded = _refused_in_one_line(plant_file.load, path)
+    loaded = refused_in_one_line(plant_file.load, path)
     if loaded is not None:
         _finite_fields(loaded.parameters)
 
 
 @EXAMPLES
 @given(document=mutated(SCENE))
-def test_a_mutated_scene_file_loads_valid_or_is_refused_in_one_line(document, tmp_path):
+def test_a_mutated_scene_file_loads_valid_or_isrefused_in_one_line(document, tmp_path):
     path = tmp_path / "scene.yaml"
     path.write_text(yaml.safe_dump(document))
-    loaded = _refused_in_one_line(scene.load_scene, path)
+    loaded = refused_in_one_line(scene.load_scene, path)
     if loaded is not None:
         assert all(math.isfinite(v) for v in loaded.start_m)
 
@@ -136,7 +79,7 @@ CELL = st.one_of(st.sampled_from(["nan", "inf", "-inf", "1e300", "-1e300", "", "
 
 @EXAMPLES
 @given(row=st.integers(0, len(CSV_ROWS) - 1), column=st.integers(0, 2), cell=CELL)
-def test_a_mutated_measurement_csv_loads_valid_or_is_refused_in_one_line(row, column, cell,
+def test_a_mutated_measurement_csv_loads_valid_or_isrefused_in_one_line(row, column, cell,
                                                                         tmp_path):
     rows = copy.deepcopy(CSV_ROWS)
     rows[row][column] = cell
@@ -144,7 +87,7 @@ def test_a_mutated_measurement_csv_loads_valid_or_is_refused_in_one_line(row, co
     csv.writer(text).writerows(rows)
     path = tmp_path / "measurements.csv"
     path.write_text(text.getvalue())
-    loaded = _refused_in_one_line(bending_fit.load_csv, path)
+    loaded = refused_in_one_line(bending_fit.load_csv, path)
     if loaded is not None:
         assert all(math.isfinite(v) for v in loaded.pressure_pa)
         for values in loaded.values.values():
@@ -158,4 +101,4 @@ def test_broken_yaml_is_refused_in_one_line_by_every_loader(text, tmp_path):
     path.write_text(text)
     for load in (lambda p: geometry.load_geometry("type_II", p), plant_file.load,
                  scene.load_scene):
-        assert _refused_in_one_line(load, path) is None
+        assert refused_in_one_line(load, path) is None

@@ -3,6 +3,7 @@ estimates bit for bit; a recorded demo run is read back by rosbags message for m
 replays within 1e-9; bad input gets a clear message and an exit code, never a traceback."""
 import json
 import math
+import pathlib
 import shutil
 import signal
 import subprocess
@@ -338,3 +339,200 @@ def test_a_failing_can_log_stops_the_recording_with_a_message(tmp_path, monkeypa
     # stopped at the first check after the failure, not at --duration (a bound, not a timing)
     assert elapsed_s < 50.0
     assert list(bags.read(tmp_path / "bag")) == []
+
+
+# the messages of the demo bag the damaged bags start from: enough for an opening's journal,
+# readings and status, few enough to read and replay many times
+SMALL_BAG_MESSAGES = 600
+REPLAYED_TOPICS = ("pressure/estimator_input", "pressure/estimate", "controller/status",
+                   "grasp_state", "pressure/sensor/chamber_a", "pressure/sensor/chamber_b")
+
+
+@pytest.fixture(scope="module")
+def small_bags(demo_bag, tmp_path_factory):
+    """Two small logs from the demo bag's first messages of the topics the tools read: the
+    replay's (its custom data too) and softgrip_identify's (the same with an info message, as
+    for an excitation and for a known-object step)."""
+    import yaml
+    from softgrip_ros.model import plant_file
+    from softgrip_ros.tools import bag as bags
+    from softgrip_ros.tools import identify
+    path, _ = demo_bag
+    store = bags.typestore()
+    everything, commands = [], []
+    for topic, msgtype, stamp_ns, message in bags.read(path):
+        if topic.endswith(REPLAYED_TOPICS):
+            everything.append((topic, msgtype, stamp_ns, store.serialize_cdr(message, msgtype)))
+            if topic.endswith("controller/status"):
+                commands.append((stamp_ns * 1e-9, message.regulator_command_gauge_pressure_pa))
+    messages = everything[:SMALL_BAG_MESSAGES]
+    # the known-object step's closing: a change of the regulator's command stands in, with
+    # readings before it (the recording may begin in the middle of the opening)
+    sent_s, command_pa = next((t, c) for (t0, c0), (t, c) in zip(commands, commands[1:])
+                              if abs(c - c0) > 1e3 and t - commands[0][0] > 0.5)
+    around = [m for m in everything if abs(m[2] * 1e-9 - sent_s) < 0.5 and (
+        "/pressure/sensor/" in m[0] or m[0].endswith("controller/status"))]
+    directory = tmp_path_factory.mktemp("small_bags")
+    replayed = directory / "replay"
+    with bags.BagWriter(replayed) as out:
+        for key, value in bags.custom_data(path).items():
+            out.set_custom_data(key, value)
+        for message in messages:
+            out.write(*message)
+    first_s = around[0][2] * 1e-9
+    infos = {
+        "excitation": {"format": identify.LOG_FORMAT, "held_out_from_s": first_s + 0.3,
+                       "steps": [["SUPPLY", 20e3, 0.5]]},
+        "contact": {"format": identify.LOG_FORMAT, "contact": {
+            "known_object_m": 0.02, "gripper_model": "type_II", "open_pa": 30e3,
+            "clamp_pa": command_pa, "closings": [["empty", sent_s], ["object", sent_s]]}},
+    }
+    logs = {}
+    for kind, info in infos.items():
+        info["base_plant"] = plant_file.document(plant_file.default_description())
+        logs[kind] = directory / f"identify_{kind}"
+        with bags.BagWriter(logs[kind]) as out:
+            out.write(identify.INFO_TOPIC, "std_msgs/msg/String", around[0][2],
+                      store.serialize_cdr(store.types["std_msgs/msg/String"](
+                          data=yaml.safe_dump(info)), "std_msgs/msg/String"))
+            for message in around:
+                out.write(*message)
+    return replayed, logs, infos
+
+
+def _damaged_copy(data, source, into):
+    """A copy of the bag ``source`` in ``into`` with one damage drawn by hypothesis: its storage
+    cut short or overwritten in part, or its metadata.yaml mutated."""
+    import yaml
+    from hypothesis import strategies as st
+    from tests.helpers.mutation import mutated
+    copy = into / "bag"
+    shutil.copytree(source, copy)
+    storage = next(copy.glob("*.mcap"))
+    content = storage.read_bytes()
+    damage = data.draw(st.sampled_from(["cut", "overwrite", "overwrite", "metadata"]))
+    if damage == "cut":
+        storage.write_bytes(content[:data.draw(st.integers(0, len(content) - 1))])
+    elif damage == "overwrite":
+        at = data.draw(st.integers(0, len(content) - 1))
+        junk = data.draw(st.binary(min_size=1, max_size=64))
+        storage.write_bytes(content[:at] + junk + content[at + len(junk):])
+    else:
+        metadata = yaml.safe_load((copy / "metadata.yaml").read_text())
+        (copy / "metadata.yaml").write_text(yaml.safe_dump(data.draw(mutated(metadata))))
+    return copy
+
+
+def _one_line_or_nothing(call):
+    """``call()``'s result, or None when it raised a ValueError of one line (anything else
+    raised fails the test)."""
+    try:
+        return call()
+    except ValueError as error:
+        assert str(error) and "\n" not in str(error).strip() and "Traceback" not in str(error)
+        return None
+
+
+@pytest.mark.ros
+def test_a_damaged_bag_replays_or_is_refused_in_one_line(small_bags, tmp_path):
+    """softgrip_replay on a bag cut short, overwritten in part or with a mutated metadata.yaml:
+    the replay runs, or says in one line why not (exit 2); before #52, any error deep inside
+    the readers or the recorded parameters escaped as a traceback."""
+    import tempfile
+    from hypothesis import given
+    from hypothesis import strategies as st
+    from softgrip_ros.tools import replay
+    from tests.helpers.mutation import EXAMPLES
+    source, _, _ = small_bags
+    assert replay.replay(source, None)[1], "the undamaged bag replays"
+
+    @EXAMPLES
+    @given(data=st.data())
+    def check(data):
+        with tempfile.TemporaryDirectory(dir=tmp_path) as into:
+            damaged = _damaged_copy(data, source, pathlib.Path(into))
+            _one_line_or_nothing(lambda: replay.replay(damaged, None))
+
+    check()
+
+
+@pytest.mark.ros
+def test_a_damaged_identification_log_is_read_or_refused_in_one_line(small_bags, tmp_path):
+    """softgrip_identify --from-log on a log damaged as above, or whose info (the YAML the
+    tool wrote beside the readings) is mutated: the recording and the known-object step's
+    closings are read, or it says in one line why not, before any fit; before #52 a missing or
+    mistyped info key was a KeyError or TypeError."""
+    import tempfile
+    from hypothesis import given
+    from hypothesis import strategies as st
+    from softgrip_ros.model import plant_file
+    from softgrip_ros.tools import bag as bags
+    from softgrip_ros.tools import identify, identify_contact
+    from tests.helpers.mutation import EXAMPLES, mutated
+    _, logs, infos = small_bags
+
+    def read(path):
+        recording, info = identify.recording_from_log(path)
+        if "contact" in info:
+            identify_contact.jobs_from_log(recording, info, plant_file.parse(
+                info["base_plant"], "the log's base plant"))
+        return recording
+
+    for kind in logs:
+        assert read(logs[kind]).sensors, f"the undamaged {kind} log is read"
+
+    @EXAMPLES
+    @given(data=st.data())
+    def check(data):
+        kind = data.draw(st.sampled_from(sorted(logs)))
+        with tempfile.TemporaryDirectory(dir=tmp_path) as into:
+            if data.draw(st.booleans()):
+                damaged = _damaged_copy(data, logs[kind], pathlib.Path(into))
+            else:  # the same readings, beside a mutated info
+                import yaml
+                damaged = pathlib.Path(into) / "log"
+                store = bags.typestore()
+                with bags.BagWriter(damaged) as out:
+                    for topic, msgtype, stamp_ns, message in bags.read(logs[kind]):
+                        if topic == identify.INFO_TOPIC:
+                            message = store.types[msgtype](
+                                data=yaml.safe_dump(data.draw(mutated(infos[kind]))))
+                        out.write(topic, msgtype, stamp_ns, store.serialize_cdr(message, msgtype))
+            _one_line_or_nothing(lambda: read(damaged))
+
+    check()
+
+
+@pytest.mark.ros
+def test_a_bag_that_cannot_be_created_is_said_so_and_not_claimed(tmp_path, monkeypatch, capsys):
+    """A directory the recorder may not write in (here the writer refuses, as for a read-only
+    parent, which a root test run cannot make): exit 1, saying the bag could not be created;
+    before #52 it said the directory held everything recorded, and it did not exist."""
+    from softgrip_ros.tools import bag as bags
+    from softgrip_ros.tools import record
+
+    def refuse(self):
+        raise PermissionError(13, "Permission denied", str(self.path))
+
+    monkeypatch.setattr(bags.BagWriter, "__enter__", refuse)
+    status = record.main([str(tmp_path / "bag"), "--topics", "grasp_state", "--duration", "5"])
+    err = capsys.readouterr().err
+    assert status == 1, err
+    assert "cannot record: the bag could not be created: [Errno 13] Permission denied" in err
+    assert "holds everything" not in err and not (tmp_path / "bag").exists()
+
+
+@pytest.mark.ros
+def test_replay_into_a_place_it_cannot_write_says_so_before_replaying(small_bags, tmp_path):
+    """An --output under a file: exit 2 with the reason, nothing written (it was a traceback,
+    #52); an output it can write gets estimates.csv, summary.json and replay.png whole."""
+    source, _, _ = small_bags
+    (tmp_path / "file").write_text("in the way")
+    done = tool("softgrip_replay", source, "--output", tmp_path / "file" / "out")
+    assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+    assert done.stderr.strip().splitlines()[-1].startswith("softgrip_replay: cannot write in")
+    assert "[replay]" not in done.stderr  # refused before the replay ran
+    done = tool("softgrip_replay", source, "--output", tmp_path / "out")
+    assert done.returncode in (0, 1), done.stderr
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [
+        "estimates.csv", "replay.png", "summary.json"]

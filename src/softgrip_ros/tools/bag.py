@@ -77,9 +77,10 @@ class BagWriter:
 
 def read(path, on_unknown=None):
     """Every message of the log at ``path``, in time order: (topic, msgtype, stamp_ns, message);
-    ValueError when it is not a readable rosbag2 directory. A topic whose type is neither ROS's
-    nor the suite's (none the tools read) is skipped, and ``on_unknown(topic, msgtype)`` hears of
-    it first."""
+    ValueError, in one line, when it is not a readable rosbag2 directory or a part of it is
+    damaged (the readers fail in many types on a truncated or corrupt file). A topic whose type
+    is neither ROS's nor the suite's (none the tools read) is skipped, and
+    ``on_unknown(topic, msgtype)`` hears of it first."""
     store = typestore()
     try:
         with Reader(pathlib.Path(path)) as reader:
@@ -90,14 +91,25 @@ def read(path, on_unknown=None):
             if not known:  # rosbags reads every connection when given none
                 return
             for connection, stamp_ns, data in reader.messages(connections=known):
-                yield (connection.topic, connection.msgtype, stamp_ns,
-                       store.deserialize_cdr(data, connection.msgtype))
+                try:
+                    message = store.deserialize_cdr(data, connection.msgtype)
+                except Exception as error:
+                    raise ValueError(f"cannot read the log {path}: a {connection.msgtype} "
+                                     f"message on {connection.topic} is damaged "
+                                     f"({_one_line(error)})") from None
+                yield connection.topic, connection.msgtype, stamp_ns, message
+    except ValueError as error:
+        raise ValueError(_one_line(error)) from None
     except (FileNotFoundError, NotADirectoryError) as error:
-        raise ValueError(f"{path} is not a rosbag2 directory: {error}") from None
-    except Exception as error:  # rosbags' own errors: a damaged or foreign log
-        if type(error).__module__.startswith("rosbags"):
-            raise ValueError(f"cannot read the log {path}: {error}") from None
-        raise
+        raise ValueError(f"{path} is not a rosbag2 directory: {_one_line(error)}") from None
+    except Exception as error:  # raised by the readers, not by the caller's loop
+        raise ValueError(f"cannot read the log {path} (truncated or corrupt?): "
+                         f"{_one_line(error)}") from None
+
+
+def _one_line(error: Exception) -> str:
+    text = " ".join(str(error).split())
+    return text if isinstance(error, ValueError) and text else f"{type(error).__name__}: {text}"
 
 
 def note_unknown(topic: str, msgtype: str) -> None:
@@ -111,7 +123,12 @@ def custom_data(path) -> dict:
     import yaml
     try:
         metadata = yaml.safe_load((pathlib.Path(path) / "metadata.yaml").read_text())
-    except (OSError, yaml.YAMLError) as error:
-        raise ValueError(f"{path}: no readable metadata.yaml ({error})") from None
-    info = (metadata or {}).get("rosbag2_bagfile_information") or {}
-    return dict(info.get("custom_data") or {})
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
+        raise ValueError(f"{path}: no readable metadata.yaml ({_one_line(error)})") from None
+    info = (metadata or {}).get("rosbag2_bagfile_information") if isinstance(
+        metadata, dict) else None
+    custom = (info or {}).get("custom_data") if isinstance(info, dict) else None
+    if not isinstance(custom or {}, dict) or not all(
+            isinstance(k, str) and isinstance(v, str) for k, v in (custom or {}).items()):
+        raise ValueError(f"{path}: metadata.yaml's custom_data is not a mapping of strings")
+    return dict(custom or {})

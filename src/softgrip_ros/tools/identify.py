@@ -53,6 +53,10 @@ from softgrip_ros.tools import bag, identify_contact
 from softgrip_ros.tools.identification_report import write
 
 INFO_TOPIC = "/softgrip_identify/info"
+LOG_FORMAT = "softgrip_identify/1"
+KNOWN_OBJECT_RANGE_M = (0.002, 0.2)
+CLOSING_KINDS = ("empty", "object")
+VALVE_STATES = frozenset(int(valve) for valve in Valve)
 # a sensor whose readings stop this long on DDS has dropped out or saturated (DDS may lose a few
 # when this process is starved; the controller's own frame age, which sees the bus, says sooner
 # when every sensor stops)
@@ -105,7 +109,7 @@ def parser() -> argparse.ArgumentParser:
                      "they had not settled; inf for no limit")
     top.add_argument("--timeout", type=Number(0.0, 3600.0, "s", low_open=True), default=15.0,
                      help="seconds to wait for the controller's services")
-    top.add_argument("--known-object-m", type=Number(0.002, 0.2, "m"), metavar="D",
+    top.add_argument("--known-object-m", type=Number(*KNOWN_OBJECT_RANGE_M, "m"), metavar="D",
                      help="the known-object step: a rigid object D m wide (a cylinder's "
                      "diameter), placed between the fingers when asked")
     top.add_argument("--gripper-model", default="type_II",
@@ -326,7 +330,7 @@ def run_live(args, progress) -> tuple[pathlib.Path, dict]:
                 else:
                     closings = identify_contact.run(live, contact_plan, sensors, progress,
                                                     identify_contact.wait_for_enter)
-                    info = {"format": "softgrip_identify/1", "contact": {
+                    info = {"format": LOG_FORMAT, "contact": {
                         "known_object_m": args.known_object_m,
                         "gripper_model": args.gripper_model,
                         "open_pa": contact_plan.open_pa, "clamp_pa": contact_plan.clamp_pa,
@@ -382,7 +386,7 @@ def _excite(live: Live, steps: list, held_out: float, sensors: list, progress) -
         elapsed += step.duration_s
     with live.lock:
         live.recording = False
-    return {"format": "softgrip_identify/1", "started_s": started, "held_out_from_s": held_out_at,
+    return {"format": LOG_FORMAT, "started_s": started, "held_out_from_s": held_out_at,
             "steps": [[s.source, s.target_pa, s.duration_s] for s in steps]}
 
 
@@ -414,30 +418,84 @@ def _keep_log(log: pathlib.Path, output: pathlib.Path) -> pathlib.Path:
 
 
 # ---- from a log ---------------------------------------------------------------------------------
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def log_info(text: str, path) -> dict:
+    """The info a softgrip_identify log carries on INFO_TOPIC (YAML), checked so that every
+    later use of it holds: ValueError, in one line, naming what is wrong."""
+    where = f"{path}: the log's {INFO_TOPIC}"
+    try:
+        info = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        raise ValueError(f"{where} is not YAML ({' '.join(str(error).split())})") from None
+    if not isinstance(info, dict) or info.get("format") != LOG_FORMAT:
+        raise ValueError(f"{where} is not a {LOG_FORMAT} mapping")
+    if not isinstance(info.get("base_plant"), dict):
+        raise ValueError(f"{where} holds no base_plant mapping")
+    held_out = info.get("held_out_from_s", math.inf)
+    if not _number(held_out) or math.isnan(held_out):
+        raise ValueError(f"{where}: held_out_from_s {held_out!r} is not a time in s")
+    if "contact" not in info:
+        return info
+    contact = info["contact"]
+    low, high = KNOWN_OBJECT_RANGE_M
+    if not isinstance(contact, dict):
+        raise ValueError(f"{where}: contact is not a mapping")
+    if not (_number(contact.get("known_object_m")) and low <= contact["known_object_m"] <= high):
+        raise ValueError(f"{where}: contact.known_object_m {contact.get('known_object_m')!r} "
+                         f"is not a size in [{low:g}, {high:g}] m")
+    if not isinstance(contact.get("gripper_model"), str):
+        raise ValueError(f"{where}: contact.gripper_model is not a model's name")
+    if not (_number(contact.get("clamp_pa")) and math.isfinite(contact["clamp_pa"])):
+        raise ValueError(f"{where}: contact.clamp_pa {contact.get('clamp_pa')!r} is not a "
+                         "pressure in Pa")
+    closings = contact.get("closings")
+    if not isinstance(closings, list) or not all(
+            isinstance(c, list) and len(c) == 2 and c[0] in CLOSING_KINDS and _number(c[1])
+            and math.isfinite(c[1]) for c in closings):
+        raise ValueError(f"{where}: contact.closings is not a list of [kind, time s] with kind "
+                         f"one of {', '.join(CLOSING_KINDS)}")
+    return info
+
+
 def recording_from_log(path: pathlib.Path) -> tuple[identification.Recording, dict]:
-    """The Recording in a log softgrip_identify wrote, and its info. The readings there have the
-    base file's biases taken off (the controller did); they are put back, so that the biases
-    found are the sensors' own."""
+    """The Recording in a log softgrip_identify wrote, and its info (:func:`log_info`). The
+    readings there have the base file's biases taken off (the controller did); they are put
+    back, so that the biases found are the sensors' own. ValueError, in one line, for a log that
+    cannot be read, an info that does not hold, or a reading or status that is not finite."""
     info, sensors, regulator, inputs, last = None, {}, {}, [], None
     for topic, msgtype, _, msg in bag.read(path, bag.note_unknown):
         if topic == INFO_TOPIC:
-            info = yaml.safe_load(msg.data)
+            info = log_info(msg.data, path)
         elif msgtype == "sensor_msgs/msg/FluidPressure":
             name = topic.rsplit("/", 1)[1]
             stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+            if not math.isfinite(msg.fluid_pressure):
+                raise ValueError(f"{path}: a reading on {topic} at {stamp:.3f} s is not finite")
             sensors.setdefault(name, ([], []))
             sensors[name][0].append(stamp)
             sensors[name][1].append(msg.fluid_pressure - P_ATM_PA)
         elif msgtype == "softgrip_interfaces/msg/ControllerStatus":
             stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-            if math.isfinite(msg.regulator_report_age_s):
+            command_pa, change_age_s = (msg.regulator_command_gauge_pressure_pa,
+                                        msg.output_change_age_s)
+            if not (math.isfinite(command_pa) and math.isfinite(change_age_s)):
+                raise ValueError(f"{path}: the controller's status at {stamp:.3f} s holds a "
+                                 "command or an output age that is not finite")
+            if math.isfinite(msg.regulator_report_age_s) and math.isfinite(
+                    msg.regulator_actual_gauge_pressure_pa):
                 regulator[round(stamp - msg.regulator_report_age_s, 4)] = \
                     msg.regulator_actual_gauge_pressure_pa
             valve = int(msg.valve_states[0]) if len(msg.valve_states) else int(Valve.CLOSED)
-            key = (valve, msg.regulator_command_gauge_pressure_pa, bool(msg.regulator_enabled))
+            if valve not in VALVE_STATES:
+                raise ValueError(f"{path}: the controller's status at {stamp:.3f} s holds the "
+                                 f"unknown valve state {valve}")
+            key = (valve, command_pa, bool(msg.regulator_enabled))
             if key != last:
                 # when its frames went out, not when the status that says so was published
-                changed = outputs_changed_at(stamp, msg.output_change_age_s)
+                changed = outputs_changed_at(stamp, change_age_s)
                 inputs.append(identification.InputChange(changed, *key))
                 last = key
     if info is None:

@@ -235,6 +235,12 @@ def main(argv=None) -> int:
     if not args.outdir.parent.resolve().is_dir():
         print(f"softgrip_record: {args.outdir.parent} is not a directory", file=sys.stderr)
         return 2
+    from softgrip_ros.fileio import OutputError, check_writable_directory
+    try:
+        check_writable_directory(args.outdir.parent)
+    except OutputError as error:
+        print(f"softgrip_record: {error}", file=sys.stderr)
+        return 2
     can_log, can_listener = None, None
     if args.can is not None:
         import can
@@ -317,7 +323,8 @@ def main(argv=None) -> int:
                 bag.set_custom_data("softgrip.estimator_parameters",
                                     yaml.safe_dump(recorder.parameters))
     except OSError as error:
-        status, reason = 1, f"the bag could not be finished: {error}"
+        done = "finished" if recorder is not None else "created"
+        status, reason = 1, f"the bag could not be {done}: {error}"
     finally:
         node.destroy_node()
         rclpy.shutdown(context=context)
@@ -330,7 +337,9 @@ def main(argv=None) -> int:
             bus.shutdown()
             if can_listener.error is not None and not reason:
                 status, reason = 1, f"the CAN log failed: {can_listener.error}"
-    if reason:
+    if reason and recorder is None:  # the bag was never opened: nothing recorded
+        print(f"softgrip_record: cannot record: {reason}", file=sys.stderr)
+    elif reason:
         print(f"softgrip_record: recording stopped: {reason}; {args.outdir} holds everything "
               "recorded until then", file=sys.stderr)
     if recorder is None:

@@ -123,11 +123,24 @@ def build_runner(custom: dict):
     from softgrip_ros.estimation.runner import EstimatorRunner
     from softgrip_ros.model.pneumatics import PneumaticPlant
     from softgrip_ros.nodes.specs import ESTIMATOR_SPECS, estimator_config, load_plant
-    values = {spec.name: spec.default for spec in ESTIMATOR_SPECS}
+    specs = {spec.name: spec for spec in ESTIMATOR_SPECS}
+    values = {name: spec.default for name, spec in specs.items()}
     recorded = custom.get("softgrip.estimator_parameters")
     note = "the estimator's recorded parameters"
     if recorded:
-        values.update(yaml.safe_load(recorded))
+        try:
+            parameters = yaml.safe_load(recorded)
+        except yaml.YAMLError:
+            parameters = None
+        if not isinstance(parameters, dict):
+            raise ValueError("the bag's softgrip.estimator_parameters is not a YAML mapping")
+        for name, value in parameters.items():
+            # a parameter this version does not have is the recording's, not the replay's
+            if name in specs:
+                problem = specs[name].check(value)
+                if problem:
+                    raise ValueError(f"the bag's estimator parameters: {problem}")
+                values[name] = value
     else:
         note = "no parameters in the bag: the estimator's defaults"
     plant = load_plant(values)
@@ -247,18 +260,12 @@ def plot(path: pathlib.Path, found: dict, replayed: list, d2: list) -> None:
     plt.close(figure)
 
 
-def main(argv=None) -> int:
-    args = parser().parse_args(argv)
-    output = args.output or args.bag.with_name(args.bag.name + "_replay")
-    try:
-        found = load(args.bag)
-    except ValueError as error:
-        print(f"softgrip_replay: {error}", file=sys.stderr)
-        return 2
-    except Exception as error:  # a damaged file fails deep inside the readers, in many types
-        print(f"softgrip_replay: cannot read {args.bag} (truncated or corrupt?): "
-              f"{type(error).__name__}: {error}", file=sys.stderr)
-        return 2
+def replay(path: pathlib.Path, speed: float | None) -> tuple:
+    """The bag at ``path`` read and run through the estimator: (found, replayed estimates,
+    source, note), where ``found`` is :func:`load`'s, ``source`` says which events ran and
+    ``note`` which parameters. ValueError, in one line, for a bag that cannot be read or whose
+    recorded parameters do not hold, and for one with nothing to replay."""
+    found = load(path)
     events = found["journal"]
     source = "the estimator's journal"
     if events and min(e.sequence for e in events) != 0:
@@ -274,28 +281,48 @@ def main(argv=None) -> int:
         source = ("no journal: the sensor readings and controller status in stamp order, "
                   "batched at the recorded estimates' instants (close, not exact)")
     if not events:
-        print(f"softgrip_replay: {args.bag} holds no sensor readings and no estimator journal",
-              file=sys.stderr)
-        return 2
+        raise ValueError(f"{path} holds no sensor readings and no estimator journal")
+    runner, _, note = build_runner(found["custom"])
+    print(f"[replay] {len(events)} events ({source}); {note}", file=sys.stderr, flush=True)
+    return found, run(runner, events, speed), source, note
+
+
+def write_outputs(output: pathlib.Path, found: dict, replayed: list, summary: dict,
+                  plot_it: bool) -> None:
+    """estimates.csv, summary.json and (``plot_it``) replay.png into ``output``, each whole or
+    not at all; OutputError (one line) for what the file system refused."""
+    import io
+
+    from softgrip_ros.fileio import replacing, write_text_atomically
+    rows = io.StringIO()
+    writer = csv.writer(rows)
+    writer.writerow(["stamp_s", "gauge_pa", "variance_pa2"])
+    for e in replayed:
+        writer.writerow([f"{e.stamp_s:.9f}", repr(e.gauge_pa), repr(e.variance_pa2)])
+    write_text_atomically(output / "estimates.csv", rows.getvalue())
+    write_text_atomically(output / "summary.json", json.dumps(summary, indent=1))
+    if plot_it:
+        with replacing(output / "replay.png") as temporary:
+            plot(temporary, found, replayed, d2_of(replayed))
+
+
+def main(argv=None) -> int:
+    from softgrip_ros.fileio import OutputError, check_writable_directory
+    args = parser().parse_args(argv)
+    output = args.output or args.bag.with_name(args.bag.name + "_replay")
     try:
-        runner, _, note = build_runner(found["custom"])
-        print(f"[replay] {len(events)} events ({source}); {note}", file=sys.stderr, flush=True)
-        replayed = run(runner, events, args.speed)
-    except ValueError as error:
+        check_writable_directory(output)
+        found, replayed, source, _ = replay(args.bag, args.speed)
+    except (ValueError, OutputError) as error:
         print(f"softgrip_replay: {error}", file=sys.stderr)
         return 2
     summary = compare(replayed, found["estimates"])
     summary["source"] = source
-    d2 = d2_of(replayed)
-    output.mkdir(parents=True, exist_ok=True)
-    with open(output / "estimates.csv", "w", newline="") as stream:
-        writer = csv.writer(stream)
-        writer.writerow(["stamp_s", "gauge_pa", "variance_pa2"])
-        for e in replayed:
-            writer.writerow([f"{e.stamp_s:.9f}", repr(e.gauge_pa), repr(e.variance_pa2)])
-    (output / "summary.json").write_text(json.dumps(summary, indent=1))
-    if not args.no_plot:
-        plot(output / "replay.png", found, replayed, d2)
+    try:
+        write_outputs(output, found, replayed, summary, not args.no_plot)
+    except OutputError as error:
+        print(f"softgrip_replay: {error}", file=sys.stderr)
+        return 2
     reproduced = summary["max_relative_difference"] <= REPRODUCED_RELATIVE
     print(f"[replay] {summary['replayed']} estimates replayed, {summary['matched']} of "
           f"{summary['recorded']} recorded ones matched by stamp; largest relative difference "
