@@ -3,6 +3,8 @@ controller and the plant (tests/helpers/grasp_loop), without ROS."""
 import math
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from softgrip_ros.control.grasp_fsm import (GoalOutcome, GraspConfig, GraspMode, GraspRequest,
                                             Phase, Rejection)
@@ -120,3 +122,40 @@ def test_another_command_supersedes_a_goal(kinematics):
     goal = start(loop, 0.05)
     loop.command(GraspRequest(GraspMode.STOP))
     assert gripper_progress(loop.fsm, goal, TOLERANCE_M).outcome == GoalOutcome.SUPERSEDED
+
+
+GOAL_FLOATS = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.floats(min_value=0.0, max_value=0.12),  # tip spacings the gripper can reach, and beyond
+    st.floats(min_value=0.0, max_value=5.0),   # efforts per finger
+    st.sampled_from([0.0, -0.0, 5e-324, 1e300, -1e-9]))
+
+
+@settings(max_examples=40, deadline=None)
+@given(position_m=GOAL_FLOATS, effort_n=GOAL_FLOATS, opened_first=st.booleans())
+def test_any_goal_is_refused_with_its_reason_or_ends_within_the_limits(
+        position_m, effort_n, opened_first):
+    """Any position and effort a GripperCommand can carry: refused at once with a reason and
+    nothing moved, or a goal that reaches an end (succeeded, aborted or failed) within its
+    phases' timeouts, the pressure inside the limits throughout (#52)."""
+    kinematics = build_kinematics("l0")
+    config = GraspConfig()
+    loop = GraspLoop(kinematics, config)
+    loop.run_for(0.05)
+    if opened_first:
+        run_to_end(loop, start(loop, 0.06))
+    before = (loop.fsm.request, loop.fsm.state.phase, loop.fsm.task)
+    started_s = loop.now
+    goal = start(loop, position_m, effort_n)
+    if isinstance(goal, Rejection):
+        assert goal.reason and "\n" not in goal.reason
+        assert loop.fsm.state.command_rejected and goal.reason in loop.fsm.state.message
+        assert (loop.fsm.request, loop.fsm.state.phase, loop.fsm.task) == before
+        return
+    assert config.min_gauge_pa <= loop.fsm.request.target_gauge_pa <= config.max_gauge_pa
+    progress = run_to_end(loop, goal, timeout=8.0)
+    assert progress.outcome.ended
+    assert math.isfinite(progress.position_m) and math.isfinite(progress.effort_n)
+    pressures = loop.pressures_since(started_s)
+    assert config.min_gauge_pa - 2e3 <= min(pressures) <= max(pressures) <= \
+        config.max_gauge_pa + 2e3
