@@ -119,6 +119,7 @@ while time.monotonic() - start < seconds:
     else:
         bus.recv(1.0)
 print(time.process_time() - cpu0, time.monotonic() - start, flush=True)
+bus.shutdown()
 """
 VENT = 3  # ValveCommand's channel state
 FAULT_MODE = 4  # ControllerStatus.mode in the safe state
