@@ -500,3 +500,58 @@ def test_a_client_killed_mid_goal_leaves_its_goal_to_end_and_the_server_serving(
     _, closed = send(action, gripper_goal(0.02))
     assert result_of(closed).status == GoalStatus.STATUS_SUCCEEDED
     assert client.stop()
+
+
+def test_any_parallel_goal_is_answered_and_a_refusal_says_why_in_one_line(suite):
+    """ParallelGripperCommand goals with any names, positions, velocities and efforts (#52's
+    property tests over each action's goal fields; GripperCommand's two numbers are drawn in
+    tests/test_control_gripper_command.py without ROS): each is answered and ends; a refused one
+    is aborted with its reason on grasp_state in one line of bounded length, whatever the
+    client sent (thousands of names, newlines in them); an accepted one is cancelled and ends
+    canceled or done."""
+    from action_msgs.msg import GoalStatus
+    from control_msgs.action import ParallelGripperCommand
+    from hypothesis import example, given, settings
+    from hypothesis import strategies as st
+    from softgrip_ros.client import serial_action_client
+    from softgrip_interfaces.msg import GripperState
+    _, user, client = suite
+    action = serial_action_client(user, ParallelGripperCommand, "parallel_gripper_cmd")
+    assert action.wait_for_server(timeout_sec=5.0)
+    # every state, as a later tick may restate the phase's own message before one is looked at
+    states = []
+    user.create_subscription(GripperState, "grasp_state", states.append, 100)
+    numbers = st.one_of(st.floats(allow_nan=True, allow_infinity=True),
+                        st.floats(min_value=0.0, max_value=0.1))
+    names = st.one_of(st.sampled_from([[], ["g1_tip_spacing"], ["left_finger"],
+                                       ["g1_tip_spacing", "g1_tip_spacing"], ["a\nb"],
+                                       [f"joint_{i}" for i in range(5000)]]),
+                      st.lists(st.text(max_size=12), max_size=3))
+
+    @settings(max_examples=20, deadline=None)
+    @example(names=[f"joint_{i}" for i in range(5000)], positions=[0.02], velocities=[],
+             efforts=[])
+    @example(names=["a\nb"], positions=[0.02, math.nan], velocities=[], efforts=[])
+    @given(names=names, positions=st.lists(numbers, max_size=3),
+           velocities=st.lists(numbers, max_size=2), efforts=st.lists(numbers, max_size=2))
+    def check(names, positions, velocities, efforts):
+        goal = ParallelGripperCommand.Goal()
+        goal.command.name, goal.command.position = names, positions
+        goal.command.velocity, goal.command.effort = velocities, efforts
+        since = len(states)
+        handle, result = send(action, goal)
+        if not (names in ([], ["g1_tip_spacing"]) and len(positions) == 1):
+            assert result_of(result, timeout=5.0).status == GoalStatus.STATUS_ABORTED
+            refusals = wait_for(lambda: [s.message for s in states[since:] if s.command_id ==
+                                         "parallel_gripper_cmd" and s.message.startswith(
+                                             "rejected: one joint")], timeout=2.0,
+                                message="the refusal on grasp_state")
+            assert "\n" not in refusals[0] and len(refusals[0]) < 400, refusals[0]
+        else:
+            handle.cancel_goal_async()
+            assert result_of(result, timeout=5.0).status in (
+                GoalStatus.STATUS_CANCELED, GoalStatus.STATUS_ABORTED,
+                GoalStatus.STATUS_SUCCEEDED)
+        assert client.stop()
+
+    check()

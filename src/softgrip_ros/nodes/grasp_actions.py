@@ -175,8 +175,8 @@ class GraspActions:
         names, positions = list(command.name), list(command.position)
         if names not in ([], [self.joint]) or len(positions) != 1:
             m = self.manager
-            reason = (f"one joint, {self.joint!r}, and one position, got names {names} and "
-                      f"positions {positions}")
+            reason = (f"one joint, {self.joint!r}, and one position, got names "
+                      f"{_listed(names)} and positions {_listed(positions)}")
             with m._lock:  # said on grasp_state, as every other refusal is
                 m.fsm.refuse("parallel_gripper_cmd", reason)
                 m._after_change(m._now())
@@ -229,3 +229,10 @@ class GraspActions:
                            lambda: feedback(gripper_progress(m.fsm, goal, tolerance)), cancel)
         with m._lock:
             return gripper_progress(m.fsm, goal, tolerance)
+
+
+def _listed(values: list, shown: int = 4) -> str:
+    """``values`` as a list in a message, its first ``shown`` only (a goal may carry thousands):
+    strings quoted and escaped, so that the message stays one line."""
+    head = ", ".join(repr(v) for v in values[:shown])
+    return f"[{head}, ... {len(values)} in all]" if len(values) > shown else f"[{head}]"
