@@ -3,6 +3,8 @@
 import math
 
 import pytest
+from hypothesis import event, given, settings
+from hypothesis import strategies as st
 
 from softgrip_ros.control.grasp_fsm import (GoalOutcome, GraspConfig, GraspRequest,
                                             GraspStateMachine, GraspMode, Phase, Rejection)
@@ -453,3 +455,52 @@ def test_bad_sensing_configuration_is_refused():
         GraspConfig(on_object_lost="panic")
     with pytest.raises(ValueError, match="sensing_wait_s"):
         GraspConfig(sensing_wait_s=math.inf)
+
+
+FIELD_RANGES = {"object_diameter_m": (0.0, 0.1), "object_mass_kg": (0.0, 0.2),
+                "target_tip_spacing_m": (0.0, 0.1), "friction_coefficient": (0.05, 2.0),
+                "open_pressure_pa": (-70e3, 70e3), "clamp_pressure_pa": (-70e3, 70e3)}
+
+
+@st.composite
+def grasp_requests(draw):
+    """A GraspCommand's request: each field not given (NaN) or plausible, and in half of them
+    one field anything a float holds; any mode number."""
+    fields = {name: draw(st.one_of(st.just(math.nan), st.floats(low, high)))
+              for name, (low, high) in FIELD_RANGES.items()}
+    if draw(st.booleans()):
+        fields[draw(st.sampled_from(sorted(fields)))] = draw(st.one_of(
+            st.floats(allow_nan=True, allow_infinity=True),
+            st.sampled_from([0.0, -0.0, 5e-324, 1e300, -1e300, -1.0])))
+    mode = draw(st.one_of(st.sampled_from(list(GraspMode)), st.integers(-2, 8)))
+    return GraspRequest(mode, command_id=draw(st.text(max_size=20)), **fields)
+
+
+@settings(max_examples=40, deadline=None)
+@given(request=grasp_requests(), opened_first=st.booleans())
+def test_any_grasp_command_is_refused_in_one_line_or_runs_within_the_limits(request,
+                                                                           opened_first):
+    """Any GraspCommand's fields (#52's property tests over each goal: the Grasp action carries
+    a GraspCommand), from rest or from an open gripper: refused with a one-line reason and
+    nothing moved, or accepted with a pressure inside the limits, which the plant then keeps
+    for the next 3 s."""
+    config = GraspConfig()
+    loop = GraspLoop(build_kinematics("l0"), config)
+    loop.run_for(0.05)
+    if opened_first:
+        loop.command(GraspRequest(GraspMode.OPEN, target_tip_spacing_m=0.05))
+        loop.run_until(lambda s: s.phase == Phase.ENVELOPED, 5.0)
+    before = (loop.fsm.request, loop.fsm.state.phase, loop.fsm.task)
+    started_s = loop.now
+    refused = loop.command(request)
+    event("refused" if refused is not None else "accepted")
+    if refused is not None:
+        assert isinstance(refused, Rejection) and refused.reason
+        assert "\n" not in refused.reason and len(refused.reason) < 400, refused.reason
+        assert (loop.fsm.request, loop.fsm.state.phase, loop.fsm.task) == before
+        return
+    assert config.min_gauge_pa <= loop.fsm.request.target_gauge_pa <= config.max_gauge_pa
+    loop.run_for(3.0)
+    pressures = loop.pressures_since(started_s)
+    assert config.min_gauge_pa - 2e3 <= min(pressures) <= max(pressures) <= \
+        config.max_gauge_pa + 2e3
