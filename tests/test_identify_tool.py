@@ -37,6 +37,15 @@ def test_bad_arguments_exit_2_with_the_reason(args, message):
     assert result.returncode == 2 and message in result.stderr
 
 
+def test_an_output_it_cannot_write_in_is_refused_before_anything_runs(tmp_path):
+    """Before #52 a read-only or blocked --output ended in a traceback after the whole fit."""
+    (tmp_path / "file").write_text("in the way")
+    result = _run("--output", str(tmp_path / "file" / "out"), "--timeout", "0.5")
+    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
+    assert "--output: cannot write in" in result.stderr
+    assert "controller" not in result.stdout  # refused before it looked for one
+
+
 def _log_of(recording: identification.Recording, base: plant_file.PlantDescription, path):
     """A log as softgrip_identify writes it, from a recording made without ROS."""
     import yaml

@@ -118,15 +118,18 @@ def markdown(result: Identification, base: plant_file.PlantDescription, provenan
 
 def write(result: Identification, base: plant_file.PlantDescription, provenance: dict,
           output: pathlib.Path, command: str) -> dict:
-    """Write the plant file, the report and the figure into ``output``; their paths."""
-    output.mkdir(parents=True, exist_ok=True)
+    """Write the figure, the report and then the plant file into ``output`` (made if missing),
+    each whole or not at all, so that a plant file on disk has its report; their paths.
+    OutputError (one line) for what the file system refused."""
+    from softgrip_ros.fileio import replacing, write_text_atomically
     provenance = dict(provenance, flags=list(result.flags),
                       validation_rmse_over_noise=round(result.validation_rmse_over_noise, 3),
                       fit_s=round(result.fit_s, 1))
-    plant_path = plant_file.save(description(result, base, provenance), output / PLANT,
-                                 header=f"identified by softgrip_identify: {command}\n"
-                                        f"report: {REPORT}")
-    figure = plot(result, output / FIGURE)
-    report = output / REPORT
-    report.write_text(markdown(result, base, provenance, command))
-    return {"plant": plant_path, "report": report, "figure": figure}
+    figure = output / FIGURE
+    with replacing(figure) as temporary:
+        plot(result, temporary)
+    report = write_text_atomically(output / REPORT, markdown(result, base, provenance, command))
+    plant = plant_file.save(description(result, base, provenance), output / PLANT,
+                            header=f"identified by softgrip_identify: {command}\n"
+                                   f"report: {REPORT}")
+    return {"plant": plant, "report": report, "figure": figure}

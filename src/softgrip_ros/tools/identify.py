@@ -123,6 +123,11 @@ def _check(args, error) -> None:
         error(f"--from-log {args.from_log}: no rosbag2 log there (no metadata.yaml)")
     if args.output is not None and (args.output / "plant.yaml").exists():
         error(f"{args.output / 'plant.yaml'} exists: choose another --output")
+    from softgrip_ros.fileio import OutputError, check_writable_directory
+    try:  # the default output goes into the working directory
+        check_writable_directory(args.output or pathlib.Path.cwd())
+    except OutputError as problem:
+        error(f"--output: {problem}")
     if args.output is not None and args.from_log is None and (args.output / "recording").exists():
         error(f"{args.output / 'recording'} exists (a log kept from an earlier run: fit it with "
               "--from-log): choose another --output")
@@ -410,9 +415,14 @@ def _write_log(live: Live, info: dict) -> pathlib.Path:
 
 def _keep_log(log: pathlib.Path, output: pathlib.Path) -> pathlib.Path:
     """Move a live run's log (``_write_log``'s folder) to ``output``/recording; that path."""
-    output.mkdir(parents=True, exist_ok=True)
     kept = output / "recording"
-    shutil.move(str(log), str(kept))
+    try:
+        output.mkdir(parents=True, exist_ok=True)
+        shutil.move(str(log), str(kept))
+    except OSError as error:
+        from softgrip_ros.fileio import OutputError
+        raise OutputError(f"cannot keep the log in {kept}: {error.strerror or error}; it is "
+                          f"still in {log}") from None
     shutil.rmtree(log.parent, ignore_errors=True)
     return kept
 
@@ -548,6 +558,7 @@ def _fit_contact(recording, info: dict, base, output: pathlib.Path, progress,
 
 
 def main(argv=None) -> int:
+    from softgrip_ros.fileio import OutputError
     args = parser().parse_args(argv)
     _check(args, parser().error)
     output = args.output or pathlib.Path(
@@ -573,13 +584,19 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("softgrip_identify: stopped by Ctrl-C; vented, nothing written", file=sys.stderr)
         return 1
+    except OutputError as error:
+        print(f"softgrip_identify: {error}; nothing more written", file=sys.stderr)
+        return 1
     except ValueError as error:
         if log is None or args.from_log is not None:
             print(f"softgrip_identify: cannot fit: {error}; nothing written", file=sys.stderr)
         else:  # the run's readings are worth keeping: a fix may let them be fitted again
-            kept = _keep_log(log, output)
-            print(f"softgrip_identify: cannot fit: {error}; no plant file written, the log kept "
-                  f"in {kept} (fit it again with --from-log)", file=sys.stderr)
+            try:
+                kept = f"the log kept in {_keep_log(log, output)}"
+            except OutputError as problem:
+                kept = str(problem)
+            print(f"softgrip_identify: cannot fit: {error}; no plant file written, {kept} "
+                  "(fit it again with --from-log)", file=sys.stderr)
         return 1
     if "contact" in written:
         fit = written["contact"]

@@ -194,9 +194,10 @@ def description(fit, base: plant_file.PlantDescription, provenance: dict
 
 def write(fit, base: plant_file.PlantDescription, model_share: float, output: pathlib.Path,
           command: str) -> dict:
-    """plant.yaml, contact.md and contact.png into ``output`` (each written whole, or not)."""
+    """contact.png, contact.md and then plant.yaml into ``output`` (made if missing), each
+    written whole or not at all, so that a plant file on disk has its report. OutputError (one
+    line) for what the file system refused."""
     from softgrip_ros.fileio import write_text_atomically
-    output.mkdir(parents=True, exist_ok=True)
     provenance = {"source": "identified", "date": datetime.date.today().isoformat(),
                   "tool": "softgrip_identify --known-object-m",
                   "object_m": float(fit.known_size_m)}
@@ -224,9 +225,9 @@ def write(fit, base: plant_file.PlantDescription, model_share: float, output: pa
         f"![chi-square against the share]({FIGURE})",
         "",
     ])
+    write_text_atomically(output / REPORT, report)
     plant = plant_file.save(description(fit, base, provenance), output / "plant.yaml",
                             f"softgrip_ros plant, its contact identified: {command}")
-    write_text_atomically(output / REPORT, report)
     return {"plant": plant, "report": output / REPORT, "figure": figure}
 
 
