@@ -98,8 +98,10 @@ def read(path, on_unknown=None):
                                      f"message on {connection.topic} is damaged "
                                      f"({_one_line(error)})") from None
                 yield connection.topic, connection.msgtype, stamp_ns, message
-    except ValueError as error:
-        raise ValueError(_one_line(error)) from None
+    except ValueError as error:  # ours name the log; rosbags' may not
+        text = _one_line(error)
+        raise ValueError(text if str(path) in text else f"cannot read the log {path}: {text}"
+                         ) from None
     except (FileNotFoundError, NotADirectoryError) as error:
         raise ValueError(f"{path} is not a rosbag2 directory: {_one_line(error)}") from None
     except Exception as error:  # raised by the readers, not by the caller's loop
