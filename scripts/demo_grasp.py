@@ -1,15 +1,16 @@
 #!/usr/bin/env python3
 """The grasp demo: `ros2 run softgrip_ros controller` on the simulated gripper, driven over DDS.
 
-Starts the installed ``controller`` executable (every node, plus the simulated device on a virtual
-CAN bus, with the physics world of config/scenes/cylinder_20mm.yaml), sends ENVELOP_CLAMP for a 20
-mm, 0.02 kg object (friction 0.8) on ``grasp_command``; once ENVELOPED the arm brings the object
-between the fingers (the scene's ``approach``), then CLAMP; once HOLDING the arm lifts it 0.2 m at
-1 g (``settle``, ``lift``); then RELEASE. Prints the phase sequence with timings and what the world
-says happened to the object; saves a plot of the raw sensor pressure, the estimate +- 1 sigma and
-the tip spacing D2 against time with the phases shaded, and a side view of the fingers and the
-object at ENVELOPED, HOLDING (lifted) and after the release; stops the controller with SIGTERM and
-exits 0 when every phase was reached and the controller exited cleanly.
+Starts the installed ``sim_device`` (the simulated gripper, with the physics world of
+config/scenes/cylinder_20mm.yaml) and ``controller`` (every node) as two processes on an
+inter-process CAN bus (softgrip_ipc), as a real device has its own processor; sends ENVELOP_CLAMP
+for a 20 mm, 0.02 kg object (friction 0.8) on ``grasp_command``; once ENVELOPED the arm brings the
+object between the fingers (the scene's ``approach``), then CLAMP; once HOLDING the arm lifts it
+0.2 m at 1 g (``settle``, ``lift``); then RELEASE. Prints the phase sequence with timings and
+what the world says happened to the object; saves a plot of the raw sensor pressure, the estimate
++- 1 sigma and the tip spacing D2 against time with the phases shaded, and a side view of the
+fingers and the object at ENVELOPED, HOLDING (lifted) and after the release; stops both with
+SIGTERM and exits 0 when every phase was reached and both exited cleanly.
 """
 import argparse
 import math
@@ -18,6 +19,7 @@ import pathlib
 import subprocess
 import sys
 import time
+import uuid
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
@@ -126,6 +128,8 @@ class World:
 
     def play(self, *moves, timeout=15.0) -> bool:
         """Play ``moves`` and wait until the arm rests again."""
+        if not self.arm.wait_for_service(timeout_sec=10.0):  # the device's, in its process
+            return False
         for move in moves:
             future = self.arm.call_async(PlayArmMove.Request(move=move))
             deadline = time.monotonic() + 5.0
@@ -171,9 +175,13 @@ def main(argv=None) -> int:
                         help="where to save the side view of the fingers and the object")
     args = parser.parse_args(argv)
     scene = config_file(f"scenes/{SCENE}")
+    # the device on its own, as a real one has its own processor: its world then steps on a
+    # core of its own rather than beside the controller's threads in one process
+    bus = ["-p", "can.interface:=softgrip_ipc", "-p", f"can.channel:=demo-{uuid.uuid4().hex[:8]}"]
+    device = subprocess.Popen([installed_executable("sim_device"), "--ros-args", "--log-level",
+                               "warn", *bus, "-p", f"world.scene:={scene}"])
     controller = subprocess.Popen(
-        [installed_executable("controller"), "--ros-args", "--log-level", "warn", "-p",
-         f"world.scene:={scene}"])
+        [installed_executable("controller"), "--ros-args", "--log-level", "warn", *bus])
     rclpy.init()
     node = Node("softgrip_demo")
     world = World(node)
@@ -192,7 +200,7 @@ def main(argv=None) -> int:
     try:
         with spinning(node, threads=1):
             deadline = time.monotonic() + 60
-            while not (states and
+            while not (states and world.truth is not None and
                        publisher.get_subscription_count()) and time.monotonic() < deadline:
                 time.sleep(0.05)
             if not states:
@@ -248,10 +256,12 @@ def main(argv=None) -> int:
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
-        returncode = stop_process(controller, timeout_s=15.0)
-        if returncode != 0:
-            print(f"demo: the controller exited with {returncode} (None: killed)", file=sys.stderr)
-            status = 1
+        for name, process in (("controller", controller), ("simulated device", device)):
+            returncode = stop_process(process, timeout_s=15.0)
+            if returncode != 0:
+                print(f"demo: the {name} exited with {returncode} (None: killed)",
+                      file=sys.stderr)
+                status = 1
     return status
 
 
