@@ -350,28 +350,18 @@ REPLAYED_TOPICS = ("pressure/estimator_input", "pressure/estimate", "controller/
 
 @pytest.fixture(scope="module")
 def small_bags(demo_bag, tmp_path_factory):
-    """Two small logs from the demo bag's first messages of the topics the tools read: the
-    replay's (its custom data too) and softgrip_identify's (the same with an info message, as
-    for an excitation and for a known-object step)."""
-    import yaml
-    from softgrip_ros.model import plant_file
+    """Small logs to damage: the replay's, the demo bag's first messages of the topics it reads
+    (its custom data too); softgrip_identify's, made here (an opening, then a clamp), with an
+    info as for an excitation and as for a known-object step."""
     from softgrip_ros.tools import bag as bags
-    from softgrip_ros.tools import identify
     path, _ = demo_bag
     store = bags.typestore()
-    everything, commands = [], []
+    messages = []
     for topic, msgtype, stamp_ns, message in bags.read(path):
         if topic.endswith(REPLAYED_TOPICS):
-            everything.append((topic, msgtype, stamp_ns, store.serialize_cdr(message, msgtype)))
-            if topic.endswith("controller/status"):
-                commands.append((stamp_ns * 1e-9, message.regulator_command_gauge_pressure_pa))
-    messages = everything[:SMALL_BAG_MESSAGES]
-    # the known-object step's closing: a change of the regulator's command stands in, with
-    # readings before it (the recording may begin in the middle of the opening)
-    sent_s, command_pa = next((t, c) for (t0, c0), (t, c) in zip(commands, commands[1:])
-                              if abs(c - c0) > 1e3 and t - commands[0][0] > 0.5)
-    around = [m for m in everything if abs(m[2] * 1e-9 - sent_s) < 0.5 and (
-        "/pressure/sensor/" in m[0] or m[0].endswith("controller/status"))]
+            messages.append((topic, msgtype, stamp_ns, store.serialize_cdr(message, msgtype)))
+            if len(messages) == SMALL_BAG_MESSAGES:
+                break
     directory = tmp_path_factory.mktemp("small_bags")
     replayed = directory / "replay"
     with bags.BagWriter(replayed) as out:
@@ -379,25 +369,66 @@ def small_bags(demo_bag, tmp_path_factory):
             out.set_custom_data(key, value)
         for message in messages:
             out.write(*message)
-    first_s = around[0][2] * 1e-9
+    logs, infos = _identification_logs(directory)
+    return replayed, logs, infos
+
+
+# the made-up identification log: opened at OPEN_PA, a clamp to CLAMP_PA sent at CLAMP_AT_S
+LOG_START_S, CLAMP_AT_S, LOG_END_S = 1_796_000_000.0, 1_796_000_000.6, 1_796_000_001.4
+OPEN_PA, CLAMP_PA = 10e3, -20e3
+
+
+def _identification_logs(directory) -> tuple:
+    """({kind: path}, {kind: info}) of two softgrip_identify logs of the same readings."""
+    import yaml
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import FluidPressure
+    from softgrip_interfaces.msg import ControllerStatus
+    from softgrip_ros.model import plant_file
+    from softgrip_ros.model.pneumatics import P_ATM_PA, Valve
+    from softgrip_ros.nodes.common import stamp_msg
+    from softgrip_ros.tools import bag as bags
+    from softgrip_ros.tools import identify
+    from std_msgs.msg import String
+    rows = []
+    for k in range(int((LOG_END_S - LOG_START_S) / 0.002)):
+        t = LOG_START_S + 0.002 * k
+        gauge = OPEN_PA if t < CLAMP_AT_S else CLAMP_PA + (OPEN_PA - CLAMP_PA) * math.exp(
+            -(t - CLAMP_AT_S) / 0.1)
+        for name in ("chamber_a", "chamber_b"):
+            reading = FluidPressure(fluid_pressure=gauge + P_ATM_PA, variance=9e4)
+            reading.header.stamp = stamp_msg(t)
+            rows.append((t, f"/pressure/sensor/{name}", "sensor_msgs/msg/FluidPressure", reading))
+    for k in range(int((LOG_END_S - LOG_START_S) / 0.02)):
+        t = LOG_START_S + 0.02 * k
+        clamping = t >= CLAMP_AT_S
+        status = ControllerStatus(
+            mode=ControllerStatus.MODE_IDENTIFY,
+            regulator_command_gauge_pressure_pa=CLAMP_PA if clamping else OPEN_PA,
+            regulator_actual_gauge_pressure_pa=CLAMP_PA if clamping else OPEN_PA,
+            regulator_report_age_s=0.0, regulator_enabled=True,
+            valve_states=[int(Valve.VACUUM if clamping else Valve.CLOSED)],
+            output_change_age_s=t - (CLAMP_AT_S if clamping else LOG_START_S))
+        status.header.stamp = stamp_msg(t)
+        rows.append((t, "/controller/status", "softgrip_interfaces/msg/ControllerStatus", status))
+    rows.sort(key=lambda row: row[0])
     infos = {
-        "excitation": {"format": identify.LOG_FORMAT, "held_out_from_s": first_s + 0.3,
-                       "steps": [["SUPPLY", 20e3, 0.5]]},
+        "excitation": {"format": identify.LOG_FORMAT, "held_out_from_s": CLAMP_AT_S,
+                       "steps": [["SUPPLY", OPEN_PA, 0.6], ["VACUUM", CLAMP_PA, 0.8]]},
         "contact": {"format": identify.LOG_FORMAT, "contact": {
-            "known_object_m": 0.02, "gripper_model": "type_II", "open_pa": 30e3,
-            "clamp_pa": command_pa, "closings": [["empty", sent_s], ["object", sent_s]]}},
+            "known_object_m": 0.02, "gripper_model": "type_II", "open_pa": OPEN_PA,
+            "clamp_pa": CLAMP_PA, "closings": [["empty", CLAMP_AT_S], ["object", CLAMP_AT_S]]}},
     }
     logs = {}
     for kind, info in infos.items():
         info["base_plant"] = plant_file.document(plant_file.default_description())
         logs[kind] = directory / f"identify_{kind}"
         with bags.BagWriter(logs[kind]) as out:
-            out.write(identify.INFO_TOPIC, "std_msgs/msg/String", around[0][2],
-                      store.serialize_cdr(store.types["std_msgs/msg/String"](
-                          data=yaml.safe_dump(info)), "std_msgs/msg/String"))
-            for message in around:
-                out.write(*message)
-    return replayed, logs, infos
+            out.write(identify.INFO_TOPIC, "std_msgs/msg/String", int(LOG_START_S * 1e9),
+                      serialize_message(String(data=yaml.safe_dump(info))))
+            for t, topic, msgtype, message in rows:
+                out.write(topic, msgtype, int(t * 1e9), serialize_message(message))
+    return logs, infos
 
 
 def _damaged_copy(data, source, into):
