@@ -34,6 +34,7 @@ import time
 from softgrip_ros.argtypes import Number
 
 REPRODUCED_RELATIVE = 1e-9
+SENSOR_RANGE_PA = (-101_325.0, 700_000.0)  # PressureSensor1/2's GaugePressure in the DBC
 D2_POINTS = 2000  # the kinematics is evaluated at most this often over the run
 
 
@@ -50,8 +51,14 @@ def parser() -> argparse.ArgumentParser:
     return top
 
 
+def _plausible(gauge_pa: float) -> bool:
+    """Whether a gauge pressure lies in the range a sensor frame can carry (the DBC's)."""
+    return SENSOR_RANGE_PA[0] <= gauge_pa <= SENSOR_RANGE_PA[1]
+
+
 def load(path: pathlib.Path) -> dict:
-    """What a replay needs from the bag; ValueError when it cannot be read."""
+    """What a replay needs from the bag; ValueError when it cannot be read or a reading in it
+    is impossible (not finite, beyond the sensors' range)."""
     from softgrip_ros.control.reports import outputs_changed_at
     from softgrip_ros.estimation.runner import JOURNAL_TOPIC, Event
     from softgrip_ros.model.pneumatics import P_ATM_PA
@@ -60,18 +67,27 @@ def load(path: pathlib.Path) -> dict:
     found = {"journal": [], "estimates": [], "sensors": [], "status": [], "d2": []}
     for topic, _, _, message in bag.read(path, bag.note_unknown):
         if topic.endswith(JOURNAL_TOPIC):
+            samples = tuple(zip(message.sensor_names, map(float, message.gauge_pressure_pa),
+                                map(float, message.sample_stamps_s)))
+            command_pa = float(message.regulator_command_gauge_pressure_pa)
+            # NaN: an event that carries no command
+            if not ((math.isnan(command_pa) or _plausible(command_pa)) and all(
+                    _plausible(gauge) and math.isfinite(stamp) for _, gauge, stamp in samples)):
+                raise ValueError(f"{path}: estimator journal event {int(message.sequence)} holds "
+                                 "a reading or a command no sensor or regulator can give")
             found["journal"].append(Event(
-                int(message.sequence), int(message.kind),
-                tuple(zip(message.sensor_names, map(float, message.gauge_pressure_pa),
-                          map(float, message.sample_stamps_s))),
-                float(message.regulator_command_gauge_pressure_pa),
+                int(message.sequence), int(message.kind), samples, command_pa,
                 bool(message.regulator_enabled), int(message.valve), float(message.stamp_s)))
         elif topic.endswith("pressure/estimate"):
             found["estimates"].append((message.header.stamp.sec, message.header.stamp.nanosec,
                                        float(message.fluid_pressure), float(message.variance)))
         elif "/pressure/sensor/" in topic:
+            gauge_pa = float(message.fluid_pressure) - P_ATM_PA
+            if not _plausible(gauge_pa):
+                raise ValueError(f"{path}: a reading on {topic} ({gauge_pa:g} Pa gauge) no "
+                                 "sensor can give")
             found["sensors"].append((stamp_seconds(message.header.stamp), topic.rsplit("/", 1)[1],
-                                     float(message.fluid_pressure) - P_ATM_PA))
+                                     gauge_pa))
         elif topic.endswith("controller/status") and len(message.valve_states):
             # as the estimator takes it: from when its outputs went out
             found["status"].append((outputs_changed_at(stamp_seconds(message.header.stamp),
