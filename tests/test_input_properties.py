@@ -39,7 +39,7 @@ SCENE = yaml.safe_load(config_file("scenes/sheet.yaml").read_text())
 
 @EXAMPLES
 @given(document=mutated(GEOMETRY))
-def test_a_mutated_geometry_file_loads_valid_or_isrefused_in_one_line(document, tmp_path):
+def test_a_mutated_geometry_file_loads_valid_or_is_refused_in_one_line(document, tmp_path):
     path = tmp_path / "geometry.yaml"
     path.write_text(yaml.safe_dump(document))
     for name in ("type_I", "type_II", "type_III"):
@@ -50,7 +50,7 @@ def test_a_mutated_geometry_file_loads_valid_or_isrefused_in_one_line(document, 
 
 @EXAMPLES
 @given(document=mutated(PLANT))
-def test_a_mutated_plant_file_loads_valid_or_isrefused_in_one_line(document, tmp_path):
+def test_a_mutated_plant_file_loads_valid_or_is_refused_in_one_line(document, tmp_path):
     path = tmp_path / "plant.yaml"
     path.write_text(yaml.safe_dump(document))
     loaded = refused_in_one_line(plant_file.load, path)
@@ -60,7 +60,7 @@ def test_a_mutated_plant_file_loads_valid_or_isrefused_in_one_line(document, tmp
 
 @EXAMPLES
 @given(document=mutated(SCENE))
-def test_a_mutated_scene_file_loads_valid_or_isrefused_in_one_line(document, tmp_path):
+def test_a_mutated_scene_file_loads_valid_or_is_refused_in_one_line(document, tmp_path):
     path = tmp_path / "scene.yaml"
     path.write_text(yaml.safe_dump(document))
     loaded = refused_in_one_line(scene.load_scene, path)
@@ -79,7 +79,7 @@ CELL = st.one_of(st.sampled_from(["nan", "inf", "-inf", "1e300", "-1e300", "", "
 
 @EXAMPLES
 @given(row=st.integers(0, len(CSV_ROWS) - 1), column=st.integers(0, 2), cell=CELL)
-def test_a_mutated_measurement_csv_loads_valid_or_isrefused_in_one_line(row, column, cell,
+def test_a_mutated_measurement_csv_loads_valid_or_is_refused_in_one_line(row, column, cell,
                                                                         tmp_path):
     rows = copy.deepcopy(CSV_ROWS)
     rows[row][column] = cell

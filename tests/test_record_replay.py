@@ -454,16 +454,6 @@ def _damaged_copy(data, source, into):
     return copy
 
 
-def _one_line_or_nothing(call):
-    """``call()``'s result, or None when it raised a ValueError of one line (anything else
-    raised fails the test)."""
-    try:
-        return call()
-    except ValueError as error:
-        assert str(error) and "\n" not in str(error).strip() and "Traceback" not in str(error)
-        return None
-
-
 @pytest.mark.ros
 def test_a_damaged_bag_replays_or_is_refused_in_one_line(small_bags, tmp_path):
     """softgrip_replay on a bag cut short, overwritten in part or with a mutated metadata.yaml:
@@ -473,7 +463,7 @@ def test_a_damaged_bag_replays_or_is_refused_in_one_line(small_bags, tmp_path):
     from hypothesis import given
     from hypothesis import strategies as st
     from softgrip_ros.tools import replay
-    from tests.helpers.mutation import EXAMPLES
+    from tests.helpers.mutation import EXAMPLES, refused_in_one_line
     source, _, _ = small_bags
     assert replay.replay(source, None)[1], "the undamaged bag replays"
 
@@ -482,7 +472,7 @@ def test_a_damaged_bag_replays_or_is_refused_in_one_line(small_bags, tmp_path):
     def check(data):
         with tempfile.TemporaryDirectory(dir=tmp_path) as into:
             damaged = _damaged_copy(data, source, pathlib.Path(into))
-            _one_line_or_nothing(lambda: replay.replay(damaged, None))
+            refused_in_one_line(lambda path: replay.replay(path, None), damaged)
 
     check()
 
@@ -499,7 +489,7 @@ def test_a_damaged_identification_log_is_read_or_refused_in_one_line(small_bags,
     from softgrip_ros.model import plant_file
     from softgrip_ros.tools import bag as bags
     from softgrip_ros.tools import identify, identify_contact
-    from tests.helpers.mutation import EXAMPLES, mutated
+    from tests.helpers.mutation import EXAMPLES, mutated, refused_in_one_line
     _, logs, infos = small_bags
 
     def read(path):
@@ -529,7 +519,7 @@ def test_a_damaged_identification_log_is_read_or_refused_in_one_line(small_bags,
                             message = store.types[msgtype](
                                 data=yaml.safe_dump(data.draw(mutated(infos[kind]))))
                         out.write(topic, msgtype, stamp_ns, store.serialize_cdr(message, msgtype))
-            _one_line_or_nothing(lambda: read(damaged))
+            refused_in_one_line(read, damaged)
 
     check()
 

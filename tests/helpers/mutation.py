@@ -54,7 +54,8 @@ def mutated(draw, document):
 
 
 def refused_in_one_line(load, path):
-    """Load ``path``; a ValueError must be one line. Return the result or None if refused."""
+    """``load(path)``; a ValueError must be one line (anything else raised fails the test).
+    Return the result or None if refused."""
     try:
         return load(path)
     except ValueError as error:
